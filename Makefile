@@ -1,0 +1,26 @@
+# Two commands on a fresh machine: `make serve` (the service on the embedded simulator)
+# and `make test` (lint, type-check and the whole test suite). Both create the virtualenv
+# in .venv on first use.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+export OPENBLAS_NUM_THREADS := 1
+
+.PHONY: serve equilibria test lint
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $@
+
+equilibria: $(BIN)/.installed
+	$(BIN)/uavbar-supervisor equilibria --theta-l 45
+
+lint: $(BIN)/.installed
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+
+test: lint
+	$(BIN)/pytest

@@ -1,0 +1,188 @@
+"""Equilibria of the UAV–bar system: Proposition 1 and its generalization.
+
+Proposition 1 (symmetric setup, Assumption 1) gives f_eq(θ_f, θ_l) = 0, equation (9).
+Its root has a closed form, derived in ``docs/model.md``:
+
+    tan θ_f = m_b tan θ_l / (m_b + 2 m_uav).
+
+``bar_equilibrium`` builds the full (x_eq, u_eq) for any bar position, bar yaw, UAV yaws
+and θ_l, and for asymmetric setups (d1 ≠ d2, l1 ≠ l2, m1 ≠ m2) as well: the bar hangs
+level with its cables in the bar's vertical plane; each cable carries the vertical load
+of (13), both carry the same horizontal pull H = (m_b g / 2) tan θ_l, so the cable
+angles θ_l,i = atan(H / V_i) equal θ_l exactly when the setup is symmetric. Every UAV
+tilts its thrust along its own cable's horizontal direction, whatever its yaw, which takes
+roll and pitch together (Section IV's x_eq, ±θ_f on pitch alone, holds only when the
+UAV's x axis lies along the bar).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.model import BAR_INPUTS, BAR_STATES, P_B, PAYLOAD_STATES, TH_B, uav_slices
+from controllers.params import BarSystemParams
+
+FloatArray = NDArray[np.float64]
+
+
+class EquilibriumError(ValueError):
+    """A reference with no equilibrium (θ_l outside [0°, 90°), non-finite values)."""
+
+
+def f_eq(theta_f: float, theta_l: float, m_uav: float, m_b: float, g: float) -> float:
+    """Equation (9), Proposition 1: zero exactly at the equilibria of a symmetric setup."""
+    M = m_b + 2.0 * m_uav
+    tension_term = (
+        m_b
+        * g
+        * math.cos(theta_f - theta_l)
+        * M
+        / (2.0 * math.cos(theta_f) * (2.0 * m_uav * math.cos(theta_l) ** 2 + m_b))
+    )
+    lateral = math.sin(theta_f) * M * g / (2.0 * math.cos(theta_f)) - tension_term * math.sin(
+        theta_l
+    )
+    vertical = m_b * g / 2.0 - tension_term * math.cos(theta_l)
+    return lateral**2 + vertical**2
+
+
+def theta_f_closed_form(theta_l: float, m_uav: float, m_b: float) -> float:
+    """The root of f_eq for given θ_l: θ_f = atan(m_b tan θ_l / (m_b + 2 m_uav))."""
+    return math.atan(m_b * math.tan(theta_l) / (m_b + 2.0 * m_uav))
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What the operator asks for: bar centre [m], bar yaw, UAV yaws and θ_l [rad]."""
+
+    bar_position_m: tuple[float, float, float]
+    bar_yaw_rad: float = 0.0
+    uav_yaw_rad: tuple[float, float] = (0.0, 0.0)
+    theta_l_rad: float = 0.0
+
+    def with_yaws(self, bar_yaw_rad: float, uav_yaw_rad: tuple[float, float]) -> Reference:
+        """The same equilibrium family, turned to other yaw angles."""
+        return Reference(self.bar_position_m, bar_yaw_rad, uav_yaw_rad, self.theta_l_rad)
+
+
+@dataclass(frozen=True)
+class Equilibrium:
+    """A fixed point of the UAV–bar model (5) and what it implies.
+
+    ``x`` has shape (36,), ``u`` shape (8,). ``theta_l_rad``/``theta_f_rad`` hold the
+    cable and thrust tilts per cable/UAV; ``payload_force_n[i]`` is the horizontal pull the
+    rest of the bar exerts on end i+1 (the decentralized model's ``f_ext``).
+    """
+
+    x: FloatArray
+    u: FloatArray
+    tensions_n: tuple[float, float]
+    thrusts_n: tuple[float, float]
+    theta_l_rad: tuple[float, float]
+    theta_f_rad: tuple[float, float]
+    bar_ends_m: tuple[FloatArray, FloatArray]
+    payload_force_n: tuple[FloatArray, FloatArray]
+
+    def uav_position(self, i: int) -> FloatArray:
+        """Position of UAV ``i`` (1 or 2) [m]."""
+        return self.x[uav_slices(i)[0]].copy()
+
+    def payload_state(self, i: int) -> FloatArray:
+        """The decentralized controller's x_i ∈ R^18 at this equilibrium."""
+        first = uav_slices(i)[0].start
+        x_i = np.zeros(PAYLOAD_STATES)
+        x_i[0:12] = self.x[first : first + 12]
+        x_i[12:15] = self.bar_ends_m[i - 1]
+        return x_i
+
+    def payload_input(self, i: int) -> FloatArray:
+        """The decentralized controller's u_i ∈ R^4 at this equilibrium."""
+        return self.u[4 * (i - 1) : 4 * i].copy()
+
+
+def tilt_to_euler(thrust_direction: FloatArray, yaw_rad: float) -> tuple[float, float]:
+    """Roll and pitch that point R(φ, θ, ψ) e_z along ``thrust_direction`` at yaw ψ.
+
+    Rz(−ψ) R e_z = (sθ cφ, −sφ, cθ cφ), equation (2), solved for φ and θ.
+    """
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    zx, zy, zz = thrust_direction / np.linalg.norm(thrust_direction)
+    bx, by = c * zx + s * zy, -s * zx + c * zy
+    roll = math.atan2(-by, math.hypot(bx, zz))
+    pitch = math.atan2(bx, zz)
+    return roll, pitch
+
+
+def _check_reference(reference: Reference) -> None:
+    values = (
+        *reference.bar_position_m,
+        reference.bar_yaw_rad,
+        *reference.uav_yaw_rad,
+        reference.theta_l_rad,
+    )
+    if not all(math.isfinite(v) for v in values):
+        raise EquilibriumError("reference values must be finite")
+    if not 0.0 <= reference.theta_l_rad < math.pi / 2.0:
+        raise EquilibriumError(
+            f"theta_l = {math.degrees(reference.theta_l_rad):.2f}° has no equilibrium: "
+            "it must lie in [0°, 90°)"
+        )
+
+
+def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibrium:
+    """The equilibrium (x_eq, u_eq) of Section IV for ``reference``, in closed form.
+
+    Raises ``EquilibriumError`` for θ_l outside [0°, 90°) or non-finite values.
+    """
+    _check_reference(reference)
+    g = params.gravity_mps2
+    d = params.arms_m
+    signs = (-1.0, 1.0)
+    psi_b = reference.bar_yaw_rad
+    n_b = np.array([math.cos(psi_b), math.sin(psi_b), 0.0])
+    e_z = np.array([0.0, 0.0, 1.0])
+    p_b = np.asarray(reference.bar_position_m, dtype=float)
+    pull = params.bar_mass_kg * g / 2.0 * math.tan(reference.theta_l_rad)
+
+    x = np.zeros(BAR_STATES)
+    u = np.zeros(BAR_INPUTS)
+    x[P_B] = p_b
+    x[TH_B] = (0.0, 0.0, psi_b)
+    tensions, thrusts, theta_ls, theta_fs, ends, forces = [], [], [], [], [], []
+    for k in range(2):
+        i = k + 1
+        vertical = params.payload_mass_kg(i) * g
+        theta_l_i = math.atan2(pull, vertical)
+        n_i = signs[k] * math.sin(theta_l_i) * n_b + math.cos(theta_l_i) * e_z
+        end = p_b + signs[k] * d[k] * n_b
+        tension = math.hypot(pull, vertical)
+        thrust_vector = params.uavs[k].mass_kg * g * e_z + tension * n_i
+        thrust = float(np.linalg.norm(thrust_vector))
+        yaw = reference.uav_yaw_rad[k]
+        roll, pitch = tilt_to_euler(thrust_vector, yaw)
+
+        p_i, _, th_i, _ = uav_slices(i)
+        x[p_i] = end + params.cable_lengths_m[k] * n_i
+        x[th_i] = (roll, pitch, yaw)
+        u[4 * k] = thrust
+
+        tensions.append(tension)
+        thrusts.append(thrust)
+        theta_ls.append(theta_l_i)
+        theta_fs.append(math.atan2(pull, float(thrust_vector[2])))
+        ends.append(end)
+        forces.append(-signs[k] * pull * n_b)
+    return Equilibrium(
+        x=x,
+        u=u,
+        tensions_n=(tensions[0], tensions[1]),
+        thrusts_n=(thrusts[0], thrusts[1]),
+        theta_l_rad=(theta_ls[0], theta_ls[1]),
+        theta_f_rad=(theta_fs[0], theta_fs[1]),
+        bar_ends_m=(ends[0], ends[1]),
+        payload_force_n=(forces[0], forces[1]),
+    )

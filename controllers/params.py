@@ -1,0 +1,60 @@
+"""Plain, frozen parameter objects for the controllers (SI units; no config files here)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class UavParams:
+    """One quadrotor: mass [kg] and principal moments of inertia diag(J) [kg m²]."""
+
+    mass_kg: float
+    inertia_kgm2: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class BarSystemParams:
+    """The UAV–bar system of Section II-B.
+
+    ``d1_m``/``d2_m`` are the distances from the bar's CoM to the attachments of cables 1
+    and 2; ``bar_inertia_kgm2`` is J_b, the bar's moment of inertia about an axis through
+    its CoM perpendicular to the bar (5g).
+    """
+
+    uavs: tuple[UavParams, UavParams]
+    bar_mass_kg: float
+    d1_m: float
+    d2_m: float
+    bar_inertia_kgm2: float
+    cable_lengths_m: tuple[float, float]
+    gravity_mps2: float = 9.81
+
+    @property
+    def arms_m(self) -> tuple[float, float]:
+        """(d1, d2)."""
+        return (self.d1_m, self.d2_m)
+
+    @property
+    def is_symmetric(self) -> bool:
+        """Assumption 1: d1 = d2, l1 = l2, m1 = m2."""
+        return (
+            self.d1_m == self.d2_m
+            and self.cable_lengths_m[0] == self.cable_lengths_m[1]
+            and self.uavs[0].mass_kg == self.uavs[1].mass_kg
+        )
+
+    def payload_mass_kg(self, i: int) -> float:
+        """Equation (13): the share of the bar's weight carried by cable ``i`` (1 or 2)
+        when both cables hang vertically, m_b d_j / (d1 + d2) with j the other end."""
+        d1, d2 = self.arms_m
+        return self.bar_mass_kg * (d2 if i == 1 else d1) / (d1 + d2)
+
+
+@dataclass(frozen=True)
+class MpcWeights:
+    """Diagonal weights of (MPC): Q, R_MPC and Q_N = terminal_scale * Q."""
+
+    q_diag: tuple[float, ...]
+    r_diag: tuple[float, ...]
+    terminal_scale: float

@@ -1,0 +1,129 @@
+"""``uavbar-supervisor``: the command line.
+
+Every command takes ``--config PATH`` (default: the embedded simulator's setup) and repeated
+``--set section.key=value``. A bad setup or argument prints one clear message and exits
+with status 2 before anything runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium, theta_f_closed_form
+from supervisor.config import Config, ConfigError, load_config
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+DEFAULT_CONFIG = CONFIG_DIR / "sim.toml"
+
+EXIT_USAGE = 2
+
+
+class UsageError(Exception):
+    """A command-line argument that cannot be used (exit status 2)."""
+
+
+def _add_config_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=DEFAULT_CONFIG,
+        metavar="PATH",
+        help=f"setup file (default: {DEFAULT_CONFIG.relative_to(CONFIG_DIR.parent)})",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override one setting; VALUE is a TOML literal (repeatable)",
+    )
+
+
+def _equilibria(config: Config, args: argparse.Namespace) -> int:
+    theta_l_deg: float = args.theta_l
+    if not (math.isfinite(theta_l_deg) and 0.0 <= theta_l_deg < 90.0):
+        raise UsageError(f"--theta-l {theta_l_deg}: must lie in [0, 90) degrees")
+    params = config.system.to_params()
+    theta_l = math.radians(theta_l_deg)
+    try:
+        eq = bar_equilibrium(params, Reference((0.0, 0.0, 0.0), 0.0, (0.0, 0.0), theta_l))
+    except EquilibriumError as error:
+        raise UsageError(str(error)) from error
+    mean_uav_mass = (params.uavs[0].mass_kg + params.uavs[1].mass_kg) / 2.0
+    # Proposition 1's θ_f (symmetric setup); per-UAV tilts of the general equilibrium below.
+    theta_f = theta_f_closed_form(theta_l, mean_uav_mass, params.bar_mass_kg)
+    result = {
+        "theta_l": theta_l,
+        "theta_f": theta_f,
+        "thrust": list(eq.thrusts_n),
+        "tension": list(eq.tensions_n),
+        "uav_positions": [eq.uav_position(i).tolist() for i in (1, 2)],
+        "theta_f_per_uav": list(eq.theta_f_rad),
+        "theta_l_per_cable": list(eq.theta_l_rad),
+        "symmetric": params.is_symmetric,
+    }
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    print(f"setup {config.name}: θ_l = {theta_l_deg:.2f}° (bar along x, yaw 0, centre at origin)")
+    print(f"  θ_f (Proposition 1)  {math.degrees(theta_f):8.4f}°  ({theta_f:.6f} rad)")
+    for k in range(2):
+        x, y, z = eq.uav_position(k + 1)
+        tilt_deg = math.degrees(eq.theta_f_rad[k])
+        print(
+            f"  UAV {k + 1}: thrust {eq.thrusts_n[k]:7.3f} N, tilt θ_f {tilt_deg:7.3f}°,"
+            f" cable {math.degrees(eq.theta_l_rad[k]):6.2f}° T = {eq.tensions_n[k]:6.3f} N,"
+            f" position ({x:+.4f}, {y:+.4f}, {z:+.4f}) m"
+        )
+    if not params.is_symmetric:
+        print("  (asymmetric setup: per-cable angles from the general static equilibrium)")
+    return 0
+
+
+Handler = Callable[[Config, argparse.Namespace], int]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand."""
+    parser = argparse.ArgumentParser(prog="uavbar-supervisor", description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    eq = commands.add_parser(
+        "equilibria", help="equilibrium of the bar system for a cable angle θ_l"
+    )
+    eq.add_argument(
+        "--theta-l",
+        type=float,
+        required=True,
+        metavar="DEG",
+        help="cable angle θ_l, degrees in [0, 90)",
+    )
+    eq.add_argument("--json", action="store_true", help="print one JSON object")
+    eq.set_defaults(handler=_equilibria)
+
+    for sub in commands.choices.values():
+        _add_config_options(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        config = load_config(args.config, args.overrides)
+        handler: Handler = args.handler
+        return handler(config, args)
+    except (ConfigError, UsageError) as error:
+        print(f"uavbar-supervisor {args.command}: {error}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,250 @@
+"""Typed configuration: TOML files validated by pydantic, frozen after load.
+
+A setup is one TOML file (``configs/*.toml``). A file may name another with
+``extends = "other.toml"`` (relative to itself); its own tables are merged over the
+other's, key by key. Command-line overrides ``--set section.key=value`` are applied last,
+with values parsed as TOML literals (``--set system.cable_length=[1.0, 1.1]``).
+
+Every error names the offending key; nothing is applied from an invalid setup.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from controllers.params import BarSystemParams, MpcWeights, UavParams
+
+PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+PositiveVec3 = Annotated[list[PositiveFloat], Field(min_length=3, max_length=3)]
+
+
+class ConfigError(Exception):
+    """A setup that cannot be used: unreadable file, unknown key, wrong type or value."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _one_or_two(value: float | list[float], key: str) -> tuple[float, float]:
+    if isinstance(value, list):
+        if len(value) != 2:
+            raise ValueError(f"{key} takes one value or two (one per UAV/cable), got {len(value)}")
+        return (value[0], value[1])
+    return (value, value)
+
+
+class SystemSection(_Section):
+    """Physical parameters of the two UAVs, the bar and the cables (SI units)."""
+
+    uav_mass: PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    uav_inertia: PositiveVec3
+    bar_mass: PositiveFloat
+    bar_d1: FiniteFloat
+    bar_d2: FiniteFloat
+    bar_inertia: PositiveFloat
+    cable_length: PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    gravity: PositiveFloat = 9.81
+
+    @field_validator("bar_d1", "bar_d2")
+    @classmethod
+    def _non_negative_arm(cls, value: float) -> float:
+        if value < 0.0:
+            raise ValueError("the distance from the bar's CoM to a cable attachment is >= 0")
+        return value
+
+    @model_validator(mode="after")
+    def _bar_has_length(self) -> SystemSection:
+        if self.bar_d1 + self.bar_d2 <= 0.0:
+            raise ValueError("bar_d1 + bar_d2 (the bar's length) must be > 0")
+        return self
+
+    def to_params(self) -> BarSystemParams:
+        """The controllers' plain parameter object."""
+        m1, m2 = _one_or_two(self.uav_mass, "uav_mass")
+        l1, l2 = _one_or_two(self.cable_length, "cable_length")
+        inertia = (self.uav_inertia[0], self.uav_inertia[1], self.uav_inertia[2])
+        return BarSystemParams(
+            uavs=(UavParams(m1, inertia), UavParams(m2, inertia)),
+            bar_mass_kg=self.bar_mass,
+            d1_m=self.bar_d1,
+            d2_m=self.bar_d2,
+            bar_inertia_kgm2=self.bar_inertia,
+            cable_lengths_m=(l1, l2),
+            gravity_mps2=self.gravity,
+        )
+
+
+class ArenaSection(_Section):
+    """The flight volume (arena frame, z up), used as the geofence."""
+
+    min_m: Vec3
+    max_m: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ArenaSection:
+        if any(lo >= hi for lo, hi in zip(self.min_m, self.max_m, strict=True)):
+            raise ValueError("arena.min_m must be below arena.max_m on every axis")
+        return self
+
+
+class CentralizedWeights(_Section):
+    """Table I: Q = diag(q_bar, q_uav, q_uav), R = diag(r), Q_N = terminal_scale * Q."""
+
+    q_bar: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
+    q_uav: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
+    r: Annotated[list[PositiveFloat], Field(min_length=8, max_length=8)]
+    terminal_scale: PositiveFloat
+
+    def to_weights(self) -> MpcWeights:
+        q = (*self.q_bar, *self.q_uav, *self.q_uav)
+        return MpcWeights(q_diag=q, r_diag=tuple(self.r), terminal_scale=self.terminal_scale)
+
+
+class DecentralizedWeights(_Section):
+    """Table II: Q = diag(q_uav, q_payload), R = diag(r), Q_N = terminal_scale * Q."""
+
+    q_uav: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
+    q_payload: Annotated[list[NonNegativeFloat], Field(min_length=6, max_length=6)]
+    r: Annotated[list[PositiveFloat], Field(min_length=4, max_length=4)]
+    terminal_scale: PositiveFloat
+
+    def to_weights(self) -> MpcWeights:
+        q = (*self.q_uav, *self.q_payload)
+        return MpcWeights(q_diag=q, r_diag=tuple(self.r), terminal_scale=self.terminal_scale)
+
+
+class MpcSection(_Section):
+    """The MPC problem (MPC) of Section IV: horizon, step, input set U, weights."""
+
+    horizon: Annotated[int, Field(ge=1, le=200)] = 30
+    dt_s: PositiveFloat = 0.02
+    thrust_min_n: PositiveFloat
+    thrust_max_n: PositiveFloat
+    torque_max_nm: PositiveFloat = 1.0
+    centralized: CentralizedWeights
+    decentralized: DecentralizedWeights
+
+    @model_validator(mode="after")
+    def _thrust_range(self) -> MpcSection:
+        if self.thrust_min_n >= self.thrust_max_n:
+            raise ValueError("mpc.thrust_min_n must be below mpc.thrust_max_n")
+        return self
+
+
+class Config(_Section):
+    """One complete setup."""
+
+    name: str = "unnamed"
+    system: SystemSection
+    arena: ArenaSection
+    mpc: MpcSection
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    path = path.resolve()
+    if path in seen:
+        raise ConfigError(f"{path}: 'extends' loops back to itself")
+    try:
+        with path.open("rb") as handle:
+            data = tomllib.load(handle)
+    except OSError as error:
+        raise ConfigError(f"cannot read config {path}: {error.strerror}") from error
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from error
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise ConfigError(f"{path}: 'extends' must be a file name")
+    return _merge(_read_toml(path.parent / parent, (*seen, path)), data)
+
+
+def parse_override(assignment: str) -> tuple[list[str], Any]:
+    """Split ``section.key=value`` into its key path and the TOML literal's value."""
+    key, sep, literal = assignment.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"--set {assignment!r}: expected section.key=value")
+    try:
+        value = tomllib.loads(f"v = {literal.strip()}")["v"]
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(
+            f"--set {key}: {literal.strip()!r} is not a TOML value ({error})"
+        ) from error
+    return key.split("."), value
+
+
+def _apply_override(data: dict[str, Any], path: list[str], value: Any) -> None:
+    node = data
+    for part in path[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"--set {'.'.join(path)}: {part!r} is a value, not a section")
+        node = child
+    node[path[-1]] = value
+
+
+def _describe(error: ValidationError) -> str:
+    lines = []
+    for item in error.errors():
+        key = ".".join(str(part) for part in item["loc"]) or "(top level)"
+        message = item["msg"]
+        if item["type"] == "extra_forbidden":
+            message = "unknown key"
+        elif item["type"] == "missing":
+            message = "required key is missing"
+        lines.append(f"{key}: {message}")
+    return "invalid configuration:\n  " + "\n  ".join(lines)
+
+
+def load_config(path: Path, overrides: Sequence[str] = ()) -> Config:
+    """Read, merge, override and validate a setup. Raises ``ConfigError`` naming the key."""
+    data = _read_toml(path)
+    for assignment in overrides:
+        key_path, value = parse_override(assignment)
+        _apply_override(data, key_path, value)
+    try:
+        config = Config.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(_describe(error)) from None
+    _check_finite(data, ())
+    return config
+
+
+def _check_finite(node: Any, path: tuple[str, ...]) -> None:
+    """Reject NaN and inf anywhere, including keys pydantic would coerce silently."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            _check_finite(value, (*path, str(key)))
+    elif isinstance(node, list):
+        for value in node:
+            _check_finite(value, path)
+    elif isinstance(node, float) and not math.isfinite(node):
+        raise ConfigError(f"invalid configuration:\n  {'.'.join(path)}: must be finite")
