@@ -1,0 +1,79 @@
+"""The optimal-control QP every back-end solves, and the small interface they share.
+
+    min  Σ_{k=0}^{N-1} (Δx_kᵀ Q Δx_k + Δu_kᵀ R Δu_k) + Δx_Nᵀ Q_N Δx_N
+    s.t. Δx_{k+1} = A Δx_k + B Δu_k,   Δx_0 = x0,
+         u_lb ≤ Δu_k ≤ u_ub            (k = 0 … N-1),
+         x_lb ≤ Δx_k ≤ x_ub            (k = 1 … N-1, optional; ±inf entries are free),
+         xN_lb ≤ Δx_N ≤ xN_ub          (optional)
+
+This is (MPC) of Section IV in deviation coordinates (Δx = x − x_eq, Δu = u − u_eq):
+A and B are the same on every stage but change every tick; Q, R, Q_N are diagonal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+class QpStatus(Enum):
+    """How a solve ended. Only ``SOLVED`` gives an input that may be applied."""
+
+    SOLVED = "solved"
+    MAX_ITERATIONS = "max_iterations"
+    INFEASIBLE = "infeasible"
+    NUMERICAL_ERROR = "numerical_error"
+
+
+@dataclass(frozen=True)
+class OcpQp:
+    """One tick's QP data. Shapes: A (nx, nx), B (nx, nu), q/q_N (nx,), r (nu,)."""
+
+    A: FloatArray
+    B: FloatArray
+    q_diag: FloatArray
+    r_diag: FloatArray
+    q_terminal_diag: FloatArray
+    x0: FloatArray
+    u_lb: FloatArray
+    u_ub: FloatArray
+    horizon: int
+    x_lb: FloatArray | None = None
+    x_ub: FloatArray | None = None
+    x_terminal_lb: FloatArray | None = None
+    x_terminal_ub: FloatArray | None = None
+
+    @property
+    def nx(self) -> int:
+        return int(self.A.shape[0])
+
+    @property
+    def nu(self) -> int:
+        return int(self.B.shape[1])
+
+
+@dataclass(frozen=True)
+class QpSolution:
+    """Optimal trajectories: ``u`` shape (N, nu), ``x`` shape (N + 1, nx) (deviations)."""
+
+    u: FloatArray
+    x: FloatArray
+    status: QpStatus
+    iterations: int
+    solve_time_s: float = field(default=0.0)
+
+
+class QpBackend(Protocol):
+    """A QP solver for ``OcpQp`` of fixed dimensions, warm-started from its last solve."""
+
+    name: str
+
+    def solve(self, qp: OcpQp) -> QpSolution:
+        """Solve one tick's QP. Never raises for a bad QP: the status says what happened."""
+        ...
