@@ -1,0 +1,38 @@
+"""Shared fixtures: the paper's lab parameters and symmetric variants."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from controllers.params import BarSystemParams, UavParams
+from supervisor.config import load_config
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+LAB_INERTIA = (0.0348, 0.0459, 0.0977)
+
+
+@pytest.fixture(scope="session")
+def lab_params() -> BarSystemParams:
+    """The paper's lab (configs/kth_sml.toml): asymmetric bar, d1 = 0.705, d2 = 0.765."""
+    return load_config(CONFIGS / "kth_sml.toml").system.to_params()
+
+
+def symmetric_params(m_uav: float = 1.52, m_b: float = 0.41, d: float = 0.735) -> BarSystemParams:
+    """A setup that satisfies Assumption 1 (Section VII's masses by default)."""
+    uav = UavParams(m_uav, LAB_INERTIA)
+    return BarSystemParams((uav, uav), m_b, d, d, m_b * (2 * d) ** 2 / 12.0, (1.0, 1.0), 9.81)
+
+
+def uneven_params() -> BarSystemParams:
+    """Everything different between the two sides: masses, arms, cable lengths."""
+    return BarSystemParams(
+        (UavParams(1.15, LAB_INERTIA), UavParams(1.4, (0.04, 0.05, 0.09))),
+        0.39,
+        0.6,
+        0.87,
+        0.0706,
+        (0.9, 1.2),
+        9.81,
+    )

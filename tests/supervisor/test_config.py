@@ -1,0 +1,132 @@
+"""Configuration: validated, frozen, every error names its key; CLI exit status 2."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from supervisor.cli import main
+from supervisor.config import ConfigError, load_config, parse_override
+from tests.conftest import CONFIGS
+
+KTH = CONFIGS / "kth_sml.toml"
+
+
+def test_lab_config_holds_the_papers_values() -> None:
+    config = load_config(KTH)
+    params = config.system.to_params()
+    assert params.uavs[0].mass_kg == params.uavs[1].mass_kg == 1.15
+    assert params.uavs[0].inertia_kgm2 == (0.0348, 0.0459, 0.0977)
+    assert (params.bar_mass_kg, params.d1_m, params.d2_m) == (0.39, 0.705, 0.765)
+    assert config.mpc.horizon == 30 and config.mpc.dt_s == 0.02
+    assert config.mpc.torque_max_nm == 1.0 and config.mpc.thrust_min_n > 0.0
+    weights = config.mpc.centralized.to_weights()
+    assert len(weights.q_diag) == 36 and len(weights.r_diag) == 8
+    assert weights.q_diag[:12] == (50, 50, 50, 50, 50, 50, 10, 10, 10, 1, 1, 5)
+    assert weights.terminal_scale == 100
+    decentralized = config.mpc.decentralized.to_weights()
+    assert len(decentralized.q_diag) == 18 and decentralized.terminal_scale == 50
+    assert [hi - lo for lo, hi in zip(config.arena.min_m, config.arena.max_m, strict=True)] == [
+        6,
+        6,
+        3,
+    ]
+
+
+def test_sim_config_extends_the_lab() -> None:
+    assert load_config(CONFIGS / "sim.toml").system == load_config(KTH).system
+
+
+def test_config_is_frozen() -> None:
+    config = load_config(KTH)
+    with pytest.raises(ValidationError):
+        config.system.bar_mass = 1.0
+
+
+def test_overrides_are_toml_literals() -> None:
+    config = load_config(KTH, ["system.cable_length=[0.9, 1.1]", "mpc.horizon=20", "name='x'"])
+    assert config.system.to_params().cable_lengths_m == (0.9, 1.1)
+    assert config.mpc.horizon == 20 and config.name == "x"
+    assert parse_override("a.b = true") == (["a", "b"], True)
+
+
+@pytest.mark.parametrize(
+    ("override", "key", "reason"),
+    [
+        ("system.bar_mas=1.0", "system.bar_mas", "unknown key"),
+        ("system.bar_mass=-0.3", "system.bar_mass", "greater than 0"),
+        ("system.uav_mass='heavy'", "system.uav_mass", "valid number"),
+        ("system.bar_d1=0.0;system.bar_d2=0.0", "system", "bar_d1 + bar_d2"),
+        ("system.bar_d2=-0.1", "system.bar_d2", ">= 0"),
+        ("system.uav_inertia=[1.0, 2.0]", "system.uav_inertia", "at least 3"),
+        ("system.cable_length=[1.0, 1.0, 1.0]", "system.cable_length", "at most 2"),
+        ("mpc.thrust_min_n=30.0", "mpc", "thrust_min_n"),
+        ("system.gravity=nan", "system.gravity", "finite"),
+        ("arena.min_m=[0, 0, 5]", "arena", "below"),
+    ],
+)
+def test_bad_values_name_their_key(override: str, key: str, reason: str) -> None:
+    with pytest.raises(ConfigError) as caught:
+        load_config(KTH, override.split(";"))
+    message = str(caught.value)
+    assert key in message and reason in message
+
+
+@pytest.mark.parametrize("assignment", ["nokey", "=1", "a..b=1", "a.b=not toml"])
+def test_malformed_overrides(assignment: str) -> None:
+    with pytest.raises(ConfigError, match="--set"):
+        parse_override(assignment)
+
+
+def test_missing_and_broken_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_config(tmp_path / "absent.toml")
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[system\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(broken)
+    looped = tmp_path / "loop.toml"
+    looped.write_text('extends = "loop.toml"\n')
+    with pytest.raises(ConfigError, match="loops"):
+        load_config(looped)
+
+
+def test_cli_rejects_bad_config_with_status_2(capsys: pytest.CaptureFixture[str]) -> None:
+    status = main(
+        ["equilibria", "--theta-l", "30", "--config", str(KTH), "--set", "system.bar_mass=-1"]
+    )
+    out, err = capsys.readouterr()
+    assert status == 2
+    assert out == ""  # nothing else ran
+    assert "system.bar_mass" in err
+
+
+@pytest.mark.parametrize("theta_l", ["-1", "90", "120", "nan"])
+def test_cli_rejects_theta_l_outside_range(
+    theta_l: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["equilibria", "--theta-l", theta_l]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "[0, 90)" in err
+
+
+def test_cli_equilibria_json(capsys: pytest.CaptureFixture[str]) -> None:
+    overrides = [
+        "system.uav_mass=1.52",
+        "system.bar_mass=0.41",
+        "system.bar_d1=0.735",
+        "system.bar_d2=0.735",
+    ]
+    args = ["equilibria", "--theta-l", "45", "--json"]
+    for assignment in overrides:
+        args += ["--set", assignment]
+    assert main(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["theta_f"] == pytest.approx(0.1183, abs=1e-4)
+    assert result["theta_l"] == pytest.approx(0.785398, abs=1e-6)
+    assert len(result["thrust"]) == 2 and len(result["tension"]) == 2
+    (x1, y1, z1), (x2, y2, z2) = result["uav_positions"]
+    assert x1 < 0 < x2 and y1 == y2 == 0 and z1 == pytest.approx(z2)
