@@ -58,3 +58,37 @@ class MpcWeights:
     q_diag: tuple[float, ...]
     r_diag: tuple[float, ...]
     terminal_scale: float
+
+
+@dataclass(frozen=True)
+class InputLimits:
+    """The input set U of (MPC): thrust_min ≤ F_i ≤ thrust_max, |τ_i|∞ ≤ torque_max."""
+
+    thrust_min_n: float
+    thrust_max_n: float
+    torque_max_nm: float
+
+
+@dataclass(frozen=True)
+class StateBound:
+    """One entry of the state set X (or X_N): ``lower ≤ x[index] ≤ upper`` in absolute
+    state coordinates (e.g. index 2, the bar's height)."""
+
+    index: int
+    lower: float
+    upper: float
+
+
+@dataclass(frozen=True)
+class MpcSettings:
+    """Everything an MPC needs besides the model: (MPC)'s N, h, weights, U, X, X_N, and
+    the time budget after which a finished solve is treated as late."""
+
+    horizon: int
+    dt_s: float
+    weights: MpcWeights
+    limits: InputLimits
+    state_bounds: tuple[StateBound, ...] = ()
+    terminal_bounds: tuple[StateBound, ...] = ()
+    qp_backend: str = "hpipm"
+    late_after_s: float = 0.015

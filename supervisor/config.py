@@ -25,7 +25,15 @@ from pydantic import (
     model_validator,
 )
 
-from controllers.params import BarSystemParams, MpcWeights, UavParams
+from controllers.params import (
+    BarSystemParams,
+    InputLimits,
+    MpcSettings,
+    MpcWeights,
+    StateBound,
+    UavParams,
+)
+from controllers.qp.registry import BACKEND_NAMES
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -104,6 +112,20 @@ class ArenaSection(_Section):
         return self
 
 
+class StateBoundEntry(_Section):
+    """One bound of the state set X or X_N, on the absolute state (paper order)."""
+
+    index: Annotated[int, Field(ge=0)]
+    lower: FiniteFloat
+    upper: FiniteFloat
+
+    @model_validator(mode="after")
+    def _ordered(self) -> StateBoundEntry:
+        if self.lower > self.upper:
+            raise ValueError("lower must not exceed upper")
+        return self
+
+
 class CentralizedWeights(_Section):
     """Table I: Q = diag(q_bar, q_uav, q_uav), R = diag(r), Q_N = terminal_scale * Q."""
 
@@ -111,6 +133,13 @@ class CentralizedWeights(_Section):
     q_uav: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
     r: Annotated[list[PositiveFloat], Field(min_length=8, max_length=8)]
     terminal_scale: PositiveFloat
+    state_bounds: list[StateBoundEntry] = []
+    terminal_bounds: list[StateBoundEntry] = []
+
+    @model_validator(mode="after")
+    def _indices(self) -> CentralizedWeights:
+        _check_indices(self.state_bounds + self.terminal_bounds, 36)
+        return self
 
     def to_weights(self) -> MpcWeights:
         q = (*self.q_bar, *self.q_uav, *self.q_uav)
@@ -124,10 +153,27 @@ class DecentralizedWeights(_Section):
     q_payload: Annotated[list[NonNegativeFloat], Field(min_length=6, max_length=6)]
     r: Annotated[list[PositiveFloat], Field(min_length=4, max_length=4)]
     terminal_scale: PositiveFloat
+    state_bounds: list[StateBoundEntry] = []
+    terminal_bounds: list[StateBoundEntry] = []
+
+    @model_validator(mode="after")
+    def _indices(self) -> DecentralizedWeights:
+        _check_indices(self.state_bounds + self.terminal_bounds, 18)
+        return self
 
     def to_weights(self) -> MpcWeights:
         q = (*self.q_uav, *self.q_payload)
         return MpcWeights(q_diag=q, r_diag=tuple(self.r), terminal_scale=self.terminal_scale)
+
+
+def _check_indices(bounds: list[StateBoundEntry], nx: int) -> None:
+    for bound in bounds:
+        if bound.index >= nx:
+            raise ValueError(f"state bound index {bound.index} is outside the {nx}-state vector")
+
+
+def _bounds(entries: list[StateBoundEntry]) -> tuple[StateBound, ...]:
+    return tuple(StateBound(e.index, e.lower, e.upper) for e in entries)
 
 
 class MpcSection(_Section):
@@ -138,6 +184,8 @@ class MpcSection(_Section):
     thrust_min_n: PositiveFloat
     thrust_max_n: PositiveFloat
     torque_max_nm: PositiveFloat = 1.0
+    qp_backend: str = "hpipm"
+    late_after_s: PositiveFloat = 0.015
     centralized: CentralizedWeights
     decentralized: DecentralizedWeights
 
@@ -145,7 +193,23 @@ class MpcSection(_Section):
     def _thrust_range(self) -> MpcSection:
         if self.thrust_min_n >= self.thrust_max_n:
             raise ValueError("mpc.thrust_min_n must be below mpc.thrust_max_n")
+        if self.qp_backend not in BACKEND_NAMES:
+            raise ValueError(f"qp_backend must be one of {', '.join(BACKEND_NAMES)}")
         return self
+
+    def settings(self, controller: str) -> MpcSettings:
+        """The plain settings of the ``centralized`` or ``decentralized`` controller."""
+        section = self.centralized if controller == "centralized" else self.decentralized
+        return MpcSettings(
+            horizon=self.horizon,
+            dt_s=self.dt_s,
+            weights=section.to_weights(),
+            limits=InputLimits(self.thrust_min_n, self.thrust_max_n, self.torque_max_nm),
+            state_bounds=_bounds(section.state_bounds),
+            terminal_bounds=_bounds(section.terminal_bounds),
+            qp_backend=self.qp_backend,
+            late_after_s=self.late_after_s,
+        )
 
 
 class Config(_Section):

@@ -1,0 +1,423 @@
+"""The centralized (Section IV) and decentralized (Section V) MPCs, one ``step`` per tick.
+
+Each tick: the reference maps to (x_eq, u_eq); the model is linearized at the same
+equilibrium turned to the *measured* yaw angles (the yaws are parameters refreshed every
+tick, as in the paper) and discretized (A = I + A_c h, B = B_c h); the QP (MPC) in
+Δx = x − x_eq, Δu = u − u_eq is solved warm-started, and u* = u_eq + Δu_0 is applied.
+
+A solve that fails, finishes late, or a state with NaN/inf gives the previous plan shifted
+by one step, with a status that says so; ``step`` never raises.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.equilibria import Equilibrium, Reference, bar_equilibrium
+from controllers.linearization import bar_jacobians, discretize, payload_jacobians
+from controllers.model import (
+    BAR_INPUTS,
+    BAR_STATES,
+    P_B,
+    PAYLOAD_INPUTS,
+    PAYLOAD_STATES,
+    V_B,
+    W_B,
+    BarSystemModel,
+    payload_model_for,
+    uav_slices,
+)
+from controllers.params import BarSystemParams, MpcSettings, StateBound
+from controllers.qp.base import OcpQp, QpBackend, QpStatus
+from controllers.qp.registry import make_backend
+
+FloatArray = NDArray[np.float64]
+
+BAR_YAW_INDICES = (8, 20, 32)  # ψ_b, ψ_1, ψ_2 in the 36-state vector
+PAYLOAD_YAW_INDICES = (8,)  # ψ_i in the 18-state vector
+
+
+class PlanStatus(Enum):
+    """Where a plan's input came from."""
+
+    OPTIMAL = "optimal"
+    SHIFTED_FAILED = "shifted_failed"  # QP infeasible / not converged / numerical error
+    SHIFTED_LATE = "shifted_late"  # solved, but after the time budget
+    SHIFTED_BAD_STATE = "shifted_bad_state"  # NaN/inf in the state or reference
+    SHIFTED_ERROR = "shifted_error"  # anything else went wrong (see ``Plan.error``)
+    EQUILIBRIUM = "equilibrium"  # no previous plan to shift: u_eq is held
+
+    @property
+    def is_fallback(self) -> bool:
+        return self is not PlanStatus.OPTIMAL
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One tick's result. ``u`` (nu,) is the absolute input to apply now [N, N m];
+    ``u_pred`` (N, nu) and ``x_pred`` (N + 1, nx) are the absolute predictions (for the
+    decentralized controller x_pred stacks the two agents' 18-states side by side)."""
+
+    u: FloatArray
+    u_pred: FloatArray
+    x_pred: FloatArray
+    status: PlanStatus
+    time_s: float
+    solve_time_s: float = 0.0
+    iterations: int = 0
+    error: str | None = None
+
+    def shifted(self, now_s: float, status: PlanStatus, error: str | None = None) -> Plan:
+        """This plan advanced by one step (the last input and state repeated)."""
+        u_pred = np.vstack([self.u_pred[1:], self.u_pred[-1:]])
+        x_pred = np.vstack([self.x_pred[1:], self.x_pred[-1:]])
+        return Plan(u_pred[0].copy(), u_pred, x_pred, status, now_s, 0.0, 0, error)
+
+
+def wrap_angles(dx: FloatArray, indices: tuple[int, ...]) -> FloatArray:
+    """Wrap the yaw entries of a state difference to (−π, π] so a turn takes the short way."""
+    for i in indices:
+        dx[i] = math.remainder(dx[i], 2.0 * math.pi)
+    return dx
+
+
+def _finite(*arrays: FloatArray) -> bool:
+    return all(bool(np.all(np.isfinite(a))) for a in arrays)
+
+
+def _bound_vectors(bounds: tuple[StateBound, ...], nx: int) -> tuple[FloatArray, FloatArray] | None:
+    if not bounds:
+        return None
+    lower, upper = np.full(nx, -np.inf), np.full(nx, np.inf)
+    for bound in bounds:
+        lower[bound.index], upper[bound.index] = bound.lower, bound.upper
+    return lower, upper
+
+
+class LinearMpc:
+    """(MPC) for one linear model of fixed size: weights, U, X, X_N and a QP back-end."""
+
+    def __init__(
+        self,
+        nx: int,
+        nu: int,
+        settings: MpcSettings,
+        a_pattern: np.ndarray,
+        b_pattern: np.ndarray,
+        backend: str | None = None,
+    ) -> None:
+        self.settings = settings
+        w = settings.weights
+        self._q = np.asarray(w.q_diag, dtype=float)
+        self._r = np.asarray(w.r_diag, dtype=float)
+        if self._q.size != nx or self._r.size != nu:
+            raise ValueError(
+                f"weights have {self._q.size}/{self._r.size} entries, the model {nx}/{nu}"
+            )
+        self._qn = w.terminal_scale * self._q
+        self._state_bounds = _bound_vectors(settings.state_bounds, nx)
+        self._terminal_bounds = _bound_vectors(settings.terminal_bounds, nx)
+        template = self.qp(
+            np.eye(nx), np.zeros((nx, nu)), np.zeros(nx), -np.ones(nu), np.ones(nu), np.zeros(nx)
+        )
+        self.backend: QpBackend = make_backend(
+            backend or settings.qp_backend, template, a_pattern, b_pattern
+        )
+
+    def qp(
+        self,
+        A: FloatArray,
+        B: FloatArray,
+        dx0: FloatArray,
+        du_lb: FloatArray,
+        du_ub: FloatArray,
+        x_eq: FloatArray,
+    ) -> OcpQp:
+        """This tick's QP; absolute state bounds become bounds on Δx around ``x_eq``."""
+        state = self._state_bounds
+        terminal = self._terminal_bounds
+        return OcpQp(
+            A=A,
+            B=B,
+            q_diag=self._q,
+            r_diag=self._r,
+            q_terminal_diag=self._qn,
+            x0=dx0,
+            u_lb=du_lb,
+            u_ub=du_ub,
+            horizon=self.settings.horizon,
+            x_lb=None if state is None else state[0] - x_eq,
+            x_ub=None if state is None else state[1] - x_eq,
+            x_terminal_lb=None if terminal is None else terminal[0] - x_eq,
+            x_terminal_ub=None if terminal is None else terminal[1] - x_eq,
+        )
+
+
+def _input_bounds(settings: MpcSettings, n_uavs: int) -> tuple[FloatArray, FloatArray]:
+    lim = settings.limits
+    lower = np.tile(
+        [lim.thrust_min_n, -lim.torque_max_nm, -lim.torque_max_nm, -lim.torque_max_nm], n_uavs
+    )
+    upper = np.tile(
+        [lim.thrust_max_n, lim.torque_max_nm, lim.torque_max_nm, lim.torque_max_nm], n_uavs
+    )
+    return lower, upper
+
+
+class _PlanKeeper:
+    """The previous plan and the fallback rules shared by both controllers."""
+
+    def __init__(self) -> None:
+        self.previous: Plan | None = None
+
+    def fallback(
+        self, now_s: float, status: PlanStatus, hold: Plan, error: str | None = None
+    ) -> Plan:
+        plan = hold if self.previous is None else self.previous.shifted(now_s, status, error)
+        if self.previous is None:
+            plan = replace(hold, status=PlanStatus.EQUILIBRIUM, time_s=now_s, error=error)
+        self.previous = plan
+        return plan
+
+    def accept(self, plan: Plan) -> Plan:
+        self.previous = plan
+        return plan
+
+
+def _hold_plan(u_eq: FloatArray, x_eq: FloatArray, horizon: int, now_s: float) -> Plan:
+    return Plan(
+        u_eq.copy(),
+        np.tile(u_eq, (horizon, 1)),
+        np.tile(x_eq, (horizon + 1, 1)),
+        PlanStatus.EQUILIBRIUM,
+        now_s,
+    )
+
+
+def measured_yaws(state: FloatArray) -> tuple[float, tuple[float, float]]:
+    """(ψ_b, (ψ_1, ψ_2)) of a 36-state."""
+    return float(state[8]), (float(state[20]), float(state[32]))
+
+
+class CentralizedMpc:
+    """The 36-state MPC of Section IV (Table I)."""
+
+    def __init__(
+        self, params: BarSystemParams, settings: MpcSettings, backend: str | None = None
+    ) -> None:
+        self.params = params
+        self.settings = settings
+        self._jacobians = bar_jacobians(BarSystemModel(params))
+        a_pattern = np.asarray(self._jacobians.sparsity_out(0)) != 0
+        b_pattern = np.asarray(self._jacobians.sparsity_out(1)) != 0
+        self._mpc = LinearMpc(BAR_STATES, BAR_INPUTS, settings, a_pattern, b_pattern, backend)
+        self._u_lb, self._u_ub = _input_bounds(settings, 2)
+        self._plans = _PlanKeeper()
+
+    @property
+    def backend_name(self) -> str:
+        return self._mpc.backend.name
+
+    def reset(self) -> None:
+        """Forget the previous plan (e.g. after a controller switch)."""
+        self._plans.previous = None
+
+    def linearization(
+        self, state: FloatArray, reference: Reference
+    ) -> tuple[FloatArray, FloatArray]:
+        """(A, B) of the discrete model at the reference equilibrium turned to the measured yaws."""
+        psi_b, psi_uav = measured_yaws(state)
+        lin = bar_equilibrium(self.params, reference.with_yaws(psi_b, psi_uav))
+        A_c, B_c = self._jacobians(lin.x, lin.u)
+        return discretize(np.asarray(A_c), np.asarray(B_c), self.settings.dt_s)
+
+    def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
+        """One tick: u* for the 36-state ``state`` (paper order) tracking ``reference``."""
+        started = time.perf_counter()
+        try:
+            eq = bar_equilibrium(self.params, reference)
+        except ValueError as error:
+            return self._plans.fallback(
+                now_s, PlanStatus.SHIFTED_BAD_STATE, self._no_plan(now_s), str(error)
+            )
+        hold = _hold_plan(eq.u, eq.x, self.settings.horizon, now_s)
+        if not _finite(state):
+            return self._plans.fallback(
+                now_s, PlanStatus.SHIFTED_BAD_STATE, hold, "state is not finite"
+            )
+        try:
+            A, B = self.linearization(state, reference)
+            dx0 = wrap_angles(state - eq.x, BAR_YAW_INDICES)
+            qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x)
+            solution = self._mpc.backend.solve(qp)
+        except Exception as error:
+            return self._plans.fallback(now_s, PlanStatus.SHIFTED_ERROR, hold, repr(error))
+        if solution.status is not QpStatus.SOLVED:
+            return self._plans.fallback(
+                now_s, PlanStatus.SHIFTED_FAILED, hold, solution.status.value
+            )
+        elapsed = time.perf_counter() - started
+        if elapsed > self.settings.late_after_s:
+            return self._plans.fallback(
+                now_s, PlanStatus.SHIFTED_LATE, hold, f"tick took {elapsed * 1e3:.1f} ms"
+            )
+        u_pred = np.clip(solution.u + eq.u, self._u_lb, self._u_ub)
+        x_pred = solution.x + eq.x
+        plan = Plan(
+            u_pred[0].copy(),
+            u_pred,
+            x_pred,
+            PlanStatus.OPTIMAL,
+            now_s,
+            elapsed,
+            solution.iterations,
+        )
+        return self._plans.accept(plan)
+
+    def _no_plan(self, now_s: float) -> Plan:
+        N = self.settings.horizon
+        return Plan(
+            np.zeros(BAR_INPUTS),
+            np.zeros((N, BAR_INPUTS)),
+            np.zeros((N + 1, BAR_STATES)),
+            PlanStatus.EQUILIBRIUM,
+            now_s,
+        )
+
+
+def agent_state(state: FloatArray, params: BarSystemParams, i: int) -> FloatArray:
+    """UAV ``i``'s decentralized state x_i = (p_i, v_i, Θ_i, ω_i, p_p, v_p) from a 36-state:
+    its bar end e_i = p_b + s_i d_i n_b and that end's velocity."""
+    psi, theta = state[8], state[7]
+    n_b = np.array(
+        [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
+    )
+    sign, d = (-1.0, params.d1_m) if i == 1 else (1.0, params.d2_m)
+    first = uav_slices(i)[0].start
+    x_i = np.empty(PAYLOAD_STATES)
+    x_i[0:12] = state[first : first + 12]
+    x_i[12:15] = state[P_B] + sign * d * n_b
+    x_i[15:18] = state[V_B] + sign * d * np.cross(state[W_B], n_b)
+    return x_i
+
+
+def bar_from_ends(
+    end_1: FloatArray, end_2: FloatArray, params: BarSystemParams
+) -> tuple[FloatArray, float]:
+    """Bar centre and yaw estimated from its two ends (Section VII-B, with d1 ≠ d2)."""
+    d1, d2 = params.arms_m
+    centre = end_1 + d1 / (d1 + d2) * (end_2 - end_1)
+    return centre, math.atan2(end_2[1] - end_1[1], end_2[0] - end_1[0])
+
+
+class _Agent:
+    """UAV i's own MPC on its 18-state UAV–payload model (Table II)."""
+
+    def __init__(
+        self, params: BarSystemParams, settings: MpcSettings, i: int, backend: str | None
+    ) -> None:
+        self.i = i
+        self.params = params
+        self.settings = settings
+        self._jacobians = payload_jacobians(payload_model_for(params, i))
+        a_pattern = np.asarray(self._jacobians.sparsity_out(0)) != 0
+        b_pattern = np.asarray(self._jacobians.sparsity_out(1)) != 0
+        self.mpc = LinearMpc(
+            PAYLOAD_STATES, PAYLOAD_INPUTS, settings, a_pattern, b_pattern, backend
+        )
+        self.u_lb, self.u_ub = _input_bounds(settings, 1)
+
+    def solve(
+        self, x_i: FloatArray, eq: Equilibrium, lin: Equilibrium
+    ) -> tuple[FloatArray, FloatArray, float, int] | str:
+        """(u_pred, x_pred, solve time, iterations) in absolute terms, or the failure text."""
+        i = self.i
+        x_eq, u_eq = eq.payload_state(i), eq.payload_input(i)
+        A_c, B_c = self._jacobians(
+            lin.payload_state(i), lin.payload_input(i), lin.payload_force_n[i - 1]
+        )
+        A, B = discretize(np.asarray(A_c), np.asarray(B_c), self.settings.dt_s)
+        dx0 = wrap_angles(x_i - x_eq, PAYLOAD_YAW_INDICES)
+        solution = self.mpc.backend.solve(
+            self.mpc.qp(A, B, dx0, self.u_lb - u_eq, self.u_ub - u_eq, x_eq)
+        )
+        if solution.status is not QpStatus.SOLVED:
+            return f"UAV {i}: {solution.status.value}"
+        u_pred = np.clip(solution.u + u_eq, self.u_lb, self.u_ub)
+        return u_pred, solution.x + x_eq, solution.solve_time_s, solution.iterations
+
+
+class DecentralizedMpc:
+    """Two independent 18-state MPCs of Section V; each sees only its UAV and its bar end."""
+
+    def __init__(
+        self, params: BarSystemParams, settings: MpcSettings, backend: str | None = None
+    ) -> None:
+        self.params = params
+        self.settings = settings
+        self.agents = (_Agent(params, settings, 1, backend), _Agent(params, settings, 2, backend))
+        self._plans = _PlanKeeper()
+        self.agent_solve_times_s = (0.0, 0.0)
+
+    @property
+    def backend_name(self) -> str:
+        return self.agents[0].mpc.backend.name
+
+    def reset(self) -> None:
+        """Forget the previous plan (e.g. after a controller switch)."""
+        self._plans.previous = None
+
+    def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
+        """One tick for both agents; ``state`` is the 36-state (each agent takes its part)."""
+        started = time.perf_counter()
+        try:
+            eq = bar_equilibrium(self.params, reference)
+        except ValueError as error:
+            N = self.settings.horizon
+            empty = Plan(
+                np.zeros(8), np.zeros((N, 8)), np.zeros((N + 1, 36)), PlanStatus.EQUILIBRIUM, now_s
+            )
+            return self._plans.fallback(now_s, PlanStatus.SHIFTED_BAD_STATE, empty, str(error))
+        stacked_eq = np.concatenate([eq.payload_state(1), eq.payload_state(2)])
+        hold = _hold_plan(eq.u, stacked_eq, self.settings.horizon, now_s)
+        if not _finite(state):
+            return self._plans.fallback(
+                now_s, PlanStatus.SHIFTED_BAD_STATE, hold, "state is not finite"
+            )
+        try:
+            psi_b, psi_uav = measured_yaws(state)
+            lin = bar_equilibrium(self.params, reference.with_yaws(psi_b, psi_uav))
+            results = [
+                agent.solve(agent_state(state, self.params, agent.i), eq, lin)
+                for agent in self.agents
+            ]
+        except Exception as error:
+            return self._plans.fallback(now_s, PlanStatus.SHIFTED_ERROR, hold, repr(error))
+        failures = [r for r in results if isinstance(r, str)]
+        if failures:
+            return self._plans.fallback(now_s, PlanStatus.SHIFTED_FAILED, hold, "; ".join(failures))
+        solved = [r for r in results if not isinstance(r, str)]
+        elapsed = time.perf_counter() - started
+        if elapsed > self.settings.late_after_s:
+            return self._plans.fallback(
+                now_s, PlanStatus.SHIFTED_LATE, hold, f"tick took {elapsed * 1e3:.1f} ms"
+            )
+        self.agent_solve_times_s = (solved[0][2], solved[1][2])
+        u_pred = np.hstack([solved[0][0], solved[1][0]])
+        x_pred = np.hstack([solved[0][1], solved[1][1]])
+        plan = Plan(
+            u_pred[0].copy(),
+            u_pred,
+            x_pred,
+            PlanStatus.OPTIMAL,
+            now_s,
+            elapsed,
+            solved[0][3] + solved[1][3],
+        )
+        return self._plans.accept(plan)

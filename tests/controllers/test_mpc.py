@@ -1,0 +1,199 @@
+"""The MPCs: LQR oracle, back-end agreement, fallbacks, and closed loops on the model."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from controllers.equilibria import Reference, bar_equilibrium
+from controllers.model import BarSystemModel
+from controllers.mpc import CentralizedMpc, DecentralizedMpc, PlanStatus, agent_state
+from controllers.params import BarSystemParams, MpcSettings
+from supervisor.config import load_config
+from tests.conftest import CONFIGS
+from tests.controllers.closed_loop import Run, fly
+
+CONFIG = load_config(CONFIGS / "kth_sml.toml")
+BACKENDS = ["osqp", "daqp"]
+
+
+def settings(controller: str, **changes: object) -> MpcSettings:
+    # The late-solve budget is a real-time concern; these tests check the control law.
+    options: dict[str, object] = {"late_after_s": 10.0, **changes}
+    return dataclasses.replace(CONFIG.mpc.settings(controller), **options)  # type: ignore[arg-type]
+
+
+def actuator_range(n_uavs: int) -> np.ndarray:
+    lim = CONFIG.mpc.settings("centralized").limits
+    return np.tile([lim.thrust_max_n - lim.thrust_min_n] + [2 * lim.torque_max_nm] * 3, n_uavs)
+
+
+def riccati_first_gain(
+    A: np.ndarray, B: np.ndarray, q: np.ndarray, r: np.ndarray, scale: float, N: int
+) -> np.ndarray:
+    """K_0 of the finite-horizon LQR with the MPC's cost: u_0 = −K_0 Δx_0."""
+    Q, R = np.diag(q), np.diag(r)
+    P = scale * Q
+    K = np.zeros((B.shape[1], A.shape[0]))
+    for _ in range(N):
+        K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+        P = Q + A.T @ P @ (A - B @ K)
+    return K
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_unconstrained_first_input_is_the_lqr_input(
+    backend: str, lab_params: BarSystemParams
+) -> None:
+    mpc = CentralizedMpc(lab_params, settings("centralized"), backend)
+    reference = Reference((0.0, 0.0, 1.0), 0.3, (0.3, 0.5), math.radians(20))
+    eq = bar_equilibrium(lab_params, reference)
+    state = eq.x.copy()
+    state[0:3] += (0.02, -0.01, 0.01)  # small enough that no bound is active
+    state[8] += 0.02
+    plan = mpc.step(state, reference, 0.0)
+    assert plan.status is PlanStatus.OPTIMAL
+    A, B = mpc.linearization(state, reference)
+    w = mpc.settings.weights
+    K = riccati_first_gain(
+        A, B, np.array(w.q_diag), np.array(w.r_diag), w.terminal_scale, mpc.settings.horizon
+    )
+    expected = eq.u - K @ (state - eq.x)
+    lim = mpc.settings.limits
+    assert np.all(np.abs(expected[[1, 2, 3, 5, 6, 7]]) < lim.torque_max_nm)  # truly unconstrained
+    np.testing.assert_array_less(np.abs(plan.u - expected), 1e-4 * actuator_range(2))
+    assert np.abs(plan.u - eq.u).max() > 1e-3  # and the test is not comparing u_eq with u_eq
+
+
+def saturating_sequence(params: BarSystemParams) -> list[tuple[np.ndarray, Reference]]:
+    """States along a hard manoeuvre: large offsets saturate the torques."""
+    rng = np.random.default_rng(11)
+    out = []
+    for k in range(12):
+        ref = Reference((0.0, 0.0, 1.0), 0.1 * k, (0.1 * k, -0.1 * k), math.radians(5 * (k % 4)))
+        x = bar_equilibrium(params, ref).x
+        x = x + rng.normal(0.0, 0.1, 36) * (1 + (k % 3))
+        out.append((x, ref))
+    return out
+
+
+@pytest.mark.parametrize("controller_cls", [CentralizedMpc, DecentralizedMpc])
+def test_backends_agree_on_the_same_qps(controller_cls: type, lab_params: BarSystemParams) -> None:
+    name = "centralized" if controller_cls is CentralizedMpc else "decentralized"
+    controllers = {b: controller_cls(lab_params, settings(name), b) for b in BACKENDS}
+    saturated = 0
+    lim = CONFIG.mpc.settings(name).limits
+    for k, (x, ref) in enumerate(saturating_sequence(lab_params)):
+        plans = {b: c.step(x, ref, 0.02 * k) for b, c in controllers.items()}
+        assert all(p.status is PlanStatus.OPTIMAL for p in plans.values())
+        u = [p.u for p in plans.values()]
+        np.testing.assert_array_less(np.abs(u[0] - u[1]), 1e-4 * actuator_range(2))
+        saturated += int(np.any(np.isclose(np.abs(u[0][[1, 2, 3, 5, 6, 7]]), lim.torque_max_nm)))
+    assert saturated >= 3  # the sequence really exercises the bounds
+
+
+@pytest.mark.parametrize("controller_cls", [CentralizedMpc, DecentralizedMpc])
+def test_bad_input_falls_back_to_the_shifted_plan(
+    controller_cls: type, lab_params: BarSystemParams
+) -> None:
+    name = "centralized" if controller_cls is CentralizedMpc else "decentralized"
+    mpc = controller_cls(lab_params, settings(name), "daqp")
+    reference = Reference((0.0, 0.0, 1.0))
+    state = bar_equilibrium(lab_params, reference).x
+    state[0] += 0.2
+    first = mpc.step(state, reference, 0.0)
+    assert first.status is PlanStatus.OPTIMAL
+    broken = state.copy()
+    broken[5] = math.nan
+    second = mpc.step(broken, reference, 0.02)
+    assert second.status is PlanStatus.SHIFTED_BAD_STATE
+    np.testing.assert_array_equal(second.u, first.u_pred[1])
+    impossible = Reference((0.0, 0.0, 1.0), theta_l_rad=2.0)
+    third = mpc.step(state, impossible, 0.04)
+    assert third.status is PlanStatus.SHIFTED_BAD_STATE and "theta_l" in (third.error or "")
+    np.testing.assert_array_equal(third.u, first.u_pred[2])
+    assert mpc.step(state, reference, 0.06).status is PlanStatus.OPTIMAL
+
+
+def test_a_late_solve_uses_the_shifted_plan(lab_params: BarSystemParams) -> None:
+    mpc = CentralizedMpc(lab_params, settings("centralized", late_after_s=1e-9), "daqp")
+    reference = Reference((0.0, 0.0, 1.0))
+    state = bar_equilibrium(lab_params, reference).x
+    first = mpc.step(state, reference, 0.0)
+    assert first.status is PlanStatus.EQUILIBRIUM  # nothing to shift yet: hold u_eq
+    np.testing.assert_allclose(first.u, bar_equilibrium(lab_params, reference).u)
+    assert mpc.step(state, reference, 0.02).status is PlanStatus.SHIFTED_LATE
+
+
+def test_decentralized_agent_sees_its_bar_end(lab_params: BarSystemParams) -> None:
+    eq = bar_equilibrium(lab_params, Reference((0.5, 0.2, 1.0), 0.8, (0.1, 0.2), math.radians(30)))
+    for i in (1, 2):
+        np.testing.assert_allclose(
+            agent_state(eq.x, lab_params, i), eq.payload_state(i), atol=1e-12
+        )
+
+
+def first_time_inside_for_good(
+    run: Run, reference: Reference, tol_m: float, tol_deg: float
+) -> float:
+    """The earliest time from which the bar stays within the tolerances to the end."""
+    error_m = np.linalg.norm(run.states[:, 0:3] - np.array(reference.bar_position_m), axis=1)
+    error_deg = np.degrees(np.abs(run.states[:, 8] - reference.bar_yaw_rad))
+    outside = np.flatnonzero((error_m >= tol_m) | (error_deg >= tol_deg))
+    if outside.size == 0:
+        return 0.0
+    last = int(outside[-1])
+    return math.inf if last == len(run.times_s) - 1 else float(run.times_s[last + 1])
+
+
+CLOSED_LOOP_CASES = [
+    pytest.param(CentralizedMpc, id="centralized"),
+    pytest.param(
+        DecentralizedMpc,
+        id="decentralized",
+        marks=pytest.mark.xfail(
+            strict=True,
+            reason="Table II tuning with N = 30 leaves the bar's pendulum swing marginally stable "
+            "(finite-horizon gain: max |eig(A − BK)| = 1.0046): the bar keeps swinging ±4 cm",
+        ),
+    ),
+]
+
+
+def fly_offset_case(
+    controller_cls: type, params: BarSystemParams, duration_s: float
+) -> tuple[Run, Reference]:
+    name = "centralized" if controller_cls is CentralizedMpc else "decentralized"
+    mpc = controller_cls(params, settings(name), "daqp")
+    reference = Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), 0.0)
+    x0 = bar_equilibrium(params, Reference((0.3, 0.0, 1.0), math.radians(20), (0.0, 0.0))).x
+    return fly(mpc, BarSystemModel(params), x0, reference, duration_s), reference
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("controller_cls", CLOSED_LOOP_CASES)
+def test_closed_loop_reaches_the_setpoint(
+    controller_cls: type, lab_params: BarSystemParams
+) -> None:
+    """From a 0.3 m bar offset and a 20° bar-yaw error: within 2 cm and 2° by 8 s, for good
+    (checked over 10 s), never leaving the input set U."""
+    run, reference = fly_offset_case(controller_cls, lab_params, 10.0)
+    assert first_time_inside_for_good(run, reference, 0.02, 2.0) <= 8.0
+    inputs = np.array([p.u for p in run.plans])
+    lim = CONFIG.mpc.settings("centralized").limits
+    assert (
+        inputs[:, [0, 4]].min() >= lim.thrust_min_n and inputs[:, [0, 4]].max() <= lim.thrust_max_n
+    )
+    assert np.abs(inputs[:, [1, 2, 3, 5, 6, 7]]).max() <= lim.torque_max_nm + 1e-9
+    assert all(p.status is PlanStatus.OPTIMAL for p in run.plans)
+
+
+@pytest.mark.slow
+def test_decentralized_closed_loop_stays_bounded(lab_params: BarSystemParams) -> None:
+    """What the decentralized controller does reach: the bar's error shrinks from 0.3 m and
+    20° to a swing of a few centimetres and degrees."""
+    run, reference = fly_offset_case(DecentralizedMpc, lab_params, 10.0)
+    assert first_time_inside_for_good(run, reference, 0.06, 3.0) <= 8.0
