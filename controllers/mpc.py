@@ -16,9 +16,11 @@ import time
 from dataclasses import dataclass, replace
 from enum import Enum
 
+import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
+from controllers.codegen import NumericFunction
 from controllers.equilibria import Equilibrium, Reference, bar_equilibrium
 from controllers.linearization import bar_jacobians, discretize, payload_jacobians
 from controllers.model import (
@@ -170,6 +172,11 @@ def _input_bounds(settings: MpcSettings, n_uavs: int) -> tuple[FloatArray, Float
     return lower, upper
 
 
+def _patterns(jacobians: ca.Function) -> tuple[np.ndarray, np.ndarray]:
+    """Structural nonzeros of A_c and B_c (fixed for every linearization point)."""
+    return (np.asarray(jacobians.sparsity_out(0)) != 0, np.asarray(jacobians.sparsity_out(1)) != 0)
+
+
 class _PlanKeeper:
     """The previous plan and the fallback rules shared by both controllers."""
 
@@ -213,9 +220,9 @@ class CentralizedMpc:
     ) -> None:
         self.params = params
         self.settings = settings
-        self._jacobians = bar_jacobians(BarSystemModel(params))
-        a_pattern = np.asarray(self._jacobians.sparsity_out(0)) != 0
-        b_pattern = np.asarray(self._jacobians.sparsity_out(1)) != 0
+        jacobians = bar_jacobians(BarSystemModel(params))
+        a_pattern, b_pattern = _patterns(jacobians)
+        self._jacobians = NumericFunction(jacobians)
         self._mpc = LinearMpc(BAR_STATES, BAR_INPUTS, settings, a_pattern, b_pattern, backend)
         self._u_lb, self._u_ub = _input_bounds(settings, 2)
         self._plans = _PlanKeeper()
@@ -235,7 +242,7 @@ class CentralizedMpc:
         psi_b, psi_uav = measured_yaws(state)
         lin = bar_equilibrium(self.params, reference.with_yaws(psi_b, psi_uav))
         A_c, B_c = self._jacobians(lin.x, lin.u)
-        return discretize(np.asarray(A_c), np.asarray(B_c), self.settings.dt_s)
+        return discretize(A_c, B_c, self.settings.dt_s)
 
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
         """One tick: u* for the 36-state ``state`` (paper order) tracking ``reference``."""
@@ -325,9 +332,9 @@ class _Agent:
         self.i = i
         self.params = params
         self.settings = settings
-        self._jacobians = payload_jacobians(payload_model_for(params, i))
-        a_pattern = np.asarray(self._jacobians.sparsity_out(0)) != 0
-        b_pattern = np.asarray(self._jacobians.sparsity_out(1)) != 0
+        jacobians = payload_jacobians(payload_model_for(params, i))
+        a_pattern, b_pattern = _patterns(jacobians)
+        self._jacobians = NumericFunction(jacobians)
         self.mpc = LinearMpc(
             PAYLOAD_STATES, PAYLOAD_INPUTS, settings, a_pattern, b_pattern, backend
         )
@@ -342,7 +349,7 @@ class _Agent:
         A_c, B_c = self._jacobians(
             lin.payload_state(i), lin.payload_input(i), lin.payload_force_n[i - 1]
         )
-        A, B = discretize(np.asarray(A_c), np.asarray(B_c), self.settings.dt_s)
+        A, B = discretize(A_c, B_c, self.settings.dt_s)
         dx0 = wrap_angles(x_i - x_eq, PAYLOAD_YAW_INDICES)
         solution = self.mpc.backend.solve(
             self.mpc.qp(A, B, dx0, self.u_lb - u_eq, self.u_ub - u_eq, x_eq)

@@ -14,8 +14,12 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from benchmarks.mpc import add_arguments as _bench_arguments
+from benchmarks.mpc import run as run_mpc_benchmark
 from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium, theta_f_closed_form
 from supervisor.config import Config, ConfigError, load_config
+from supervisor.flight_log import read_flight_log
+from supervisor.report import write_report
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "sim.toml"
@@ -86,6 +90,23 @@ def _equilibria(config: Config, args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench(config: Config, args: argparse.Namespace) -> int:
+    return run_mpc_benchmark(args.config, args.ticks, args.backends, args.json)
+
+
+def _report(config: Config, args: argparse.Namespace) -> int:
+    paths: list[Path] = args.logs
+    if len(paths) > 2:
+        raise UsageError("report takes one or two logs")
+    try:
+        logs = [read_flight_log(path) for path in paths]
+    except (OSError, ValueError) as error:
+        raise UsageError(str(error)) from error
+    for path in write_report(logs, args.out):
+        print(path)
+    return 0
+
+
 Handler = Callable[[Config, argparse.Namespace], int]
 
 
@@ -106,6 +127,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     eq.add_argument("--json", action="store_true", help="print one JSON object")
     eq.set_defaults(handler=_equilibria)
+
+    bench = commands.add_parser("bench", help="time every QP back-end on the same MPC ticks")
+    _bench_arguments(bench)
+    bench.set_defaults(handler=_bench)
+
+    report = commands.add_parser(
+        "report", help="figures (Figs 6-8) and a Table III summary of flight logs"
+    )
+    report.add_argument(
+        "logs", nargs="+", type=Path, metavar="LOG", help="one log, or two to overlay"
+    )
+    report.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    report.set_defaults(handler=_report)
 
     for sub in commands.choices.values():
         _add_config_options(sub)
