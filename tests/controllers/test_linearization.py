@@ -9,6 +9,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from controllers.codegen import NumericFunction
 from controllers.equilibria import Reference, bar_equilibrium
 from controllers.linearization import bar_jacobians, discretize, payload_jacobians
 from controllers.model import BarSystemModel, payload_model_for
@@ -86,3 +87,15 @@ def test_first_order_discretization() -> None:
     A, B = discretize(A_c, B_c, 0.02)
     np.testing.assert_array_equal(A, np.eye(2) + 0.02 * A_c)
     np.testing.assert_array_equal(B, 0.02 * B_c)
+
+
+def test_compiled_jacobians_equal_the_virtual_machine(lab_params: BarSystemParams) -> None:
+    jacobians = bar_jacobians(BarSystemModel(lab_params))
+    compiled = NumericFunction(jacobians)
+    interpreted = NumericFunction(jacobians, compile_c=False)
+    assert compiled.compiled and not interpreted.compiled
+    eq = bar_equilibrium(lab_params, CASES[2])
+    for fast, slow in zip(compiled(eq.x, eq.u), interpreted(eq.x, eq.u), strict=True):
+        np.testing.assert_array_equal(fast, slow)
+    A_c = np.asarray(jacobians(eq.x, eq.u)[0])
+    np.testing.assert_array_equal(compiled(eq.x, eq.u)[0], A_c)

@@ -156,8 +156,9 @@ CLOSED_LOOP_CASES = [
         id="decentralized",
         marks=pytest.mark.xfail(
             strict=True,
-            reason="Table II tuning with N = 30 leaves the bar's pendulum swing marginally stable "
-            "(finite-horizon gain: max |eig(A − BK)| = 1.0046): the bar keeps swinging ±4 cm",
+            reason="each agent models its bar end as an independent pendulum (Section V), so the "
+            "bar's coupled swing and yaw modes stay lightly damped: ±4 cm and ±2° remain after 8 s "
+            "(the oscillation the paper reports in Fig. 8c and Table III)",
         ),
     ),
 ]
