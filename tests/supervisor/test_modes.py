@@ -1,0 +1,53 @@
+"""The flight-mode table: refusals change nothing; abort, kill and faults end safe."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from supervisor.modes import OPERATOR_REQUESTS, TRANSITIONS, FlightModes, Mode
+
+
+def test_nominal_flight() -> None:
+    modes = FlightModes()
+    for event, expected in [
+        ("arm", Mode.ARMED),
+        ("takeoff", Mode.TAKEOFF),
+        ("airborne", Mode.HOVER),
+        ("track", Mode.TRACKING),
+        ("hold", Mode.HOVER),
+        ("land", Mode.LANDING),
+        ("landed", Mode.DISARMED),
+    ]:
+        result = modes.handle(event, 1.0)
+        assert result.accepted and modes.mode is expected
+
+
+@pytest.mark.parametrize(("mode", "event"), list(itertools.product(Mode, OPERATOR_REQUESTS)))
+def test_every_request_in_every_mode(mode: Mode, event: str) -> None:
+    modes = FlightModes(mode)
+    result = modes.handle(event, 2.0)
+    if event in ("abort", "kill"):
+        assert result.accepted  # the way out is always open
+        assert modes.mode in (Mode.ABORT, Mode.KILLED, Mode.DISARMED)
+        assert modes.mode is not Mode.ABORT or mode.airborne
+    elif (mode, event) in TRANSITIONS:
+        assert result.accepted and modes.mode is TRANSITIONS[(mode, event)]
+    else:
+        assert not result.accepted and modes.mode is mode and modes.changed_at_s == 0.0
+        assert event in result.reason and mode.value in result.reason
+
+
+@pytest.mark.parametrize("mode", list(Mode))
+def test_a_fault_always_ends_in_a_safe_mode(mode: Mode) -> None:
+    modes = FlightModes(mode)
+    assert modes.handle("fault", 3.0).accepted
+    assert modes.mode in (Mode.ABORT, Mode.DISARMED, Mode.KILLED)
+    if mode.airborne:
+        assert modes.mode is Mode.ABORT
+
+
+def test_takeoff_refusal_says_why() -> None:
+    result = FlightModes().handle("takeoff", 0.0)
+    assert not result.accepted and "arm first" in result.reason
