@@ -1,0 +1,89 @@
+"""Setpoints: geofence and feasibility before queuing; hold logic; rate-limited reference."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controllers.equilibria import Reference
+from controllers.params import BarSystemParams
+from supervisor.setpoints import (
+    Arena,
+    RateLimits,
+    ReferenceShaper,
+    Setpoint,
+    SetpointError,
+    SetpointQueue,
+    validate_setpoint,
+)
+
+ARENA = Arena((-3.0, -3.0, 0.0), (3.0, 3.0, 3.0))
+
+
+def test_a_good_setpoint_passes(lab_params: BarSystemParams) -> None:
+    validate_setpoint(
+        Setpoint((0.0, 0.0, 1.0), 0.5, theta_l_rad=math.radians(45)), lab_params, ARENA
+    )
+
+
+@pytest.mark.parametrize(
+    ("setpoint", "message"),
+    [
+        (Setpoint((0.0, 0.0, 2.5)), "UAV 1"),  # UAVs 1 m above the bar hit the ceiling
+        (Setpoint((2.6, 0.0, 1.0)), "bar end 2"),  # the bar sticks out of the arena
+        (Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(95)), "theta_l"),
+        (Setpoint((math.nan, 0.0, 1.0)), "finite"),
+        (Setpoint((0.0, 0.0, 1.0), hold_s=-1.0), "hold_s"),
+    ],
+)
+def test_bad_setpoints_are_refused_with_the_reason(
+    setpoint: Setpoint, message: str, lab_params: BarSystemParams
+) -> None:
+    with pytest.raises(SetpointError, match=message):
+        validate_setpoint(setpoint, lab_params, ARENA)
+
+
+def test_queue_holds_each_setpoint_then_moves_on() -> None:
+    queue = SetpointQueue(capacity=3)
+    a, b = Setpoint((0, 0, 1), hold_s=2.0), Setpoint((1, 0, 1), hold_s=0.0)
+    queue.extend([a, b])
+    assert queue.update(False, 0.0) is a
+    assert queue.update(True, 1.0) is a  # reached, holding
+    assert queue.update(False, 1.5) is a  # left the tolerance: the hold restarts
+    assert queue.update(True, 2.0) is a
+    assert queue.update(True, 4.0) is b  # held 2 s
+    assert queue.update(True, 4.02) is None and queue.active is None
+
+
+def test_queue_is_bounded_and_all_or_nothing() -> None:
+    queue = SetpointQueue(capacity=2)
+    queue.extend([Setpoint((0, 0, 1))])
+    with pytest.raises(SetpointError, match="at most 2"):
+        queue.extend([Setpoint((0, 0, 1)), Setpoint((0, 0, 1))])
+    assert len(queue.queued) == 1
+
+
+def test_reference_moves_at_bounded_rates() -> None:
+    limits = RateLimits(position_mps=0.5, yaw_radps=1.0, theta_l_radps=0.2)
+    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), limits)
+    target = Reference((1.0, 0.0, 1.0), math.pi / 2, (math.pi / 2, -math.pi / 2), 0.5)
+    previous = shaper.update(target, 0.0)
+    for k in range(1, 200):
+        ref = shaper.update(target, 0.02 * k)
+        assert (
+            np.linalg.norm(np.subtract(ref.bar_position_m, previous.bar_position_m))
+            <= 0.5 * 0.02 + 1e-12
+        )
+        assert abs(ref.bar_yaw_rad - previous.bar_yaw_rad) <= 1.0 * 0.02 + 1e-12
+        assert abs(ref.theta_l_rad - previous.theta_l_rad) <= 0.2 * 0.02 + 1e-12
+        previous = ref
+    assert previous == target  # reached exactly, no overshoot
+
+
+def test_yaw_takes_the_short_way_round() -> None:
+    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0), math.radians(170)))
+    shaper.update(Reference((0.0, 0.0, 1.0), math.radians(-170)), 0.0)
+    ref = shaper.update(Reference((0.0, 0.0, 1.0), math.radians(-170)), 0.1)
+    assert ref.bar_yaw_rad > math.radians(170)  # through 180°, not back through 0°
