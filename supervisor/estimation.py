@@ -1,0 +1,78 @@
+"""Estimation: fused rigid-body states → the paper's 36-state vector.
+
+Rigid bodies (QTM names, configurable): ``bar`` (origin at the bar's CoM, body x axis from
+cable 1's end to cable 2's end), ``uav1``, ``uav2`` (origin at the CoM, FLU). The bar's
+roll about its own axis has no dynamics in the model (5) (n_b·ω_b = 0): it is set to 0,
+and the bar's angular velocity keeps only its part perpendicular to the bar.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.model import BAR_STATES
+from mocap.fusion import BodyState
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class BodyNames:
+    """QTM rigid-body names of the bar and the two UAVs."""
+
+    bar: str = "bar"
+    uav1: str = "uav1"
+    uav2: str = "uav2"
+
+    def all(self) -> tuple[str, str, str]:
+        return (self.bar, self.uav1, self.uav2)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The state at a tick: ``x`` (36,) in the paper's order, the oldest body's age [s],
+    and which bodies are not healthy (empty when all are)."""
+
+    x: FloatArray
+    age_s: float
+    unhealthy: tuple[str, ...]
+
+    @property
+    def healthy(self) -> bool:
+        return not self.unhealthy
+
+
+def _missing(name: str) -> BodyState:
+    nan3 = np.full(3, np.nan)
+    return BodyState(
+        name, np.nan, nan3, nan3, np.full(4, np.nan), nan3, nan3, nan3, np.inf, False, False, np.nan
+    )
+
+
+def estimate_state(bodies: Mapping[str, BodyState], names: BodyNames = BodyNames()) -> Estimate:
+    """Assemble x ∈ R^36 from the fused bodies (NaN where a body was never measured)."""
+    bar = bodies.get(names.bar) or _missing(names.bar)
+    x = np.empty(BAR_STATES)
+    x[0:3] = bar.position_m
+    x[3:6] = bar.velocity_mps
+    x[6:9] = (0.0, bar.euler_zyx_rad[1], bar.euler_zyx_rad[2])
+    theta, psi = bar.euler_zyx_rad[1], bar.euler_zyx_rad[2]
+    n_b = np.array([np.cos(psi) * np.cos(theta), np.sin(psi) * np.cos(theta), -np.sin(theta)])
+    omega = bar.angular_velocity_world_radps
+    x[9:12] = omega - (omega @ n_b) * n_b
+    for offset, name in ((12, names.uav1), (24, names.uav2)):
+        uav = bodies.get(name) or _missing(name)
+        x[offset : offset + 3] = uav.position_m
+        x[offset + 3 : offset + 6] = uav.velocity_mps
+        x[offset + 6 : offset + 9] = uav.euler_zyx_rad
+        x[offset + 9 : offset + 12] = uav.body_rates_radps
+    states = [bodies.get(n) for n in names.all()]
+    unhealthy = tuple(
+        n for n, s in zip(names.all(), states, strict=True) if s is None or not s.healthy
+    )
+    age = max((s.age_s if s is not None else np.inf) for s in states)
+    return Estimate(x, float(age), unhealthy)
