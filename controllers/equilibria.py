@@ -23,7 +23,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from controllers.model import BAR_INPUTS, BAR_STATES, P_B, PAYLOAD_STATES, TH_B, uav_slices
+from controllers.model import (
+    BAR_INPUTS,
+    BAR_STATES,
+    P_B,
+    PAYLOAD_STATES,
+    TH_B,
+    V_B,
+    uav_slices,
+)
 from controllers.params import BarSystemParams
 
 FloatArray = NDArray[np.float64]
@@ -57,16 +65,28 @@ def theta_f_closed_form(theta_l: float, m_uav: float, m_b: float) -> float:
 
 @dataclass(frozen=True)
 class Reference:
-    """What the operator asks for: bar centre [m], bar yaw, UAV yaws and θ_l [rad]."""
+    """What the operator asks for: bar centre [m], bar yaw, UAV yaws and θ_l [rad].
+
+    ``velocity_mps`` (default zero) makes it a steady translation of the whole formation
+    (a relative equilibrium: with no drag, x_eq + v t solves (5) with the same u_eq); a
+    moving reference uses it so the MPC tracks it without a velocity-induced lag.
+    """
 
     bar_position_m: tuple[float, float, float]
     bar_yaw_rad: float = 0.0
     uav_yaw_rad: tuple[float, float] = (0.0, 0.0)
     theta_l_rad: float = 0.0
+    velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def with_yaws(self, bar_yaw_rad: float, uav_yaw_rad: tuple[float, float]) -> Reference:
         """The same equilibrium family, turned to other yaw angles."""
-        return Reference(self.bar_position_m, bar_yaw_rad, uav_yaw_rad, self.theta_l_rad)
+        return Reference(
+            self.bar_position_m, bar_yaw_rad, uav_yaw_rad, self.theta_l_rad, self.velocity_mps
+        )
+
+    def at_rest(self) -> Reference:
+        """The same reference with zero velocity (where a moving reference will stop)."""
+        return Reference(self.bar_position_m, self.bar_yaw_rad, self.uav_yaw_rad, self.theta_l_rad)
 
 
 @dataclass(frozen=True)
@@ -97,6 +117,7 @@ class Equilibrium:
         x_i = np.zeros(PAYLOAD_STATES)
         x_i[0:12] = self.x[first : first + 12]
         x_i[12:15] = self.bar_ends_m[i - 1]
+        x_i[15:18] = self.x[V_B]
         return x_i
 
     def payload_input(self, i: int) -> FloatArray:
@@ -120,6 +141,7 @@ def tilt_to_euler(thrust_direction: FloatArray, yaw_rad: float) -> tuple[float, 
 def _check_reference(reference: Reference) -> None:
     values = (
         *reference.bar_position_m,
+        *reference.velocity_mps,
         reference.bar_yaw_rad,
         *reference.uav_yaw_rad,
         reference.theta_l_rad,
@@ -150,7 +172,9 @@ def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibriu
 
     x = np.zeros(BAR_STATES)
     u = np.zeros(BAR_INPUTS)
+    velocity = np.asarray(reference.velocity_mps, dtype=float)
     x[P_B] = p_b
+    x[V_B] = velocity
     x[TH_B] = (0.0, 0.0, psi_b)
     tensions, thrusts, theta_ls, theta_fs, ends, forces = [], [], [], [], [], []
     for k in range(2):
@@ -165,8 +189,9 @@ def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibriu
         yaw = reference.uav_yaw_rad[k]
         roll, pitch = tilt_to_euler(thrust_vector, yaw)
 
-        p_i, _, th_i, _ = uav_slices(i)
+        p_i, v_i, th_i, _ = uav_slices(i)
         x[p_i] = end + params.cable_lengths_m[k] * n_i
+        x[v_i] = velocity
         x[th_i] = (roll, pitch, yaw)
         u[4 * k] = thrust
 

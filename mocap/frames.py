@@ -12,6 +12,7 @@ Conventions:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -135,3 +136,127 @@ def wrap_angle(angle_rad: float) -> float:
     """An angle wrapped to (−π, π]."""
     wrapped = math.remainder(angle_rad, 2.0 * math.pi)
     return math.pi if wrapped == -math.pi else wrapped
+
+
+# --- QTM rotation conventions (docs: protocols.md §1.4 "Units and conventions") --------------
+
+
+def rotation_from_qtm_matrix(matrix: Sequence[float]) -> FloatArray:
+    """The 3×3 rotation (rigid body → QTM global) of QTM's 9 rotation floats, shape (3, 3).
+
+    QTM sends the matrix column-major: R = [[m0, m3, m6], [m1, m4, m7], [m2, m5, m8]]
+    (Qualisys' own ``qfly/pose.py``; protocols.md §1.4). No orthonormalization: the caller
+    decides what to do with a non-finite or degenerate matrix.
+    """
+    m = np.asarray(matrix, dtype=float)
+    if m.shape != (9,):
+        raise ValueError(f"a QTM rotation has 9 elements, got shape {m.shape}")
+    result: FloatArray = m.reshape(3, 3, order="F")
+    return result
+
+
+def qtm_matrix_from_rotation(R: FloatArray) -> tuple[float, ...]:
+    """Inverse of ``rotation_from_qtm_matrix``: the 9 floats in QTM's column-major order."""
+    return tuple(float(v) for v in np.asarray(R, dtype=float).reshape(3, 3).flatten(order="F"))
+
+
+def rotation_from_qtm_euler_deg(roll_deg: float, pitch_deg: float, yaw_deg: float) -> FloatArray:
+    """Rotation (rigid body → QTM global), shape (3, 3), of QTM's "Qualisys standard" Euler angles.
+
+    The standard applies roll (about x), then pitch (about the rotated y′), then yaw (about
+    the twice-rotated z″), all right-handed, in degrees: R = Rx(roll)·Ry(pitch)·Rz(yaw)
+    (docs.qualisys.com "Rotation angles in QTM"; protocols.md §1.4). This is *not* the
+    paper's Z-Y-X convention of ``rotation_from_euler_zyx`` and only holds while QTM's Euler
+    definition is left at its default.
+    """
+    a, b, c = math.radians(roll_deg), math.radians(pitch_deg), math.radians(yaw_deg)
+    ca, sa, cb, sb, cc, sc = (
+        math.cos(a),
+        math.sin(a),
+        math.cos(b),
+        math.sin(b),
+        math.cos(c),
+        math.sin(c),
+    )
+    return np.array(
+        [
+            [cb * cc, -cb * sc, sb],
+            [sa * sb * cc + ca * sc, -sa * sb * sc + ca * cc, -sa * cb],
+            [-ca * sb * cc + sa * sc, ca * sb * sc + sa * cc, ca * cb],
+        ]
+    )
+
+
+def qtm_euler_deg_from_rotation(R: FloatArray) -> FloatArray:
+    """(roll, pitch, yaw) [deg] in QTM's "Qualisys standard" of a rotation, shape (3,).
+
+    Inverts ``rotation_from_qtm_euler_deg``; pitch in [−90°, 90°], roll and yaw in
+    (−180°, 180°]. At pitch = ±90° (gimbal lock) roll is set to 0 and yaw carries the rest.
+    """
+    m = np.asarray(R, dtype=float)
+    pitch = math.asin(max(-1.0, min(1.0, float(m[0, 2]))))
+    if math.hypot(float(m[0, 0]), float(m[0, 1])) < 1e-9:
+        # cos(pitch) ≈ 0: only roll ± yaw is observable; put it all in yaw.
+        roll = 0.0
+        yaw = math.atan2(float(m[1, 0]), float(m[1, 1]))
+    else:
+        roll = math.atan2(-float(m[1, 2]), float(m[2, 2]))
+        yaw = math.atan2(-float(m[0, 1]), float(m[0, 0]))
+    return np.array([math.degrees(roll), math.degrees(pitch), math.degrees(yaw)])
+
+
+# --- Quaternion algebra (w, x, y, z), Hamilton -----------------------------------------------
+
+
+def quaternion_multiply(q1: FloatArray, q2: FloatArray) -> FloatArray:
+    """Hamilton product q1 ⊗ q2 of two (w, x, y, z) quaternions, shape (4,)."""
+    w1, x1, y1, z1 = np.asarray(q1, dtype=float)
+    w2, x2, y2, z2 = np.asarray(q2, dtype=float)
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def quaternion_conjugate(q: FloatArray) -> FloatArray:
+    """Conjugate (the inverse of a unit quaternion), shape (4,)."""
+    w, x, y, z = np.asarray(q, dtype=float)
+    return np.array([w, -x, -y, -z])
+
+
+def quaternion_from_rotation_vector(rotation_vector_rad: FloatArray) -> FloatArray:
+    """Unit quaternion of a rotation vector (axis · angle [rad]), shape (3,) → (4,).
+
+    With q_body→world, ``q ⊗ quaternion_from_rotation_vector(ω·dt)`` turns the body by a
+    constant body-frame rate ω [rad/s] over dt [s] (exact, not first order).
+    """
+    v = np.asarray(rotation_vector_rad, dtype=float)
+    angle = float(np.linalg.norm(v))
+    if angle < 1e-12:
+        # Second-order series avoids 0/0 and keeps the result unit length to machine precision.
+        q = np.array([1.0 - angle * angle / 8.0, *(0.5 * v)])
+        result: FloatArray = q / np.linalg.norm(q)
+        return result
+    half = 0.5 * angle
+    return np.array([math.cos(half), *(math.sin(half) / angle * v)])
+
+
+def rotation_vector_from_quaternion(q: FloatArray) -> FloatArray:
+    """Rotation vector (axis · angle [rad], angle in [0, π]) of a quaternion, shape (4,) → (3,).
+
+    q and −q give the same result (the shorter of the two rotations).
+    """
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    vector = np.array([x, y, z])
+    sin_half = float(np.linalg.norm(vector))
+    if sin_half < 1e-12:
+        result: FloatArray = 2.0 * vector
+        return result
+    angle = 2.0 * math.atan2(sin_half, w)
+    return np.asarray(angle / sin_half * vector, dtype=float)

@@ -11,6 +11,7 @@ import argparse
 import json
 import math
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -18,8 +19,12 @@ from benchmarks.mpc import add_arguments as _bench_arguments
 from benchmarks.mpc import run as run_mpc_benchmark
 from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium, theta_f_closed_form
 from supervisor.config import Config, ConfigError, load_config
-from supervisor.flight_log import read_flight_log
-from supervisor.report import write_report
+from supervisor.console import SimulationProgress, format_summary
+from supervisor.flight_core import CONTROLLERS
+from supervisor.flight_log import finite_or_none, read_flight_log
+from supervisor.report import summarize, write_report
+from supervisor.scenarios import available_scenarios, load_scenario, scenario_duration_s
+from supervisor.simulation import result_summary, run_scenario
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "sim.toml"
@@ -94,6 +99,30 @@ def _bench(config: Config, args: argparse.Namespace) -> int:
     return run_mpc_benchmark(args.config, args.ticks, args.backends, args.json)
 
 
+def _simulate(config: Config, args: argparse.Namespace) -> int:
+    scenario = load_scenario(args.scenario)
+    if args.seed is not None and args.seed < 0:
+        raise UsageError(f"--seed {args.seed}: must be >= 0")
+    with tempfile.TemporaryDirectory() as scratch:
+        destination = args.log or Path(scratch) / "flight.jsonl"
+        with SimulationProgress(scenario_duration_s(scenario), enabled=not args.json) as progress:
+            result = run_scenario(
+                config, scenario, args.controller, args.seed, destination, progress.update
+            )
+        assert result.log_path is not None
+        summary = {
+            **summarize(read_flight_log(result.log_path)),
+            **result_summary(result, args.controller),
+        }
+        if args.log is not None:
+            summary["log"] = str(result.log_path)
+    if args.json:
+        print(json.dumps(finite_or_none(summary), allow_nan=False))
+    else:
+        print(format_summary(summary))
+    return 0 if result.completed else 1
+
+
 def _report(config: Config, args: argparse.Namespace) -> int:
     paths: list[Path] = args.logs
     if len(paths) > 2:
@@ -131,6 +160,21 @@ def build_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help="time every QP back-end on the same MPC ticks")
     _bench_arguments(bench)
     bench.set_defaults(handler=_bench)
+
+    simulate = commands.add_parser(
+        "simulate", help="fly a scenario on the embedded simulator, faster than real time"
+    )
+    simulate.add_argument(
+        "--scenario",
+        required=True,
+        metavar="NAME",
+        help=f"configs/scenarios/NAME.toml or a path ({', '.join(available_scenarios())})",
+    )
+    simulate.add_argument("--controller", choices=CONTROLLERS, default="centralized")
+    simulate.add_argument("--log", type=Path, metavar="PATH", help="write the flight log here")
+    simulate.add_argument("--seed", type=int, metavar="N", help="noise seed (default sim.seed)")
+    simulate.add_argument("--json", action="store_true", help="print one JSON object")
+    simulate.set_defaults(handler=_simulate)
 
     report = commands.add_parser(
         "report", help="figures (Figs 6-8) and a Table III summary of flight logs"

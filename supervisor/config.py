@@ -212,6 +212,70 @@ class MpcSection(_Section):
         )
 
 
+class MocapSection(_Section):
+    """The motion-capture source (a QTM RT server) and the state filter's tuning."""
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=1, le=65535)] = 22223
+    bodies: Annotated[list[str], Field(min_length=3, max_length=3)] = ["bar", "uav1", "uav2"]
+    # Filter tuning (mocap/fusion.py): white-acceleration PSDs and measurement noise.
+    position_accel_psd: PositiveFloat = 0.5
+    angular_accel_psd: PositiveFloat = 20.0
+    position_noise_m: PositiveFloat = 0.0005
+    attitude_noise_deg: PositiveFloat = 0.1
+    max_age_s: PositiveFloat = 0.05
+
+    @model_validator(mode="after")
+    def _distinct_bodies(self) -> MocapSection:
+        if len(set(self.bodies)) != 3:
+            raise ValueError("mocap.bodies: three distinct names (bar, UAV 1, UAV 2)")
+        return self
+
+
+class SimMocapSection(_Section):
+    """The simulated motion capture: rate, noise (1σ), latency and tracking losses."""
+
+    rate_hz: PositiveFloat = 100.0
+    position_sigma_m: NonNegativeFloat = 0.0005
+    orientation_sigma_deg: NonNegativeFloat = 0.1
+    latency_s: NonNegativeFloat = 0.005
+    dropout_probability: Annotated[float, Field(ge=0.0, le=1.0)] = 0.002
+    burst_probability: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+    burst_frames: Annotated[
+        list[Annotated[int, Field(ge=1)]], Field(min_length=2, max_length=2)
+    ] = [
+        10,
+        50,
+    ]
+
+    @model_validator(mode="after")
+    def _burst_range(self) -> SimMocapSection:
+        if self.burst_frames[0] > self.burst_frames[1]:
+            raise ValueError("sim.mocap.burst_frames must be [min, max] with min <= max")
+        return self
+
+
+class SimSection(_Section):
+    """The embedded simulator's plant: its step, actuators and deliberate mismatch against
+    the ``system`` section the controllers use (the plant is built from ``system`` first)."""
+
+    seed: Annotated[int, Field(ge=0)] = 0
+    step_s: PositiveFloat = 0.001
+    motor_time_constant_s: NonNegativeFloat = 0.02
+    uav_thrust_max_n: PositiveFloat = 30.0
+    uav_mass_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
+    bar_mass_scale: PositiveFloat = 1.0
+    bar_com_shift_m: FiniteFloat = 0.0
+    drag_linear_n_s_per_m: NonNegativeFloat = 0.0
+    wind_mean_mps: Vec3 = [0.0, 0.0, 0.0]
+    wind_gust_std_mps: Annotated[list[NonNegativeFloat], Field(min_length=3, max_length=3)] = [
+        0.0,
+        0.0,
+        0.0,
+    ]
+    mocap: SimMocapSection = SimMocapSection()
+
+
 class Config(_Section):
     """One complete setup."""
 
@@ -219,6 +283,8 @@ class Config(_Section):
     system: SystemSection
     arena: ArenaSection
     mpc: MpcSection
+    mocap: MocapSection = MocapSection()
+    sim: SimSection = SimSection()
 
 
 def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:

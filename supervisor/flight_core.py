@@ -59,9 +59,12 @@ class CoreSettings:
     reached_position_m: float = 0.05
     reached_yaw_rad: float = math.radians(3.0)
     flight_rates: RateLimits = field(default_factory=RateLimits)
-    takeoff_rates: RateLimits = field(default_factory=lambda: RateLimits(position_mps=0.25))
+    takeoff_rates: RateLimits = field(
+        default_factory=lambda: RateLimits(position_mps=0.25, acceleration_mps2=0.15)
+    )
     abort_rates: RateLimits = field(default_factory=lambda: RateLimits(position_mps=0.4))
     descend_speed_mps: float = 0.3
+    settle_on_ground_s: float = 1.0
     landing_clearance_m: float = 0.3
     bumpless_ticks: int = 15
     pd_gains: UavPdGains = field(default_factory=UavPdGains)
@@ -120,6 +123,7 @@ class FlightCore:
         self._last_estimate: Estimate | None = None
         self._last_tick_s: float | None = None
         self._dt_s = 0.0
+        self._low_since_s: float | None = None
 
     # ---- operator interface -------------------------------------------------------------
     def request(self, event: str, now_s: float) -> Transition:
@@ -150,6 +154,21 @@ class FlightCore:
                 self._blend_tick = 0
         return Transition(True, self.modes.mode)
 
+    def start_in_hover(
+        self, estimate: Estimate, now_s: float, ground_z_m: tuple[float, float, float]
+    ) -> None:
+        """Begin airborne, hovering where the system is (simulations that start in the air,
+        as the paper's Section VII does); ``ground_z_m`` are the heights of the bar's and
+        the UAVs' centres when they rest on the ground, which a landing returns to. Not an
+        operator request: the mode table has no way from the ground to hover but take-off."""
+        self.modes = FlightModes(Mode.HOVER)
+        self._ground_bar_z = ground_z_m[0]
+        self._ground_uav_z = (ground_z_m[1], ground_z_m[2])
+        self._last_estimate = estimate
+        x = estimate.x
+        self._yaw_hold = (float(x[20]), float(x[32]))
+        self._entered(Mode.HOVER, now_s)
+
     def queue_setpoints(self, setpoints: list[Setpoint]) -> None:
         """Queue validated setpoints (all or none; raises ``SetpointError``)."""
         self.queue.extend(setpoints)
@@ -173,8 +192,7 @@ class FlightCore:
         reference: Reference | None = None
         if mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
             commands = (UavCommand.off(), UavCommand.off())
-            if mode is Mode.ARMED:
-                self._remember_ground(estimate)
+            self._remember_ground(estimate)
         elif mode is Mode.TAKEOFF:
             commands, plan, reference = self._takeoff(now_s, estimate, events)
         elif mode in (Mode.HOVER, Mode.TRACKING):
@@ -227,7 +245,8 @@ class FlightCore:
     # ---- phases ---------------------------------------------------------------------------
     def _entered(self, mode: Mode, now_s: float) -> None:
         x = self._last_estimate.x if self._last_estimate is not None else None
-        if mode is Mode.TAKEOFF and x is not None:
+        if mode is Mode.TAKEOFF and x is not None and self._last_estimate is not None:
+            self._remember_ground(self._last_estimate)
             self.phase = "climb"
             self._set_climb_targets(x)
         elif mode in (Mode.LANDING, Mode.ABORT):
@@ -431,11 +450,15 @@ class FlightCore:
         for k, ground_z in enumerate(self._ground_uav_z):
             self._pd_targets[k][2] = max(ground_z - 0.05, self._pd_targets[k][2] - dt_descend)
         commands = self._pd_commands(x, (0.0, 0.0))
-        on_ground = all(
-            x[o + 2] < gz + 0.05 and np.linalg.norm(x[o + 3 : o + 6]) < 0.15
-            for o, gz in zip((12, 24), self._ground_uav_z, strict=True)
-        )
-        if on_ground:
+        # Down once both have stayed at their ground height for a while: velocity
+        # estimates are too noisy near zero to decide on one tick.
+        low = all(x[o + 2] < gz + 0.05 for o, gz in zip((12, 24), self._ground_uav_z, strict=True))
+        if not low:
+            self._low_since_s = None
+        elif self._low_since_s is None:
+            self._low_since_s = now_s
+        settled_since = self._low_since_s
+        if settled_since is not None and now_s - settled_since >= self.settings.settle_on_ground_s:
             events.append("landed")
             return (UavCommand.off(), UavCommand.off()), None, None
         return commands, None, None

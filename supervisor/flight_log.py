@@ -45,39 +45,52 @@ class TickRecord:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def _finite_or_none(value: Any) -> Any:
-    """JSON has no NaN: non-finite floats are written as null."""
+def finite_or_none(value: Any) -> Any:
+    """JSON has no NaN: non-finite floats (in lists and dicts too) become None (null)."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, list):
-        return [_finite_or_none(v) for v in value]
+        return [finite_or_none(v) for v in value]
     if isinstance(value, dict):
-        return {k: _finite_or_none(v) for k, v in value.items()}
+        return {k: finite_or_none(v) for k, v in value.items()}
     return value
 
 
+def _new_log_path(folder: Path, started: datetime) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = f"flight-{started:%Y%m%d-%H%M%S}"
+    path = folder / f"{stem}.jsonl"
+    suffix = 1
+    while path.exists():  # two flights started within the same second
+        path = folder / f"{stem}-{suffix}.jsonl"
+        suffix += 1
+    return path
+
+
 class FlightLogWriter:
-    """Appends tick records to a new log file in ``folder``; use as a context manager."""
+    """Appends tick records to a log file; use as a context manager.
+
+    ``destination`` is a folder (a new file named by the start time is created in it; the
+    service's one-log-per-flight) or a ``.jsonl`` file path (created or replaced).
+    """
 
     def __init__(
-        self, folder: Path, header: dict[str, Any], started: datetime | None = None
+        self, destination: Path, header: dict[str, Any], started: datetime | None = None
     ) -> None:
         started = started or datetime.now(UTC)
-        folder.mkdir(parents=True, exist_ok=True)
-        stem = f"flight-{started:%Y%m%d-%H%M%S}"
-        path = folder / f"{stem}.jsonl"
-        suffix = 1
-        while path.exists():  # two flights started within the same second
-            path = folder / f"{stem}-{suffix}.jsonl"
-            suffix += 1
+        if destination.suffix == ".jsonl":
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            path, mode = destination, "w"
+        else:
+            path, mode = _new_log_path(destination, started), "x"
         self.path = path
-        self._file: IO[str] = path.open("x", encoding="utf-8")
+        self._file: IO[str] = path.open(mode, encoding="utf-8")
         self._last_sync_s = -math.inf
         self._write({"kind": "header", "started": started.isoformat(), **header})
         self._sync()
 
     def _write(self, payload: dict[str, Any]) -> None:
-        self._file.write(json.dumps(_finite_or_none(payload), separators=(",", ":")) + "\n")
+        self._file.write(json.dumps(finite_or_none(payload), separators=(",", ":")) + "\n")
         self._file.flush()
 
     def _sync(self) -> None:

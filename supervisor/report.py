@@ -19,11 +19,15 @@ matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 import numpy as np
 
+from controllers.mpc import PlanStatus
 from supervisor.flight_log import FlightLog
 
 BODIES = (("bar", 0), ("UAV 1", 12), ("UAV 2", 24))
 AXES = ("x", "y", "z")
 ANGLES = ("roll", "pitch", "yaw")
+
+
+FALLBACK_STATUSES = frozenset(s.value for s in PlanStatus if s.is_fallback)
 
 
 def _wrap(angles: np.ndarray) -> np.ndarray:
@@ -66,7 +70,7 @@ def summarize(log: FlightLog) -> dict[str, Any]:
             "max": float(solve.max()) if solve.size else math.nan,
         },
         "compute_ms": {"p50": pct(compute, 50), "p99": pct(compute, 99)},
-        "fallback_ticks": sum(1 for s in log.plan_status if s != "optimal"),
+        "fallback_ticks": sum(1 for s in log.plan_status if s in FALLBACK_STATUSES),
     }
 
 

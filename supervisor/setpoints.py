@@ -14,9 +14,12 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
 from controllers.params import BarSystemParams
+
+FloatArray = NDArray[np.float64]
 
 
 class SetpointError(ValueError):
@@ -25,13 +28,15 @@ class SetpointError(ValueError):
 
 @dataclass(frozen=True)
 class Setpoint:
-    """One queue entry: bar centre [m, arena frame], bar yaw, UAV yaws, θ_l [rad], hold [s]."""
+    """One queue entry: bar centre [m, arena frame], bar yaw, UAV yaws, θ_l [rad], hold [s],
+    and optionally how long to wait for it to be reached before moving on anyway [s]."""
 
     bar_position_m: tuple[float, float, float]
     bar_yaw_rad: float = 0.0
     uav_yaw_rad: tuple[float, float] | None = None
     theta_l_rad: float = 0.0
     hold_s: float = 5.0
+    timeout_s: float | None = None
 
     def reference(self) -> Reference:
         """The equilibrium family this setpoint asks for (UAV yaws default to the bar's)."""
@@ -94,7 +99,9 @@ class SetpointQueue:
         self.capacity = capacity
         self._queued: deque[Setpoint] = deque()
         self.active: Setpoint | None = None
+        self.timed_out = 0
         self._reached_since_s: float | None = None
+        self._active_since_s = 0.0
 
     @property
     def queued(self) -> list[Setpoint]:
@@ -115,29 +122,38 @@ class SetpointQueue:
         self._reached_since_s = None
 
     def update(self, reached: bool, now_s: float) -> Setpoint | None:
-        """Advance: the active setpoint ends once reached and held ``hold_s``; then the
-        next one starts. Returns the setpoint to fly now (None when there is none)."""
-        if self.active is not None:
+        """Advance: the active setpoint ends once reached and held ``hold_s`` (or when its
+        ``timeout_s`` has passed, counted in ``timed_out``); then the next one starts.
+        Returns the setpoint to fly now (None when there is none)."""
+        active = self.active
+        if active is not None:
             if not reached:
                 self._reached_since_s = None
             elif self._reached_since_s is None:
                 self._reached_since_s = now_s
-            if (
-                self._reached_since_s is not None
-                and now_s - self._reached_since_s >= self.active.hold_s
-            ):
+            held = (
+                self._reached_since_s is not None and now_s - self._reached_since_s >= active.hold_s
+            )
+            expired = active.timeout_s is not None and now_s - self._active_since_s >= (
+                active.timeout_s
+            )
+            if held or expired:
+                self.timed_out += int(expired and not held)
                 self.active = None
                 self._reached_since_s = None
         if self.active is None and self._queued:
             self.active = self._queued.popleft()
+            self._active_since_s = now_s
         return self.active
 
 
 @dataclass(frozen=True)
 class RateLimits:
-    """How fast the reference may move: bar position [m/s], yaws [rad/s], θ_l [rad/s]."""
+    """How fast the reference may move: bar position [m/s] and its acceleration [m/s²],
+    yaws [rad/s], θ_l [rad/s]."""
 
     position_mps: float = 0.3
+    acceleration_mps2: float = 0.3
     yaw_radps: float = math.radians(20.0)
     theta_l_radps: float = math.radians(10.0)
 
@@ -151,8 +167,36 @@ def _approach_angle(current: float, target: float, max_step: float) -> float:
     return current + max(-max_step, min(max_step, error))
 
 
+def _move(
+    position: FloatArray, velocity: FloatArray, target: FloatArray, limits: RateLimits, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """One step of a trapezoidal profile toward ``target``: speed ≤ ``position_mps``,
+    acceleration ≤ ``acceleration_mps2``, slowing down in time to stop on the target."""
+    offset = target - position
+    distance = float(np.linalg.norm(offset))
+    a = limits.acceleration_mps2
+    if distance == 0.0 and not velocity.any():
+        return target, velocity
+    direction = offset / distance if distance > 0.0 else np.zeros(3)
+    # The fastest speed from which steps of a·dt less per tick still stop on the target
+    # (the discrete form of √(2 a d)).
+    step = a * dt
+    stopping = step * (math.sqrt(0.25 + 2.0 * distance / (step * dt)) - 0.5) if step > 0 else 0.0
+    wanted = direction * min(limits.position_mps, stopping)
+    change = wanted - velocity
+    change_norm = float(np.linalg.norm(change))
+    if change_norm > a * dt:
+        change *= a * dt / change_norm
+    new_velocity = velocity + change
+    if distance <= float(np.linalg.norm(new_velocity)) * dt + 1e-9:
+        return target, np.zeros(3)
+    return position + new_velocity * dt, new_velocity
+
+
 class ReferenceShaper:
-    """Moves the reference toward the target at bounded rates (time as an argument)."""
+    """Moves the reference toward the target at bounded rates (time as an argument). The
+    bar position follows a trapezoidal velocity profile and the reference carries that
+    velocity (zero once the target is reached); yaws and θ_l move at bounded rates."""
 
     def __init__(self, start: Reference, limits: RateLimits = RateLimits()) -> None:
         self.current = start
@@ -169,13 +213,12 @@ class ReferenceShaper:
         dt = 0.0 if self._last_s is None else max(0.0, now_s - self._last_s)
         self._last_s = now_s
         c, lim = self.current, self.limits
-        offset = np.subtract(target.bar_position_m, c.bar_position_m)
-        distance = float(np.linalg.norm(offset))
-        step = lim.position_mps * dt
-        position = (
-            target.bar_position_m
-            if distance <= step
-            else tuple(np.add(c.bar_position_m, offset * (step / distance)))
+        position, velocity = _move(
+            np.array(c.bar_position_m),
+            np.array(c.velocity_mps),
+            np.array(target.bar_position_m),
+            lim,
+            dt,
         )
         yaw_step = lim.yaw_radps * dt
         self.current = Reference(
@@ -186,5 +229,6 @@ class ReferenceShaper:
                 _approach_angle(c.uav_yaw_rad[1], target.uav_yaw_rad[1], yaw_step),
             ),
             _approach(c.theta_l_rad, target.theta_l_rad, lim.theta_l_radps * dt),
+            (float(velocity[0]), float(velocity[1]), float(velocity[2])),
         )
         return self.current

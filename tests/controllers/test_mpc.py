@@ -96,6 +96,37 @@ def test_backends_agree_on_the_same_qps(controller_cls: type, lab_params: BarSys
 
 
 @pytest.mark.parametrize("controller_cls", [CentralizedMpc, DecentralizedMpc])
+def test_a_formation_moving_with_its_reference_needs_no_correction(
+    controller_cls: type, lab_params: BarSystemParams
+) -> None:
+    """x_eq + v t solves the model with u_eq, so a system exactly on a reference that moves
+    at constant velocity is left alone; the same state under a reference at rest is braked."""
+    mpc = controller_cls(lab_params, settings(controller_cls.__name__.lower()[:-3]))
+    moving = Reference((0.2, 0.1, 1.0), 0.4, (0.4, 0.9), math.radians(15), (0.3, -0.1, 0.05))
+    eq = bar_equilibrium(lab_params, moving)
+    np.testing.assert_allclose(eq.x[3:6], moving.velocity_mps)
+    np.testing.assert_allclose(eq.x[15:18], moving.velocity_mps)
+    plan = mpc.step(eq.x, moving, 0.0)
+    assert plan.status is PlanStatus.OPTIMAL
+    np.testing.assert_allclose(plan.u, eq.u, atol=1e-6 * actuator_range(2).max())
+    mpc.reset()
+    braking = mpc.step(eq.x, moving.at_rest(), 0.0)
+    assert np.max(np.abs(braking.u - eq.u)) > 1e-2
+
+
+def test_a_moving_equilibrium_is_a_steady_translation(lab_params: BarSystemParams) -> None:
+    """f(x_eq, u_eq) = (v, 0, 0, 0, v, 0, …): positions move at v, nothing accelerates."""
+    model = BarSystemModel(lab_params)
+    moving = Reference((0.0, 0.0, 1.0), 1.0, (0.2, -0.4), math.radians(30), (0.4, 0.2, -0.1))
+    eq = bar_equilibrium(lab_params, moving)
+    x_dot = np.asarray(model.dynamics(eq.x, eq.u)).ravel()
+    expected = np.zeros(36)
+    for offset in (0, 12, 24):
+        expected[offset : offset + 3] = moving.velocity_mps
+    np.testing.assert_allclose(x_dot, expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("controller_cls", [CentralizedMpc, DecentralizedMpc])
 def test_bad_input_falls_back_to_the_shifted_plan(
     controller_cls: type, lab_params: BarSystemParams
 ) -> None:

@@ -66,6 +66,11 @@ def test_overrides_are_toml_literals() -> None:
         ("mpc.thrust_min_n=30.0", "mpc", "thrust_min_n"),
         ("system.gravity=nan", "system.gravity", "finite"),
         ("arena.min_m=[0, 0, 5]", "arena", "below"),
+        ("sim.mocap.rate_hz=0", "sim.mocap.rate_hz", "greater than 0"),
+        ("sim.mocap.burst_frames=[9, 3]", "sim.mocap", "min <= max"),
+        ("sim.uav_mass_scale=[1.0]", "sim.uav_mass_scale", "at least 2"),
+        ("mocap.bodies=['bar', 'bar', 'uav2']", "mocap", "distinct"),
+        ("mocap.port=70000", "mocap.port", "less than or equal"),
     ],
 )
 def test_bad_values_name_their_key(override: str, key: str, reason: str) -> None:

@@ -126,3 +126,26 @@ def test_report_of_a_missing_log_fails_cleanly(
 ) -> None:
     assert main(["report", str(tmp_path / "absent.jsonl"), "--out", str(tmp_path)]) == 2
     assert "absent.jsonl" in capsys.readouterr().err
+
+
+def test_a_log_can_be_written_to_a_named_file(tmp_path: Path) -> None:
+    path = tmp_path / "runs" / "mine.jsonl"
+    for _ in range(2):  # a named file is replaced, not appended to
+        with FlightLogWriter(path, {"setup": "named"}) as log:
+            log.append(
+                TickRecord(
+                    0.0,
+                    "hover",
+                    "centralized",
+                    [0.0] * 36,
+                    [0.0] * 36,
+                    [0.0] * 8,
+                    "optimal",
+                    1.0,
+                    1.0,
+                    0.0,
+                    5.0,
+                )
+            )
+        assert log.path == path
+    assert len(read_flight_log(path).t_s) == 1

@@ -87,3 +87,37 @@ def test_yaw_takes_the_short_way_round() -> None:
     shaper.update(Reference((0.0, 0.0, 1.0), math.radians(-170)), 0.0)
     ref = shaper.update(Reference((0.0, 0.0, 1.0), math.radians(-170)), 0.1)
     assert ref.bar_yaw_rad > math.radians(170)  # through 180°, not back through 0°
+
+
+def test_queue_gives_up_on_a_setpoint_after_its_timeout() -> None:
+    queue = SetpointQueue()
+    a, b = Setpoint((0, 0, 1), hold_s=2.0, timeout_s=5.0), Setpoint((1, 0, 1))
+    queue.extend([a, b])
+    assert queue.update(False, 10.0) is a
+    assert queue.update(True, 14.0) is a  # reached late: holding
+    assert queue.update(True, 15.0) is b  # 5 s since it started, held or not
+    assert queue.timed_out == 1
+    assert queue.update(False, 100.0) is b  # no timeout: waits as long as it takes
+
+
+def test_reference_accelerates_gently_and_carries_its_velocity() -> None:
+    limits = RateLimits(position_mps=0.4, acceleration_mps2=0.5)
+    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), limits)
+    target = Reference((1.0, 1.0, 1.5))
+    dt = 0.02
+    positions, velocities = [], []
+    for k in range(300):
+        ref = shaper.update(target, dt * k)
+        positions.append(ref.bar_position_m)
+        velocities.append(ref.velocity_mps)
+    p, v = np.array(positions), np.array(velocities)
+    speed = np.linalg.norm(v, axis=1)
+    assert speed.max() <= 0.4 + 1e-12
+    assert speed.max() > 0.39  # long enough a move to cruise
+    changes = np.linalg.norm(np.diff(v, axis=0), axis=1)
+    stop = int(np.argmax(speed[1:] == 0.0))  # the tick it lands on the target
+    assert changes[:stop].max() <= 0.5 * dt + 1e-12
+    assert changes[stop] <= 2 * 0.5 * dt  # the last, slow step onto the target
+    # The velocity it carries is the one it moves with.
+    np.testing.assert_allclose(np.diff(p, axis=0)[:stop], v[1 : stop + 1] * dt, atol=1e-12)
+    assert positions[-1] == target.bar_position_m and velocities[-1] == (0.0, 0.0, 0.0)

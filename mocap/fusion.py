@@ -1,0 +1,350 @@
+"""Rigid-body state estimation from motion-capture poses: pure, time is an argument.
+
+Per rigid body a ``RigidBodyFilter`` turns timestamped ``BodyPose`` samples into a
+``BodyState`` predicted to any requested time: position and velocity (arena frame, ENU-like,
+z up), attitude as a quaternion and the paper's Z-Y-X Euler angles (eq. (2)), body rates
+(FLU body frame), plus the age of the last measurement and tracked/healthy flags.
+
+Model (per axis, identical for the three axes so one 2×2 covariance serves all three):
+
+* translation — a constant-velocity Kalman filter, state (p, v), white-acceleration process
+  noise of spectral density ``position_accel_psd`` and a position measurement of standard
+  deviation ``position_noise_m``;
+* rotation — the same constant-velocity filter on the attitude *error* (an error-state, or
+  multiplicative, Kalman filter): the nominal attitude q turns at the body rate ω,
+  q(t + h) = q(t) ⊗ exp(ω h), which is exact for a constant body rate; each measurement's
+  innovation is the rotation vector of q_pred⁻¹ ⊗ q_meas, in the body frame. Rates thus come
+  from quaternion differences, never from Euler-angle differences, so yaw crossing ±π
+  causes no jump.
+
+Samples older than (or as old as) the last one are ignored; untracked samples update nothing
+but clear the ``tracked`` flag; after a dropout longer than ``reset_after_s`` the filter
+restarts from the next sample instead of trusting a stale velocity. Every quaternion,
+rotation and Euler conversion goes through ``mocap.frames``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from mocap import frames
+from mocap.frames import FloatArray
+from mocap.qtm_protocol import BodyPose, MocapFrame
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Tuning of the filters. Units in the names; PSD = power spectral density.
+
+    Defaults fit a QTM system at 100–300 Hz tracking quadrotors: sub-millimetre position noise
+    (QTM residuals are typically 0.2–1 mm), ~0.1° attitude noise, and accelerations of a few
+    m/s² and tens of rad/s² that the white-noise model has to absorb.
+    """
+
+    position_accel_psd: float = 4.0
+    """Translational white-acceleration PSD q [(m/s²)²/Hz = m²/s³]."""
+    position_noise_m: float = 5e-4
+    """Measurement noise, 1σ per axis [m]."""
+    angular_accel_psd: float = 100.0
+    """Rotational white-acceleration PSD [(rad/s²)²/Hz = rad²/s³]."""
+    attitude_noise_rad: float = 2e-3
+    """Attitude measurement noise, 1σ per body axis [rad]."""
+    initial_velocity_std_mps: float = 5.0
+    """Prior 1σ of the velocity at the first sample [m/s]."""
+    initial_rate_std_radps: float = 10.0
+    """Prior 1σ of the body rates at the first sample [rad/s]."""
+    max_age_s: float = 0.05
+    """A body is healthy while tracked and its last measurement is younger than this [s]."""
+    reset_after_s: float = 0.5
+    """A gap longer than this restarts the filter from the next sample [s]."""
+    max_prediction_s: float = 0.1
+    """Predictions extrapolate at most this far from the last measurement [s]; older data
+    is held there (and flagged unhealthy by ``max_age_s``) rather than run away."""
+    time_source: Literal["capture", "receive"] = "capture"
+    """Sample time of a frame: QTM's capture timestamp mapped onto the local clock by
+    ``CaptureClock`` (removes network jitter), or the local receive time itself."""
+
+    def __post_init__(self) -> None:
+        positive = (
+            "position_accel_psd",
+            "position_noise_m",
+            "angular_accel_psd",
+            "attitude_noise_rad",
+            "initial_velocity_std_mps",
+            "initial_rate_std_radps",
+            "max_age_s",
+            "reset_after_s",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"FusionConfig.{name} must be finite and > 0, got {value}")
+        if not (math.isfinite(self.max_prediction_s) and self.max_prediction_s >= 0.0):
+            raise ValueError("FusionConfig.max_prediction_s must be finite and ≥ 0")
+
+
+@dataclass(frozen=True, eq=False)
+class BodyState:
+    """A rigid body's estimated state at ``time_s`` (the requested tick time) [s].
+
+    ``position_m``, ``velocity_mps``: shape (3,), arena frame. ``quaternion``: shape (4,),
+    (w, x, y, z), body (FLU) → arena. ``euler_zyx_rad``: shape (3,), the paper's (φ, θ, ψ),
+    ψ in (−π, π]. ``body_rates_radps``: shape (3,), (p, q, r) in the FLU body frame.
+    ``angular_velocity_world_radps``: shape (3,), the same rotation rate in the arena frame.
+    ``age_s``: time since the last tracked measurement (inf if none yet).
+    ``tracked``: the newest sample had the body tracked. ``healthy``: tracked and
+    ``age_s`` ≤ ``FusionConfig.max_age_s``. ``position_std_m``: predicted 1σ per axis.
+    Before the first tracked sample the arrays are NaN and both flags False.
+    """
+
+    name: str
+    time_s: float
+    position_m: FloatArray
+    velocity_mps: FloatArray
+    quaternion: FloatArray
+    euler_zyx_rad: FloatArray
+    body_rates_radps: FloatArray
+    angular_velocity_world_radps: FloatArray
+    age_s: float
+    tracked: bool
+    healthy: bool
+    position_std_m: float
+
+
+class _ConstantVelocityAxes:
+    """Three independent constant-velocity Kalman filters sharing one 2×2 covariance.
+
+    ``x``: shape (2, 3), rows (value, rate) per axis. The textbook discrete white-noise
+    acceleration model: F = [[1, h], [0, 1]], Q = q·[[h³/3, h²/2], [h²/2, h]], H = [1, 0].
+    """
+
+    def __init__(self, accel_psd: float, noise_std: float, rate_std: float) -> None:
+        self.q = accel_psd
+        self.r = noise_std**2
+        self.x = np.zeros((2, 3))
+        self.P = np.diag([self.r, rate_std**2])
+
+    def predict(self, h: float) -> None:
+        F = np.array([[1.0, h], [0.0, 1.0]])
+        Q = self.q * np.array([[h**3 / 3.0, h**2 / 2.0], [h**2 / 2.0, h]])
+        self.x = F @ self.x
+        self.P = F @ self.P @ F.T + Q
+
+    def update(self, innovation: FloatArray) -> FloatArray:
+        """Apply a measurement of the value row; returns the correction, shape (2, 3)."""
+        S = self.P[0, 0] + self.r
+        K = self.P[:, 0] / S
+        correction: FloatArray = np.outer(K, innovation)
+        self.x = self.x + correction
+        self.P = self.P - np.outer(K, self.P[0, :])
+        self.P = 0.5 * (self.P + self.P.T)  # keep it symmetric against round-off
+        return correction
+
+    def predicted_value_variance(self, h: float) -> float:
+        P = self.P
+        return float(P[0, 0] + 2.0 * h * P[0, 1] + h * h * P[1, 1] + self.q * h**3 / 3.0)
+
+
+def _nan(n: int) -> FloatArray:
+    return np.full(n, math.nan)
+
+
+class RigidBodyFilter:
+    """The state estimator of one rigid body (see the module docstring).
+
+    Feed it samples with ``update(pose, t_s)`` in any order; ask ``state_at(t_s)`` for
+    the state predicted to a tick time. Times are seconds on one clock chosen by the caller.
+    """
+
+    def __init__(self, name: str, config: FusionConfig | None = None) -> None:
+        self.name = name
+        self.config = config or FusionConfig()
+        self._translation: _ConstantVelocityAxes | None = None
+        self._rotation: _ConstantVelocityAxes | None = None
+        self._q = np.array([1.0, 0.0, 0.0, 0.0])
+        self._last_measurement_s = -math.inf  # last *tracked* sample the filter used
+        self._last_sample_s = -math.inf  # newest sample of any kind
+        self._tracked = False
+        self.updates = 0
+        """Tracked samples used."""
+        self.out_of_order = 0
+        """Samples ignored for being older than (or as old as) the newest one."""
+        self.untracked_samples = 0
+        """Samples in which QTM did not track the body."""
+        self.resets = 0
+        """Restarts after a dropout longer than ``reset_after_s``."""
+
+    @property
+    def initialized(self) -> bool:
+        """True once a tracked sample has been used."""
+        return self._translation is not None
+
+    def update(self, pose: BodyPose, t_s: float) -> bool:
+        """Fuse one sample taken at ``t_s`` [s]; returns whether it was used."""
+        if not math.isfinite(t_s) or t_s <= self._last_sample_s:
+            self.out_of_order += 1
+            return False
+        self._last_sample_s = t_s
+        if not pose.tracked:
+            self.untracked_samples += 1
+            self._tracked = False
+            return False
+        self._tracked = True
+        self.updates += 1
+        if self._translation is None or t_s - self._last_measurement_s > self.config.reset_after_s:
+            if self._translation is not None:
+                self.resets += 1
+            self._initialize(pose, t_s)
+            return True
+        assert self._rotation is not None
+        h = t_s - self._last_measurement_s
+        self._translation.predict(h)
+        self._rotation.predict(h)
+        omega = self._rotation.x[1]
+        q_pred = frames.quaternion_multiply(
+            self._q, frames.quaternion_from_rotation_vector(omega * h)
+        )
+        self._translation.update(pose.position_m - self._translation.x[0])
+        # Innovation: the rotation from the predicted to the measured attitude, body frame.
+        innovation = frames.rotation_vector_from_quaternion(
+            frames.quaternion_multiply(frames.quaternion_conjugate(q_pred), pose.quaternion)
+        )
+        correction = self._rotation.update(innovation)
+        q_new = frames.quaternion_multiply(
+            q_pred, frames.quaternion_from_rotation_vector(correction[0])
+        )
+        self._q = q_new / np.linalg.norm(q_new)
+        self._rotation.x[0] = 0.0  # the attitude error is now in the nominal quaternion
+        self._last_measurement_s = t_s
+        return True
+
+    def _initialize(self, pose: BodyPose, t_s: float) -> None:
+        c = self.config
+        self._translation = _ConstantVelocityAxes(
+            c.position_accel_psd, c.position_noise_m, c.initial_velocity_std_mps
+        )
+        self._translation.x[0] = pose.position_m
+        self._rotation = _ConstantVelocityAxes(
+            c.angular_accel_psd, c.attitude_noise_rad, c.initial_rate_std_radps
+        )
+        self._q = np.array(pose.quaternion, dtype=float)
+        self._last_measurement_s = t_s
+
+    def state_at(self, t_s: float) -> BodyState:
+        """The state predicted to ``t_s`` [s] (the filter itself is not changed).
+
+        The extrapolation horizon is clamped to ±``max_prediction_s`` around the last
+        measurement; ``age_s`` is the true age, so a stale body is flagged, not hidden.
+        """
+        if self._translation is None or self._rotation is None:
+            return BodyState(
+                self.name, t_s, _nan(3), _nan(3), _nan(4), _nan(3), _nan(3), _nan(3),
+                math.inf, False, False, math.nan,
+            )  # fmt: skip
+        age = t_s - self._last_measurement_s
+        limit = self.config.max_prediction_s
+        h = min(max(age, -limit), limit)
+        position = self._translation.x[0] + h * self._translation.x[1]
+        velocity = self._translation.x[1].copy()
+        omega = self._rotation.x[1].copy()
+        q = frames.quaternion_multiply(self._q, frames.quaternion_from_rotation_vector(omega * h))
+        q = q / np.linalg.norm(q)
+        if q[0] < 0.0:
+            q = -q
+        euler = frames.euler_zyx_from_quaternion(q)
+        euler[2] = frames.wrap_angle(float(euler[2]))
+        omega_world = frames.rotation_from_quaternion(q) @ omega
+        healthy = self._tracked and age <= self.config.max_age_s
+        std = math.sqrt(max(self._translation.predicted_value_variance(h), 0.0))
+        return BodyState(
+            self.name, t_s, position, velocity, q, euler, omega, omega_world,
+            age, self._tracked, healthy, std,
+        )  # fmt: skip
+
+
+class CaptureClock:
+    """Maps QTM capture timestamps [µs] onto the local clock [s] (pure).
+
+    The offset local − capture is the smallest one seen (the sample with the least network
+    and scheduling delay), allowed to grow by ``drift_allowance`` seconds per second so that
+    clock drift between the QTM computer and ours cannot freeze it (the default, 100 ppm, is
+    above a PC crystal's tolerance; the price is up to that fraction of a sample period of
+    extra delay on samples that arrive late). A timestamp going backwards means a new
+    measurement and restarts the estimate.
+    """
+
+    def __init__(self, drift_allowance: float = 1e-4) -> None:
+        self.drift_allowance = drift_allowance
+        self._offset_s: float | None = None
+        self._last_capture_s = -math.inf
+        self._last_receive_s = -math.inf
+
+    @property
+    def offset_s(self) -> float | None:
+        """Current estimate of local time − capture time [s] (None before any sample)."""
+        return self._offset_s
+
+    def to_local(self, timestamp_us: int, receive_time_s: float) -> float:
+        """The local time [s] at which the frame stamped ``timestamp_us`` was captured."""
+        capture_s = timestamp_us * 1e-6
+        if not math.isfinite(receive_time_s):
+            return capture_s
+        sample_offset = receive_time_s - capture_s
+        if self._offset_s is None or capture_s < self._last_capture_s:
+            self._offset_s = sample_offset
+        else:
+            leak = self.drift_allowance * max(receive_time_s - self._last_receive_s, 0.0)
+            self._offset_s = min(self._offset_s + leak, sample_offset)
+        self._last_capture_s = capture_s
+        self._last_receive_s = receive_time_s
+        return capture_s + self._offset_s
+
+
+class MocapFusion:
+    """One ``RigidBodyFilter`` per body name, fed whole ``MocapFrame``s (pure).
+
+    ``update(frame)`` picks the sample time per ``FusionConfig.time_source``; bodies appear
+    the first time a frame names them. ``states(t_s)`` predicts every body to a tick time.
+    """
+
+    def __init__(self, config: FusionConfig | None = None, names: Iterable[str] = ()) -> None:
+        self.config = config or FusionConfig()
+        self.clock = CaptureClock()
+        self.filters: dict[str, RigidBodyFilter] = {
+            name: RigidBodyFilter(name, self.config) for name in names
+        }
+
+    def sample_time_s(self, frame: MocapFrame) -> float:
+        """The time [s] ``update`` assigns to ``frame``."""
+        if self.config.time_source == "receive":
+            return frame.receive_time_s
+        return self.clock.to_local(frame.timestamp_us, frame.receive_time_s)
+
+    def update(self, frame: MocapFrame) -> float:
+        """Fuse every body of ``frame``; returns the sample time used [s]."""
+        t_s = self.sample_time_s(frame)
+        for name, pose in frame.bodies.items():
+            self.update_pose(pose, t_s, name)
+        return t_s
+
+    def update_pose(self, pose: BodyPose, t_s: float, name: str | None = None) -> bool:
+        """Fuse one body's sample taken at ``t_s`` [s]; returns whether it was used."""
+        key = name or pose.name
+        body_filter = self.filters.get(key)
+        if body_filter is None:
+            body_filter = self.filters[key] = RigidBodyFilter(key, self.config)
+        return body_filter.update(pose, t_s)
+
+    def state(self, name: str, t_s: float) -> BodyState:
+        """One body's state at ``t_s``; an unknown name gives the never-measured state."""
+        body_filter = self.filters.get(name) or RigidBodyFilter(name, self.config)
+        return body_filter.state_at(t_s)
+
+    def states(self, t_s: float) -> Mapping[str, BodyState]:
+        """Every body's state predicted to the tick time ``t_s`` [s]."""
+        return {name: f.state_at(t_s) for name, f in self.filters.items()}

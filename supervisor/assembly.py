@@ -1,0 +1,129 @@
+"""Objects built from a validated ``Config``: the tick core, the plant and its mocap model.
+
+The plant starts from the same ``system`` section the controllers use and then applies the
+``sim`` section's deliberate mismatch, motor lag and wind, so that a simulated flight
+exercises the controllers on a plant that is not their own model.
+"""
+
+from __future__ import annotations
+
+import math
+
+from mocap.fusion import FusionConfig, MocapFusion
+from sim.measurement import MocapParams, TrackingParams
+from sim.plant_params import (
+    BarParams,
+    CableParams,
+    MismatchParams,
+    PlantParams,
+    UavBodyParams,
+    WindParams,
+    diagonal,
+)
+from supervisor.config import Config
+from supervisor.estimation import BodyNames
+from supervisor.flight_core import CONTROLLERS, FlightCore
+from supervisor.setpoints import Arena
+
+
+def arena_from_config(config: Config) -> Arena:
+    """The geofence of the configured arena."""
+    lo, hi = config.arena.min_m, config.arena.max_m
+    return Arena((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
+
+
+def flight_core_from_config(config: Config, controller: str = "centralized") -> FlightCore:
+    """The tick core with both MPCs built for the configured system."""
+    return FlightCore(
+        config.system.to_params(),
+        {name: config.mpc.settings(name) for name in CONTROLLERS},
+        arena_from_config(config),
+        controller,
+    )
+
+
+def fusion_from_config(config: Config) -> MocapFusion:
+    """The rigid-body filters of the configured bodies."""
+    m = config.mocap
+    fusion_config = FusionConfig(
+        position_accel_psd=m.position_accel_psd,
+        position_noise_m=m.position_noise_m,
+        angular_accel_psd=m.angular_accel_psd,
+        attitude_noise_rad=math.radians(m.attitude_noise_deg),
+        max_age_s=m.max_age_s,
+    )
+    return MocapFusion(fusion_config, names=m.bodies)
+
+
+def body_names_from_config(config: Config) -> BodyNames:
+    """Which QTM body is the bar and which the UAVs."""
+    bar, uav1, uav2 = config.mocap.bodies
+    return BodyNames(bar, uav1, uav2)
+
+
+def plant_params_from_config(config: Config) -> PlantParams:
+    """The simulator's plant: the configured system, then the ``sim`` mismatch."""
+    params = config.system.to_params()
+    sim = config.sim
+    uavs = tuple(
+        UavBodyParams(
+            mass_kg=uav.mass_kg,
+            inertia_kgm2=diagonal(uav.inertia_kgm2),
+            thrust_time_constant_s=sim.motor_time_constant_s,
+            torque_time_constant_s=sim.motor_time_constant_s,
+            thrust_max_n=sim.uav_thrust_max_n,
+            torque_max_nm=(config.mpc.torque_max_nm,) * 3,
+            drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
+        )
+        for uav in params.uavs
+    )
+    length = params.d1_m + params.d2_m
+    perpendicular = params.bar_inertia_kgm2
+    bar = BarParams(
+        mass_kg=params.bar_mass_kg,
+        length_m=length,
+        com_from_end1_m=params.d1_m,
+        inertia_kgm2=diagonal(
+            (params.bar_mass_kg * BarParams().tube_radius_m ** 2, perpendicular, perpendicular)
+        ),
+        drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
+    )
+    cables = tuple(CableParams(length_m=length) for length in params.cable_lengths_m)
+    wind = WindParams(
+        mean_velocity_mps=(sim.wind_mean_mps[0], sim.wind_mean_mps[1], sim.wind_mean_mps[2]),
+        gust_std_mps=(
+            sim.wind_gust_std_mps[0],
+            sim.wind_gust_std_mps[1],
+            sim.wind_gust_std_mps[2],
+        ),
+        seed=sim.seed,
+    )
+    plant = PlantParams(
+        uavs=(uavs[0], uavs[1]),
+        bar=bar,
+        cables=(cables[0], cables[1]),
+        wind=wind,
+        gravity_mps2=params.gravity_mps2,
+        step_s=sim.step_s,
+    )
+    mismatch = MismatchParams(
+        (sim.uav_mass_scale[0], sim.uav_mass_scale[1]), sim.bar_mass_scale, sim.bar_com_shift_m
+    )
+    return plant.with_mismatch(mismatch)
+
+
+def mocap_params_from_config(config: Config, seed: int | None = None) -> MocapParams:
+    """The simulated motion capture of ``sim.mocap`` (``seed`` overrides ``sim.seed``)."""
+    m = config.sim.mocap
+    return MocapParams(
+        rate_hz=m.rate_hz,
+        position_sigma_m=m.position_sigma_m,
+        orientation_sigma_rad=math.radians(m.orientation_sigma_deg),
+        latency_s=m.latency_s,
+        tracking=TrackingParams(
+            dropout_probability=m.dropout_probability,
+            burst_probability=m.burst_probability,
+            burst_frames=(m.burst_frames[0], m.burst_frames[1]),
+        ),
+        seed=config.sim.seed if seed is None else seed,
+    )

@@ -1,0 +1,245 @@
+"""Fusion: motion recovered from poses, prediction to the tick, dropouts, yaw wrap, time."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from mocap import frames
+from mocap.frames import FloatArray
+from mocap.fusion import CaptureClock, FusionConfig, MocapFusion, RigidBodyFilter
+from mocap.qtm_protocol import BodyPose, MocapFrame
+
+RATE_HZ = 100.0
+P0 = np.array([1.0, -2.0, 1.5])
+V = np.array([0.8, -0.3, 0.25])  # m/s, arena frame
+Q0 = frames.quaternion_from_euler_zyx(0.2, -0.1, 2.9)  # yaw close to π on purpose
+W = np.array([0.4, -0.3, 2.0])  # rad/s, FLU body frame
+
+
+def truth(t: float) -> tuple[FloatArray, FloatArray]:
+    """Constant velocity and constant body rate: q(t) = q0 ⊗ exp(ω t) is exact."""
+    q = frames.quaternion_multiply(Q0, frames.quaternion_from_rotation_vector(W * t))
+    return P0 + V * t, q
+
+
+def pose_at(t: float, rng: np.random.Generator | None = None) -> BodyPose:
+    position, q = truth(t)
+    if rng is not None:
+        position = position + rng.normal(0.0, 5e-4, 3)
+        q = frames.quaternion_multiply(
+            q, frames.quaternion_from_rotation_vector(rng.normal(0, 2e-3, 3))
+        )
+    return BodyPose.from_quaternion("uav1", position, q)
+
+
+def attitude_error(q_a: FloatArray, q_b: FloatArray) -> float:
+    relative = frames.quaternion_multiply(frames.quaternion_conjugate(q_a), q_b)
+    return float(np.linalg.norm(frames.rotation_vector_from_quaternion(relative)))
+
+
+def rms(errors: list[FloatArray]) -> float:
+    return float(np.sqrt(np.mean(np.square(errors))))
+
+
+def run(body: RigidBodyFilter, t_end: float, rng: np.random.Generator | None = None) -> float:
+    t = 0.0
+    for k in range(round(t_end * RATE_HZ) + 1):
+        t = k / RATE_HZ
+        body.update(pose_at(t, rng), t)
+    return t
+
+
+def test_noiseless_constant_velocity_and_rotation_are_recovered_exactly() -> None:
+    body = RigidBodyFilter("uav1")
+    t_last = run(body, 1.0)
+    for dt in (0.0, 0.004, 0.013):  # tick times between and after samples
+        state = body.state_at(t_last + dt)
+        position, q = truth(t_last + dt)
+        np.testing.assert_allclose(state.velocity_mps, V, atol=1e-9)
+        np.testing.assert_allclose(state.body_rates_radps, W, atol=1e-9)
+        np.testing.assert_allclose(state.position_m, position, atol=1e-9)
+        assert attitude_error(state.quaternion, q) < 1e-9
+        np.testing.assert_allclose(
+            state.euler_zyx_rad, frames.euler_zyx_from_quaternion(q), atol=1e-9
+        )
+        np.testing.assert_allclose(
+            state.angular_velocity_world_radps, frames.rotation_from_quaternion(q) @ W, atol=1e-9
+        )
+        assert state.tracked and state.healthy and state.age_s == pytest.approx(dt)
+    assert body.updates == 101 and body.out_of_order == 0 and body.resets == 0
+
+
+def test_convergence_is_fast_from_the_first_samples() -> None:
+    body = RigidBodyFilter("uav1")
+    run(body, 0.05)  # six samples
+    state = body.state_at(0.05)
+    np.testing.assert_allclose(state.velocity_mps, V, atol=1e-4)
+    np.testing.assert_allclose(state.body_rates_radps, W, atol=1e-3)
+
+
+def test_noisy_samples_give_sensible_estimates() -> None:
+    rng = np.random.default_rng(12345)
+    body = RigidBodyFilter("uav1")
+    velocity_errors, rate_errors, position_errors = [], [], []
+    for k in range(400):
+        t = k / RATE_HZ
+        body.update(pose_at(t, rng), t)
+        if k >= 100:  # after the filter settled
+            state = body.state_at(t)
+            position, _ = truth(t)
+            velocity_errors.append(state.velocity_mps - V)
+            rate_errors.append(state.body_rates_radps - W)
+            position_errors.append(state.position_m - position)
+    # Raw finite differences of 0.5 mm / 2 mrad noise at 100 Hz would give 0.07 m/s / 0.28 rad/s.
+    assert rms(velocity_errors) < 0.1
+    assert rms(rate_errors) < 0.45
+    assert rms(position_errors) < 5e-4  # better than the 0.5 mm measurement noise
+    assert abs(float(np.mean(velocity_errors))) < 0.02  # unbiased
+
+
+def test_yaw_wraps_without_a_jump_in_rates_or_euler() -> None:
+    body = RigidBodyFilter("uav1")
+    q_start = frames.quaternion_from_euler_zyx(0.0, 0.0, 3.0)
+    yaw_rate = 3.0
+    yaws, rates = [], []
+    for k in range(500):  # 5 s at 3 rad/s: yaw goes from 3 to 18 rad, crossing ±π twice
+        t = k / RATE_HZ
+        q = frames.quaternion_multiply(
+            q_start, frames.quaternion_from_rotation_vector(np.array([0.0, 0.0, yaw_rate * t]))
+        )
+        body.update(BodyPose.from_quaternion("b", np.zeros(3), q), t)
+        state = body.state_at(t)
+        if k >= 10:
+            rates.append(state.body_rates_radps.copy())
+            yaws.append(float(state.euler_zyx_rad[2]))
+            expected = frames.wrap_angle(3.0 + yaw_rate * t)
+            assert abs(frames.wrap_angle(yaws[-1] - expected)) < 1e-6
+    np.testing.assert_allclose(
+        np.array(rates), np.tile([0.0, 0.0, yaw_rate], (len(rates), 1)), atol=1e-6
+    )
+    assert all(-math.pi < y <= math.pi for y in yaws)
+    assert sum(abs(b - a) > math.pi for a, b in itertools.pairwise(yaws)) >= 2  # wrapped
+
+
+def test_prediction_to_the_tick_time_is_clamped() -> None:
+    config = FusionConfig(max_prediction_s=0.05)
+    body = RigidBodyFilter("uav1", config)
+    t_last = run(body, 0.5)
+    position_last, _ = truth(t_last)
+    near = body.state_at(t_last + 0.02)
+    np.testing.assert_allclose(near.position_m, position_last + 0.02 * V, atol=1e-9)
+    far = body.state_at(t_last + 1.0)
+    np.testing.assert_allclose(far.position_m, position_last + 0.05 * V, atol=1e-9)
+    assert far.age_s == pytest.approx(1.0) and not far.healthy and far.tracked
+    assert far.position_std_m > near.position_std_m > 0.0
+    before = body.state_at(t_last - 0.01)  # a tick just before the newest sample
+    np.testing.assert_allclose(before.position_m, truth(t_last - 0.01)[0], atol=1e-9)
+
+
+def test_age_and_health_through_a_dropout() -> None:
+    config = FusionConfig(max_age_s=0.05, reset_after_s=0.5)
+    body = RigidBodyFilter("uav1", config)
+    run(body, 0.3)
+    assert body.state_at(0.3).healthy
+    # QTM loses the body: untracked samples arrive, nothing is updated.
+    for k in range(31, 41):
+        body.update(BodyPose.untracked("uav1"), k / RATE_HZ)
+    lost = body.state_at(0.40)
+    assert not lost.tracked and not lost.healthy
+    assert lost.age_s == pytest.approx(0.10)
+    assert body.untracked_samples == 10
+    # Frames stop altogether: the state only gets older.
+    assert body.state_at(1.0).age_s == pytest.approx(0.7)
+    # Back after a short dropout: healthy again, velocity still right.
+    body.update(pose_at(0.42), 0.42)
+    back = body.state_at(0.42)
+    assert back.tracked and back.healthy and back.age_s == 0.0
+    np.testing.assert_allclose(back.velocity_mps, V, atol=1e-6)
+    assert body.resets == 0
+    # Back after a long dropout: the filter restarts instead of trusting old velocity.
+    body.update(pose_at(2.0), 2.0)
+    assert body.resets == 1
+    body.update(pose_at(2.01), 2.01)
+    body.update(pose_at(2.02), 2.02)
+    np.testing.assert_allclose(body.state_at(2.02).velocity_mps, V, atol=1e-3)
+
+
+def test_out_of_order_and_duplicate_samples_are_ignored() -> None:
+    body = RigidBodyFilter("uav1")
+    t_last = run(body, 0.3)
+    before = body.state_at(t_last)
+    garbage = BodyPose.from_rotation("uav1", np.array([9.0, 9.0, 9.0]), np.eye(3))
+    assert not body.update(garbage, t_last - 0.005)
+    assert not body.update(garbage, t_last)  # same time again
+    assert not body.update(garbage, math.nan)
+    after = body.state_at(t_last)
+    np.testing.assert_array_equal(after.position_m, before.position_m)
+    np.testing.assert_array_equal(after.quaternion, before.quaternion)
+    assert body.out_of_order == 3
+    # An old *untracked* sample must not clear the tracked flag either.
+    body.update(BodyPose.untracked("uav1"), t_last - 0.1)
+    assert body.state_at(t_last).tracked
+
+
+def test_never_measured_body_is_nan_and_unhealthy() -> None:
+    body = RigidBodyFilter("bar")
+    body.update(BodyPose.untracked("bar"), 0.0)
+    state = body.state_at(1.0)
+    assert not state.tracked and not state.healthy and state.age_s == math.inf
+    assert np.isnan(state.position_m).all() and np.isnan(state.quaternion).all()
+    assert not body.initialized
+
+
+def test_capture_clock_removes_network_jitter() -> None:
+    clock = CaptureClock()
+    rng = np.random.default_rng(3)
+    offset = 1000.0  # local clock − QTM clock
+    for k in range(200):
+        capture_s = k * 0.01
+        latency = 0.002 + rng.exponential(0.003)
+        mapped = clock.to_local(round(capture_s * 1e6), offset + capture_s + latency)
+        if k > 50:
+            # The mapping keeps only the smallest latency seen, not each datagram's jitter.
+            assert mapped - (offset + capture_s) == pytest.approx(0.002, abs=1e-3)
+    # A new measurement restarts QTM's clock: the offset is re-learned at once.
+    mapped = clock.to_local(0, 5000.0)
+    assert mapped == 5000.0
+    assert clock.to_local(123, math.nan) == pytest.approx(123e-6)  # no receive time: as is
+
+
+def test_mocap_fusion_feeds_frames_by_capture_or_receive_time() -> None:
+    by_capture = MocapFusion(names=["uav1", "bar"])
+    by_receive = MocapFusion(FusionConfig(time_source="receive"))
+    for k in range(50):
+        t = k / RATE_HZ
+        jitter = 0.004 if k % 3 == 0 else 0.0  # network and scheduling delay
+        frame = MocapFrame(
+            k + 1,
+            round(t * 1e6),
+            {"uav1": pose_at(t), "bar": BodyPose.untracked("bar")},
+            receive_time_s=100.0 + t + 0.001 + jitter,
+        )
+        by_capture.update(frame)
+        by_receive.update(frame)
+    t_tick = 100.0 + 0.49 + 0.001
+    states = by_capture.states(t_tick)
+    assert set(states) == {"uav1", "bar"}
+    assert states["uav1"].healthy and not states["bar"].tracked
+    # Capture timestamps make the jitter nearly irrelevant (only the clock-drift allowance
+    # remains); receive times alone turn 4 ms of jitter into velocity error.
+    capture_error = float(np.max(np.abs(states["uav1"].velocity_mps - V)))
+    receive_error = float(np.max(np.abs(by_receive.state("uav1", t_tick).velocity_mps - V)))
+    assert capture_error < 1e-3 < 2e-2 < receive_error
+    assert by_capture.state("unknown", t_tick).age_s == math.inf
+    assert by_receive.update(MocapFrame(99, 0, {}, receive_time_s=7.0)) == 7.0
+
+
+def test_config_is_validated() -> None:
+    with pytest.raises(ValueError, match="position_noise_m"):
+        FusionConfig(position_noise_m=0.0)
+    with pytest.raises(ValueError, match="max_prediction_s"):
+        FusionConfig(max_prediction_s=-1.0)

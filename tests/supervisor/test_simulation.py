@@ -1,0 +1,146 @@
+"""The closed-loop simulator: whole scenarios flown by the service's tick core on the plant."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from supervisor.cli import main
+from supervisor.config import Config, load_config
+from supervisor.flight_log import read_flight_log
+from supervisor.report import summarize
+from supervisor.scenarios import load_scenario
+from supervisor.simulation import run_scenario
+from tests.conftest import CONFIGS
+
+SHORT_SCENARIO = """
+name = "short"
+start = "hover"
+start_bar_position = [0.0, 0.0, 1.0]
+
+[[step]]
+bar_position = [0.2, 0.0, 1.1]
+hold_s = 1.0
+timeout_s = 6.0
+"""
+
+
+@pytest.fixture(scope="module")
+def sim_config() -> Config:
+    return load_config(CONFIGS / "sim.toml")
+
+
+@pytest.fixture
+def short_scenario(tmp_path: Path) -> Path:
+    path = tmp_path / "short.toml"
+    path.write_text(SHORT_SCENARIO)
+    return path
+
+
+def test_takeoff_and_landing_end_disarmed_on_the_ground(sim_config: Config, tmp_path: Path) -> None:
+    result = run_scenario(
+        sim_config, load_scenario("takeoff-land"), log_path=tmp_path / "flight.jsonl"
+    )
+    assert result.completed, result.messages
+    assert result.final_mode == "disarmed"
+    truth = result.truth
+    assert truth.min_tension_n >= 0.0
+    assert truth.slack_events == 0  # never slack while the bar hangs
+    assert truth.min_tension_airborne_n > 1.0
+    assert truth.max_tilt_deg < 20.0
+    assert result.log_path is not None
+    log = read_flight_log(result.log_path)
+    modes = [mode for mode, _ in itertools.groupby(log.modes)]
+    assert modes == ["disarmed", "takeoff", "hover", "landing", "disarmed"]
+    # While hovering the bar was held 1 m above where it lay.
+    hover = np.array([m == "hover" for m in log.modes])
+    assert np.max(np.abs(log.state[hover, 2] - log.state[0, 2] - 1.0)) < 0.1
+    # Motors are off once disarmed.
+    assert np.all(np.asarray(log.inputs[-1]) == 0.0)
+
+
+def test_the_same_seed_flies_the_same_flight(sim_config: Config, short_scenario: Path) -> None:
+    scenario = load_scenario(str(short_scenario))
+    paths = []
+    for run in range(2):
+        result = run_scenario(
+            sim_config, scenario, seed=7, log_path=short_scenario.parent / f"{run}.jsonl"
+        )
+        assert result.log_path is not None
+        paths.append(result.log_path)
+    first, second = (read_flight_log(p) for p in paths)
+    np.testing.assert_array_equal(first.state, second.state)
+    third = run_scenario(sim_config, scenario, seed=8, log_path=short_scenario.parent / "3.jsonl")
+    assert third.log_path is not None
+    assert not np.array_equal(read_flight_log(third.log_path).state, first.state)
+
+
+def test_a_short_move_is_flown_smoothly(sim_config: Config, short_scenario: Path) -> None:
+    result = run_scenario(
+        sim_config, load_scenario(str(short_scenario)), log_path=short_scenario.parent / "f.jsonl"
+    )
+    assert result.completed and result.log_path is not None
+    log = read_flight_log(result.log_path)
+    error = np.linalg.norm(log.state[:, 0:3] - log.state_ref[:, 0:3], axis=1)
+    # The bar is a pendulum under the UAVs: it trails a reference moving at 0.3 m/s by
+    # some centimetres while the formation accelerates, never by more.
+    assert np.nanmax(error) < 0.15
+    assert np.linalg.norm(log.state[-1, 0:3] - [0.2, 0.0, 1.1]) < 0.05
+    velocity_ref = log.state_ref[:, 3:6]
+    assert np.nanmax(np.linalg.norm(velocity_ref, axis=1)) <= 0.3 + 1e-9
+
+
+def test_paper_scenario_centralized_tracks_the_bar_better(
+    sim_config: Config, tmp_path: Path
+) -> None:
+    """Section VII's sequence with both controllers: the Table III comparison."""
+    scenario = load_scenario("paper")
+    x_error_std = {}
+    for name in ("centralized", "decentralized"):
+        result = run_scenario(sim_config, scenario, name, log_path=tmp_path / f"{name}.jsonl")
+        assert result.completed, (name, result.messages)
+        assert result.truth.slack_events == 0, name
+        assert result.log_path is not None
+        summary = summarize(read_flight_log(result.log_path))
+        assert summary["fallback_ticks"] < 5, name
+        x_error_std[name] = summary["bar_x_error_std_m"]
+    assert x_error_std["centralized"] < 0.6 * x_error_std["decentralized"]
+
+
+def test_simulate_prints_the_documented_json(
+    short_scenario: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    status = main(["simulate", "--scenario", str(short_scenario), "--json", "--seed", "3"])
+    assert status == 0
+    summary = json.loads(capsys.readouterr().out)
+    for key in (
+        "controller",
+        "sim_time_s",
+        "wall_time_s",
+        "realtime_factor",
+        "bar_x_error_mean_m",
+        "bar_x_error_std_m",
+        "bar_position_rms_m",
+        "bar_yaw_rms_deg",
+        "slack_events",
+        "max_tilt_deg",
+        "min_tension_n",
+    ):
+        assert key in summary, key
+    assert set(summary["solve_ms"]) >= {"p50", "p99", "max"}
+    assert summary["controller"] == "centralized"
+    assert summary["sim_time_s"] > 1.0
+    assert math.isclose(
+        summary["realtime_factor"], summary["sim_time_s"] / summary["wall_time_s"], rel_tol=1e-9
+    )
+
+
+def test_simulate_rejects_an_unknown_scenario(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["simulate", "--scenario", "no-such-scenario"]) == 2
+    error = capsys.readouterr().err
+    assert "no scenario 'no-such-scenario'" in error and "paper" in error
