@@ -17,9 +17,10 @@ from pathlib import Path
 
 from benchmarks.mpc import add_arguments as _bench_arguments
 from benchmarks.mpc import run as run_mpc_benchmark
-from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium, theta_f_closed_form
+from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
 from supervisor.config import Config, ConfigError, load_config
 from supervisor.console import SimulationProgress, format_summary
+from supervisor.equilibrium_summary import equilibrium_summary
 from supervisor.flight_core import CONTROLLERS
 from supervisor.flight_log import finite_or_none, read_flight_log
 from supervisor.report import summarize, write_report
@@ -59,24 +60,12 @@ def _equilibria(config: Config, args: argparse.Namespace) -> int:
     if not (math.isfinite(theta_l_deg) and 0.0 <= theta_l_deg < 90.0):
         raise UsageError(f"--theta-l {theta_l_deg}: must lie in [0, 90) degrees")
     params = config.system.to_params()
-    theta_l = math.radians(theta_l_deg)
     try:
-        eq = bar_equilibrium(params, Reference((0.0, 0.0, 0.0), 0.0, (0.0, 0.0), theta_l))
+        result = equilibrium_summary(params, math.radians(theta_l_deg))
     except EquilibriumError as error:
         raise UsageError(str(error)) from error
-    mean_uav_mass = (params.uavs[0].mass_kg + params.uavs[1].mass_kg) / 2.0
-    # Proposition 1's θ_f (symmetric setup); per-UAV tilts of the general equilibrium below.
-    theta_f = theta_f_closed_form(theta_l, mean_uav_mass, params.bar_mass_kg)
-    result = {
-        "theta_l": theta_l,
-        "theta_f": theta_f,
-        "thrust": list(eq.thrusts_n),
-        "tension": list(eq.tensions_n),
-        "uav_positions": [eq.uav_position(i).tolist() for i in (1, 2)],
-        "theta_f_per_uav": list(eq.theta_f_rad),
-        "theta_l_per_cable": list(eq.theta_l_rad),
-        "symmetric": params.is_symmetric,
-    }
+    eq = bar_equilibrium(params, Reference((0.0, 0.0, 0.0), 0.0, (0.0, 0.0), result["theta_l"]))
+    theta_f = result["theta_f"]
     if args.json:
         print(json.dumps(result))
         return 0

@@ -30,7 +30,14 @@ from supervisor.estimation import Estimate
 from supervisor.flight_log import TickRecord
 from supervisor.modes import FlightModes, Mode, Transition
 from supervisor.safety import Fault, Response, SafetyLimits, SafetyMonitor
-from supervisor.setpoints import Arena, RateLimits, ReferenceShaper, Setpoint, SetpointQueue
+from supervisor.setpoints import (
+    Arena,
+    RateLimits,
+    ReferenceShaper,
+    Setpoint,
+    SetpointQueue,
+    validate_setpoint,
+)
 
 FloatArray = NDArray[np.float64]
 CONTROLLERS = ("centralized", "decentralized")
@@ -128,7 +135,8 @@ class FlightCore:
     # ---- operator interface -------------------------------------------------------------
     def request(self, event: str, now_s: float) -> Transition:
         """An operator request (arm, disarm, takeoff, land, abort, kill)."""
-        if event == "takeoff" and (self._last_estimate is None or not self._last_estimate.healthy):
+        unhealthy = self._last_estimate is None or not self._last_estimate.healthy
+        if event == "takeoff" and self.modes.mode is Mode.ARMED and unhealthy:
             return Transition(
                 False,
                 self.modes.mode,
@@ -170,8 +178,17 @@ class FlightCore:
         self._entered(Mode.HOVER, now_s)
 
     def queue_setpoints(self, setpoints: list[Setpoint]) -> None:
-        """Queue validated setpoints (all or none; raises ``SetpointError``)."""
+        """Queue setpoints, all or none: each is validated against the arena and
+        equilibrium feasibility, and they must fit the queue (raises ``SetpointError``)."""
+        for setpoint in setpoints:
+            validate_setpoint(setpoint, self.params, self.arena)
         self.queue.extend(setpoints)
+
+    def clear_setpoints(self) -> None:
+        """Drop the queue and the active setpoint; in flight the bar holds its reference."""
+        self.queue.clear()
+        if self._shaper is not None and self.modes.mode in (Mode.HOVER, Mode.TRACKING):
+            self._hold_target = self._shaper.current.at_rest()
 
     # ---- the tick -----------------------------------------------------------------------
     def tick(

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +38,28 @@ class Setpoint:
     theta_l_rad: float = 0.0
     hold_s: float = 5.0
     timeout_s: float | None = None
+
+    @staticmethod
+    def from_json(entry: Any) -> Setpoint:
+        """A setpoint from the API's JSON form (``bar_position`` [m], ``bar_yaw``,
+        ``uav_yaw``, ``theta_l`` [rad], ``hold_s`` [s]); raises ``SetpointError``."""
+        if not isinstance(entry, dict) or "bar_position" not in entry:
+            raise SetpointError("a setpoint is an object with at least 'bar_position'")
+        try:
+            x, y, z = (float(v) for v in entry["bar_position"])
+            uav_yaw = entry.get("uav_yaw")
+            yaws = None if uav_yaw is None else tuple(float(v) for v in uav_yaw)
+            if yaws is not None and len(yaws) != 2:
+                raise ValueError("uav_yaw takes two angles")
+            return Setpoint(
+                (x, y, z),
+                float(entry.get("bar_yaw", 0.0)),
+                (yaws[0], yaws[1]) if yaws is not None else None,
+                float(entry.get("theta_l", 0.0)),
+                float(entry.get("hold_s", 5.0)),
+            )
+        except (TypeError, ValueError) as error:
+            raise SetpointError(f"malformed setpoint: {error}") from None
 
     def reference(self) -> Reference:
         """The equilibrium family this setpoint asks for (UAV yaws default to the bar's)."""

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from controllers.equilibria import Reference, bar_equilibrium
+from mocap.frames import euler_zyx_from_quaternion
 from mocap.qtm_protocol import BodyPose
 from mocap.qtm_protocol import MocapFrame as QtmFrame
 from sim.measurement import MocapFrame as SimFrame
@@ -49,7 +50,9 @@ def qtm_frame(frame: SimFrame) -> QtmFrame:
     bodies = {
         name: BodyPose.untracked(name)
         if pose is None
-        else BodyPose.from_quaternion(name, pose.position_m, pose.quaternion)
+        else BodyPose(
+            name, True, pose.position_m, pose.quaternion, euler_zyx_from_quaternion(pose.quaternion)
+        )
         for name, pose in frame.poses.items()
     }
     return QtmFrame(

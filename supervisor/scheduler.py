@@ -1,0 +1,160 @@
+"""The control loop's clock: ticks on absolute deadlines t0 + k·h, with timing statistics.
+
+asyncio's own timers wake up to a millisecond late (the selector's timeout is rounded up
+to whole milliseconds), too coarse for a 20 ms loop that wants sub-millisecond lateness.
+``DeadlineTicker`` therefore sleeps in a small helper thread (``time.sleep`` wakes within
+tens of microseconds) and wakes the event loop with ``call_soon_threadsafe``. A tick that
+finds itself a whole period late skips the missed deadlines (counted), never bunches up.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TickTiming:
+    """When tick ``index`` was due and started (monotonic seconds), and ticks skipped
+    before it because the loop was a whole period late."""
+
+    index: int
+    deadline_s: float
+    started_s: float
+    skipped: int
+
+    @property
+    def lateness_s(self) -> float:
+        return self.started_s - self.deadline_s
+
+
+class _WakeThread:
+    """Sleeps until a deadline on its own thread, then resolves a future on the loop."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, clock: Callable[[], float]) -> None:
+        self._loop = loop
+        self._clock = clock
+        self._lock = threading.Condition()
+        self._request: tuple[float, asyncio.Future[None]] | None = None
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name="tick-wake", daemon=True)
+        self._thread.start()
+
+    def wait_until(self, deadline_s: float) -> asyncio.Future[None]:
+        future: asyncio.Future[None] = self._loop.create_future()
+        with self._lock:
+            self._request = (deadline_s, future)
+            self._lock.notify()
+        return future
+
+    def stop(self) -> None:
+        with self._lock:
+            self._stopped = True
+            self._lock.notify()
+        self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                while self._request is None and not self._stopped:
+                    self._lock.wait()
+                if self._stopped:
+                    return
+                assert self._request is not None
+                deadline, future = self._request
+                self._request = None
+            remaining = deadline - self._clock()
+            if remaining > 0.0:
+                time.sleep(remaining)
+            try:
+                self._loop.call_soon_threadsafe(_resolve, future)
+            except RuntimeError:  # the loop closed while we slept
+                return
+
+
+def _resolve(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
+
+
+class DeadlineTicker:
+    """``async for timing in ticker`` yields once per period on t0 + k·period."""
+
+    def __init__(
+        self,
+        period_s: float,
+        start_s: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not (math.isfinite(period_s) and period_s > 0.0):
+            raise ValueError("period_s must be finite and > 0")
+        self.period_s = period_s
+        self._clock = clock
+        self._t0 = start_s
+        self._index = 0
+        self._wake: _WakeThread | None = None
+
+    def __aiter__(self) -> DeadlineTicker:
+        return self
+
+    async def __anext__(self) -> TickTiming:
+        if self._wake is None:
+            self._wake = _WakeThread(asyncio.get_running_loop(), self._clock)
+        if self._t0 is None:
+            self._t0 = self._clock()
+        deadline = self._t0 + self._index * self.period_s
+        now = self._clock()
+        skipped = 0
+        if now - deadline >= self.period_s:  # a whole period (or more) late: drop them
+            skipped = int((now - deadline) // self.period_s)
+            self._index += skipped
+            deadline = self._t0 + self._index * self.period_s
+        if now < deadline:
+            await self._wake.wait_until(deadline)
+        timing = TickTiming(self._index, deadline, self._clock(), skipped)
+        self._index += 1
+        return timing
+
+    def close(self) -> None:
+        """Stop the wake-up thread."""
+        if self._wake is not None:
+            self._wake.stop()
+            self._wake = None
+
+
+class TimingStats:
+    """Rolling statistics of the last ``window`` ticks, plus totals since start."""
+
+    def __init__(self, window: int = 3000) -> None:
+        self.count = 0
+        self.missed_deadlines = 0
+        self._compute_ms: deque[float] = deque(maxlen=window)
+        self._lateness_ms: deque[float] = deque(maxlen=window)
+
+    def record(self, timing: TickTiming, compute_s: float, period_s: float) -> None:
+        """A tick missed its deadline when it was skipped, or started so late, or computed so
+        long, that its commands went out after the next deadline."""
+        self.count += 1
+        late = timing.lateness_s + compute_s >= period_s
+        self.missed_deadlines += timing.skipped + int(late)
+        self._compute_ms.append(compute_s * 1e3)
+        self._lateness_ms.append(timing.lateness_s * 1e3)
+
+    def summary(self) -> dict[str, float | int]:
+        """count, missed_deadlines, compute_ms_p50/p99, lateness_ms_p99 (recent window)."""
+        compute = np.fromiter(self._compute_ms, float)
+        lateness = np.fromiter(self._lateness_ms, float)
+        return {
+            "count": self.count,
+            "missed_deadlines": self.missed_deadlines,
+            "compute_ms_p50": float(np.percentile(compute, 50)) if compute.size else math.nan,
+            "compute_ms_p99": float(np.percentile(compute, 99)) if compute.size else math.nan,
+            "lateness_ms_p99": float(np.percentile(lateness, 99)) if lateness.size else math.nan,
+        }

@@ -1,0 +1,86 @@
+"""An API served by uvicorn on loopback, over a real tick core behind the real channels
+(the flight process's links and clock are left out: these tests are about the API)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import socket
+import time
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from typing import Any
+
+import httpx
+import pytest
+
+from api.app import create_app
+from api.server import HttpServer, bind
+from supervisor.assembly import arena_from_config, flight_core_from_config
+from supervisor.channel import Channel
+from supervisor.config import load_config
+from supervisor.flight_client import FlightClient
+from supervisor.flight_core import FlightCore
+from supervisor.operator_requests import handle_request
+from supervisor.request_server import serve_requests
+from supervisor.telemetry import MocapView, VehicleView, build_telemetry
+from tests.conftest import CONFIGS
+
+TOKEN = "test-token-123"
+
+
+@dataclass
+class ApiUnderTest:
+    url: str
+    core: FlightCore
+    flight: FlightClient
+    http: httpx.AsyncClient
+
+    async def post(self, path: str, json: Any = None, token: str | None = TOKEN) -> httpx.Response:
+        headers = {"Authorization": f"Bearer {token}"} if token is not None else {}
+        return await self.http.post(path, json=json, headers=headers)
+
+
+@pytest.fixture
+async def api() -> AsyncIterator[ApiUnderTest]:
+    config = load_config(CONFIGS / "sim.toml")
+    core = flight_core_from_config(config)
+    pairs = [socket.socketpair() for _ in range(2)]
+    flight_side = [await Channel.open(b) for _, b in pairs]
+    commands, urgent = [await Channel.open(a) for a, _ in pairs]
+    flight = FlightClient(commands, urgent)
+
+    async def handle(message: dict[str, Any]) -> dict[str, Any]:
+        return handle_request(core, message, time.monotonic())
+
+    async def publish() -> None:
+        vehicle = VehicleView(connected=True, armed=False, px4_mode="POSCTL")
+        mocap = MocapView(connected=True, rate_hz=100.0, frames=0, dropped=0)
+        while True:
+            message = build_telemetry(
+                core, None, None, (vehicle, vehicle), mocap, {"count": 0}, time.monotonic()
+            )
+            flight_side[0].send(message)
+            await asyncio.sleep(0.04)
+
+    app = create_app(flight, config.system.to_params(), arena_from_config(config), TOKEN)
+    server = HttpServer(app, bind("127.0.0.1", 0))
+    async with asyncio.TaskGroup() as group:
+        tasks = [
+            group.create_task(serve_requests(flight_side[0], handle)),
+            group.create_task(serve_requests(flight_side[1], handle)),
+            group.create_task(publish()),
+            group.create_task(flight.run()),
+            group.create_task(server.serve()),
+        ]
+        # The socket is already listening: requests queue until uvicorn accepts them.
+        url = f"http://127.0.0.1:{server.port}"
+        async with httpx.AsyncClient(base_url=url, timeout=5.0) as http:
+            yield ApiUnderTest(url, core, flight, http)
+        server.stop()
+        for task in tasks[:-1]:
+            task.cancel()
+        for channel in flight_side:
+            with contextlib.suppress(Exception):
+                await channel.close()
+        await flight.close()

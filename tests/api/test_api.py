@@ -1,0 +1,186 @@
+"""The REST API and telemetry WebSocket over HTTP on loopback."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+
+import pytest
+import websockets
+
+from supervisor.modes import Mode
+from tests.api.conftest import TOKEN, ApiUnderTest
+
+MUTATING = [
+    ("/api/arm", None),
+    ("/api/takeoff", None),
+    ("/api/land", None),
+    ("/api/abort", None),
+    ("/api/disarm", None),
+    ("/api/kill", {"confirm": True}),
+    ("/api/mode", {"controller": "decentralized"}),
+    ("/api/setpoints", {"bar_position": [0.0, 0.0, 1.0]}),
+]
+
+
+@pytest.mark.parametrize("token", [None, "wrong-token", "Bearer"])
+@pytest.mark.parametrize(("path", "body"), MUTATING)
+async def test_mutating_requests_need_the_token(
+    api: ApiUnderTest, path: str, body: object, token: str | None
+) -> None:
+    response = await api.post(path, body, token=token)
+    assert response.status_code == 401
+    assert response.headers["www-authenticate"] == "Bearer"
+    assert api.core.modes.mode is Mode.DISARMED
+    assert api.core.controller == "centralized"
+    assert api.core.queue.queued == [] and api.core.queue.active is None
+
+
+async def test_delete_needs_the_token_too(api: ApiUnderTest) -> None:
+    await api.post("/api/setpoints", {"bar_position": [0.0, 0.0, 1.0]})
+    response = await api.http.delete("/api/setpoints")
+    assert response.status_code == 401
+    assert len(api.core.queue.queued) == 1
+
+
+async def test_status_has_the_documented_shape(api: ApiUnderTest) -> None:
+    response = await api.http.get("/api/status")
+    assert response.status_code == 200
+    status = response.json()
+    assert status["mode"] == "disarmed" and status["controller"] == "centralized"
+    assert status["armed"] == [False, False]
+    assert set(status["bar"]) >= {"position", "yaw"}
+    assert len(status["uavs"]) == 2
+    for uav in status["uavs"]:
+        assert set(uav) >= {"position", "yaw", "connected", "px4_mode"}
+    assert set(status["mocap"]) >= {"healthy", "rate_hz"}
+    assert set(status["setpoints"]) >= {"active", "queued"}
+    assert set(status["tick"]) >= {"count"}
+
+
+async def test_a_refused_transition_is_409_with_the_reason(api: ApiUnderTest) -> None:
+    response = await api.post("/api/takeoff")
+    assert response.status_code == 409
+    assert "not allowed in mode 'disarmed'" in response.json()["detail"]
+    assert api.core.modes.mode is Mode.DISARMED
+
+
+async def test_arm_then_disarm(api: ApiUnderTest) -> None:
+    response = await api.post("/api/arm")
+    assert response.status_code == 200 and response.json() == {"accepted": True, "mode": "armed"}
+    assert (await api.post("/api/arm")).status_code == 409
+    assert (await api.post("/api/disarm")).json()["mode"] == "disarmed"
+
+
+async def test_kill_needs_confirmation(api: ApiUnderTest) -> None:
+    await api.post("/api/arm")
+    for body in (None, {}, {"confirm": False}, {"confirm": "yes"}):
+        response = await api.post("/api/kill", body)
+        assert response.status_code == 422, body
+        assert api.core.modes.mode is Mode.ARMED
+    response = await api.post("/api/kill", {"confirm": True})
+    assert response.status_code == 200 and response.json()["mode"] == "killed"
+
+
+async def test_abort_is_always_accepted(api: ApiUnderTest) -> None:
+    for _ in range(2):
+        response = await api.post("/api/abort")
+        assert response.status_code == 200
+
+
+async def test_controller_switch(api: ApiUnderTest) -> None:
+    response = await api.post("/api/mode", {"controller": "decentralized"})
+    assert response.status_code == 200 and response.json()["controller"] == "decentralized"
+    assert api.core.controller == "decentralized"
+    bad = await api.post("/api/mode", {"controller": "pid"})
+    assert bad.status_code == 422
+    assert api.core.controller == "decentralized"
+
+
+@pytest.mark.parametrize(
+    ("body", "reason"),
+    [
+        ({"bar_position": [0.0, 0.0, 2.5]}, "outside the arena"),
+        ({"bar_position": [0.0, 0.0, 1.0], "theta_l": 1.7}, "no equilibrium"),
+        ({"bar_position": [0.0, 0.0]}, "at least 3"),
+        ({"bar_position": [0.0, 0.0, 1.0], "hold_s": -1}, "greater than or equal to 0"),
+        ({"bar_position": [0.0, 0.0, 1.0], "colour": "red"}, "Extra inputs"),
+        ({"bar_position": ["a", 0.0, 1.0]}, "valid number"),
+        ([], "empty list"),
+    ],
+)
+async def test_bad_setpoints_are_422_and_queue_nothing(
+    api: ApiUnderTest, body: object, reason: str
+) -> None:
+    response = await api.post("/api/setpoints", body)
+    assert response.status_code == 422
+    assert reason in json.dumps(response.json())
+    assert api.core.queue.queued == []
+
+
+async def test_non_finite_numbers_are_refused(api: ApiUnderTest) -> None:
+    content = '{"bar_position": [NaN, 0.0, 1.0]}'
+    response = await api.http.post(
+        "/api/setpoints",
+        content=content,
+        headers={"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"},
+    )
+    assert response.status_code == 422
+    assert api.core.queue.queued == []
+
+
+async def test_a_list_is_queued_all_or_none(api: ApiUnderTest) -> None:
+    good = {"bar_position": [0.5, 0.0, 1.0], "bar_yaw": 0.3, "hold_s": 2}
+    bad = {"bar_position": [9.0, 0.0, 1.0]}
+    response = await api.post("/api/setpoints", [good, bad])
+    assert response.status_code == 422 and "setpoint 1" in response.json()["detail"]
+    assert api.core.queue.queued == []
+    response = await api.post("/api/setpoints", [good, good])
+    assert response.status_code == 200 and response.json()["queued"] == 2
+    listed = (await api.http.get("/api/setpoints")).json()
+    assert listed["active"] is None
+    assert [q["bar_position"] for q in listed["queued"]] == [[0.5, 0.0, 1.0]] * 2
+    assert listed["queued"][0]["uav_yaw"] == [0.3, 0.3]  # defaults to the bar yaw
+    response = await api.http.delete(
+        "/api/setpoints", headers={"Authorization": f"Bearer {TOKEN}"}
+    )
+    assert response.status_code == 200
+    assert api.core.queue.queued == []
+
+
+async def test_a_full_queue_is_409(api: ApiUnderTest) -> None:
+    entry = {"bar_position": [0.0, 0.0, 1.0]}
+    capacity = api.core.queue.capacity
+    assert (await api.post("/api/setpoints", [entry] * capacity)).status_code == 200
+    response = await api.post("/api/setpoints", entry)
+    assert response.status_code == 409 and "at most" in response.json()["detail"]
+    assert len(api.core.queue.queued) == capacity
+
+
+async def test_equilibria(api: ApiUnderTest) -> None:
+    response = await api.http.get("/api/equilibria", params={"theta_l": math.pi / 4})
+    assert response.status_code == 200
+    body = response.json()
+    assert body["theta_l"] == pytest.approx(math.pi / 4)
+    assert 0.0 < body["theta_f"] < body["theta_l"]
+    assert len(body["uav_positions"]) == 2
+    for value in ("2.0", "-0.1", "nan", "x"):
+        assert (await api.http.get(f"/api/equilibria?theta_l={value}")).status_code == 422
+
+
+async def test_telemetry_websocket_streams_at_least_20_hz(api: ApiUnderTest) -> None:
+    url = api.url.replace("http", "ws") + "/api/telemetry"
+    async with websockets.connect(url) as ws:
+        await ws.recv()
+        started = asyncio.get_running_loop().time()
+        messages = [json.loads(await ws.recv()) for _ in range(10)]
+        elapsed = asyncio.get_running_loop().time() - started
+    assert all(m["mode"] == "disarmed" for m in messages)
+    assert 10 / elapsed >= 20.0
+
+
+async def test_openapi_schema_lists_the_routes(api: ApiUnderTest) -> None:
+    schema = (await api.http.get("/openapi.json")).json()
+    for path in ("/api/status", "/api/arm", "/api/kill", "/api/mode", "/api/setpoints"):
+        assert path in schema["paths"]
