@@ -142,9 +142,7 @@ async def test_a_list_is_queued_all_or_none(api: ApiUnderTest) -> None:
     assert listed["active"] is None
     assert [q["bar_position"] for q in listed["queued"]] == [[0.5, 0.0, 1.0]] * 2
     assert listed["queued"][0]["uav_yaw"] == [0.3, 0.3]  # defaults to the bar yaw
-    response = await api.http.delete(
-        "/api/setpoints", headers={"Authorization": f"Bearer {TOKEN}"}
-    )
+    response = await api.http.delete("/api/setpoints", headers={"Authorization": f"Bearer {TOKEN}"})
     assert response.status_code == 200
     assert api.core.queue.queued == []
 
