@@ -30,6 +30,7 @@ from controllers.model import (
     PAYLOAD_STATES,
     TH_B,
     V_B,
+    W_B,
     uav_slices,
 )
 from controllers.params import BarSystemParams
@@ -70,6 +71,10 @@ class Reference:
     ``velocity_mps`` (default zero) makes it a steady translation of the whole formation
     (a relative equilibrium: with no drag, x_eq + v t solves (5) with the same u_eq); a
     moving reference uses it so the MPC tracks it without a velocity-induced lag.
+    ``yaw_rates_radps`` (bar, UAV 1, UAV 2; default zero) adds the turn rates of a turning
+    reference the same way: the bar turns about its centre (its ends' UAVs move with it)
+    and each UAV about its own vertical axis. That is a feed-forward, not an equilibrium:
+    the centripetal and gyroscopic terms it leaves out are O(ψ̇²), 0.1 m/s² at 20°/s.
     """
 
     bar_position_m: tuple[float, float, float]
@@ -77,15 +82,21 @@ class Reference:
     uav_yaw_rad: tuple[float, float] = (0.0, 0.0)
     theta_l_rad: float = 0.0
     velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    yaw_rates_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def with_yaws(self, bar_yaw_rad: float, uav_yaw_rad: tuple[float, float]) -> Reference:
         """The same equilibrium family, turned to other yaw angles."""
         return Reference(
-            self.bar_position_m, bar_yaw_rad, uav_yaw_rad, self.theta_l_rad, self.velocity_mps
+            self.bar_position_m,
+            bar_yaw_rad,
+            uav_yaw_rad,
+            self.theta_l_rad,
+            self.velocity_mps,
+            self.yaw_rates_radps,
         )
 
     def at_rest(self) -> Reference:
-        """The same reference with zero velocity (where a moving reference will stop)."""
+        """The same reference with zero velocity and turn rates (where it will stop)."""
         return Reference(self.bar_position_m, self.bar_yaw_rad, self.uav_yaw_rad, self.theta_l_rad)
 
 
@@ -117,7 +128,7 @@ class Equilibrium:
         x_i = np.zeros(PAYLOAD_STATES)
         x_i[0:12] = self.x[first : first + 12]
         x_i[12:15] = self.bar_ends_m[i - 1]
-        x_i[15:18] = self.x[V_B]
+        x_i[15:18] = self.x[V_B] + np.cross(self.x[W_B], self.bar_ends_m[i - 1] - self.x[P_B])
         return x_i
 
     def payload_input(self, i: int) -> FloatArray:
@@ -142,6 +153,7 @@ def _check_reference(reference: Reference) -> None:
     values = (
         *reference.bar_position_m,
         *reference.velocity_mps,
+        *reference.yaw_rates_radps,
         reference.bar_yaw_rad,
         *reference.uav_yaw_rad,
         reference.theta_l_rad,
@@ -173,9 +185,11 @@ def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibriu
     x = np.zeros(BAR_STATES)
     u = np.zeros(BAR_INPUTS)
     velocity = np.asarray(reference.velocity_mps, dtype=float)
+    bar_rate, *uav_rates = reference.yaw_rates_radps
     x[P_B] = p_b
     x[V_B] = velocity
     x[TH_B] = (0.0, 0.0, psi_b)
+    x[W_B] = (0.0, 0.0, bar_rate)  # inertial; perpendicular to the level bar
     tensions, thrusts, theta_ls, theta_fs, ends, forces = [], [], [], [], [], []
     for k in range(2):
         i = k + 1
@@ -189,10 +203,14 @@ def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibriu
         yaw = reference.uav_yaw_rad[k]
         roll, pitch = tilt_to_euler(thrust_vector, yaw)
 
-        p_i, v_i, th_i, _ = uav_slices(i)
+        p_i, v_i, th_i, w_i = uav_slices(i)
         x[p_i] = end + params.cable_lengths_m[k] * n_i
-        x[v_i] = velocity
+        x[v_i] = velocity + bar_rate * np.cross(e_z, x[p_i] - p_b)
         x[th_i] = (roll, pitch, yaw)
+        # A turn about the vertical at ψ̇, in the body frame: ψ̇ Rᵀ e_z, with R of (2).
+        x[w_i] = uav_rates[k] * np.array(
+            [-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)]
+        )
         u[4 * k] = thrust
 
         tensions.append(tension)

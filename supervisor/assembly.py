@@ -7,6 +7,7 @@ exercises the controllers on a plant that is not their own model.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from mocap.fusion import FusionConfig, MocapFusion
@@ -32,14 +33,18 @@ def arena_from_config(config: Config) -> Arena:
     return Arena((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
 
 
-def flight_core_from_config(config: Config, controller: str = "centralized") -> FlightCore:
-    """The tick core with both MPCs built for the configured system."""
-    return FlightCore(
-        config.system.to_params(),
-        {name: config.mpc.settings(name) for name in CONTROLLERS},
-        arena_from_config(config),
-        controller,
-    )
+def flight_core_from_config(
+    config: Config, controller: str = "centralized", simulated_time: bool = False
+) -> FlightCore:
+    """The tick core with both MPCs built for the configured system. On ``simulated_time``
+    a slow solve is never "late": simulated time does not pass while the MPC computes, and
+    a wall-clock budget would make runs depend on the machine's load."""
+    settings = {name: config.mpc.settings(name) for name in CONTROLLERS}
+    if simulated_time:
+        settings = {
+            name: dataclasses.replace(s, late_after_s=math.inf) for name, s in settings.items()
+        }
+    return FlightCore(config.system.to_params(), settings, arena_from_config(config), controller)
 
 
 def fusion_from_config(config: Config) -> MocapFusion:

@@ -186,8 +186,11 @@ def _approach(current: float, target: float, max_step: float) -> float:
 
 
 def _approach_angle(current: float, target: float, max_step: float) -> float:
+    """One step the short way round; lands on ``target`` itself (not target ± 2π)."""
     error = math.remainder(target - current, 2.0 * math.pi)
-    return current + max(-max_step, min(max_step, error))
+    if abs(error) <= max_step:
+        return target
+    return current + math.copysign(max_step, error)
 
 
 def _move(
@@ -244,14 +247,22 @@ class ReferenceShaper:
             dt,
         )
         yaw_step = lim.yaw_radps * dt
+        yaws = (
+            _approach_angle(c.bar_yaw_rad, target.bar_yaw_rad, yaw_step),
+            _approach_angle(c.uav_yaw_rad[0], target.uav_yaw_rad[0], yaw_step),
+            _approach_angle(c.uav_yaw_rad[1], target.uav_yaw_rad[1], yaw_step),
+        )
+        before = (c.bar_yaw_rad, *c.uav_yaw_rad)
+        rates = tuple(
+            math.remainder(new - old, 2.0 * math.pi) / dt if dt > 0.0 else 0.0
+            for new, old in zip(yaws, before, strict=True)
+        )
         self.current = Reference(
             (float(position[0]), float(position[1]), float(position[2])),
-            _approach_angle(c.bar_yaw_rad, target.bar_yaw_rad, yaw_step),
-            (
-                _approach_angle(c.uav_yaw_rad[0], target.uav_yaw_rad[0], yaw_step),
-                _approach_angle(c.uav_yaw_rad[1], target.uav_yaw_rad[1], yaw_step),
-            ),
+            yaws[0],
+            (yaws[1], yaws[2]),
             _approach(c.theta_l_rad, target.theta_l_rad, lim.theta_l_radps * dt),
             (float(velocity[0]), float(velocity[1]), float(velocity[2])),
+            (rates[0], rates[1], rates[2]),
         )
         return self.current

@@ -202,7 +202,7 @@ class ClosedLoop:
         self.mocap = MocapModel(mocap_params_from_config(config, seed))
         self.fusion = fusion_from_config(config)
         self.body_names = body_names_from_config(config)
-        self.core = flight_core_from_config(config, controller)
+        self.core = flight_core_from_config(config, controller, simulated_time=True)
         self.now_s = 0.0
 
     def place(self, scenario: Scenario) -> None:

@@ -229,3 +229,31 @@ def test_decentralized_closed_loop_stays_bounded(lab_params: BarSystemParams) ->
     20° to a swing of a few centimetres and degrees."""
     run, reference = fly_offset_case(DecentralizedMpc, lab_params, 10.0)
     assert first_time_inside_for_good(run, reference, 0.06, 3.0) <= 8.0
+
+
+def test_a_turning_reference_is_kinematically_consistent(lab_params: BarSystemParams) -> None:
+    """The rates a turning, moving reference carries are the time derivative of where its
+    equilibrium goes: positions by the velocities, the bar's yaw by ω_b, the UAVs' yaws by
+    their body rates."""
+    rates = (0.3, -0.4, 0.5)
+    velocity = (0.2, -0.1, 0.05)
+    reference = Reference((0.1, 0.2, 1.0), 0.4, (0.7, -0.2), math.radians(25), velocity, rates)
+    h = 1e-6
+    later = Reference(
+        tuple(p + v * h for p, v in zip(reference.bar_position_m, velocity, strict=True)),  # type: ignore[arg-type]
+        reference.bar_yaw_rad + rates[0] * h,
+        (reference.uav_yaw_rad[0] + rates[1] * h, reference.uav_yaw_rad[1] + rates[2] * h),
+        reference.theta_l_rad,
+    )
+    x, x_later = bar_equilibrium(lab_params, reference).x, bar_equilibrium(lab_params, later).x
+    derivative = (x_later - x) / h
+    for offset in (0, 12, 24):
+        np.testing.assert_allclose(
+            derivative[offset : offset + 3], x[offset + 3 : offset + 6], atol=1e-5
+        )
+    assert derivative[8] == pytest.approx(x[11], abs=1e-5)  # bar: ψ̇ = ω_z
+    for offset in (12, 24):
+        phi, theta = x[offset + 6], x[offset + 7]
+        q, r = x[offset + 10 : offset + 12]
+        psi_dot = (q * math.sin(phi) + r * math.cos(phi)) / math.cos(theta)  # eq. (3)
+        assert derivative[offset + 8] == pytest.approx(psi_dot, abs=1e-5)

@@ -121,3 +121,23 @@ def test_reference_accelerates_gently_and_carries_its_velocity() -> None:
     # The velocity it carries is the one it moves with.
     np.testing.assert_allclose(np.diff(p, axis=0)[:stop], v[1 : stop + 1] * dt, atol=1e-12)
     assert positions[-1] == target.bar_position_m and velocities[-1] == (0.0, 0.0, 0.0)
+
+
+def test_a_turn_through_180_degrees_lands_on_the_target_itself() -> None:
+    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0), math.radians(170)))
+    target = Reference((0.0, 0.0, 1.0), math.radians(-170))
+    for k in range(100):
+        ref = shaper.update(target, 0.02 * k)
+    assert ref == target  # not 190°: "reached" compares references
+
+
+def test_a_turning_reference_carries_its_turn_rates() -> None:
+    limits = RateLimits(yaw_radps=0.5)
+    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), limits)
+    target = Reference((0.0, 0.0, 1.0), 1.0, (1.0, -1.0))
+    shaper.update(target, 0.0)
+    turning = shaper.update(target, 0.02)
+    assert turning.yaw_rates_radps == pytest.approx((0.5, 0.5, -0.5))
+    for k in range(2, 200):
+        ref = shaper.update(target, 0.02 * k)
+    assert ref == target and ref.yaw_rates_radps == (0.0, 0.0, 0.0)

@@ -101,15 +101,20 @@ def test_paper_scenario_centralized_tracks_the_bar_better(
     """Section VII's sequence with both controllers: the Table III comparison."""
     scenario = load_scenario("paper")
     x_error_std = {}
+    truths = {}
     for name in ("centralized", "decentralized"):
         result = run_scenario(sim_config, scenario, name, log_path=tmp_path / f"{name}.jsonl")
         assert result.completed, (name, result.messages)
-        assert result.truth.slack_events == 0, name
         assert result.log_path is not None
         summary = summarize(read_flight_log(result.log_path))
         assert summary["fallback_ticks"] < 5, name
         x_error_std[name] = summary["bar_x_error_std_m"]
+        truths[name] = result.truth
     assert x_error_std["centralized"] < 0.6 * x_error_std["decentralized"]
+    # The centralized controller keeps both cables taut throughout; the decentralized one,
+    # blind to the bar's coupled swing, may let one go slack for a moment (Table III).
+    assert truths["centralized"].slack_events == 0
+    assert truths["centralized"].min_tension_airborne_n > 1.0
 
 
 def test_simulate_prints_the_documented_json(

@@ -1,0 +1,273 @@
+"""The flight process: mocap in, the 20 ms control loop, vehicle links out, the flight log,
+and the channels to the API process. It runs in its own process so that nothing the API
+does (requests, WebSockets, the GIL they hold) can delay a tick.
+
+One event loop, one ``TaskGroup``: the control loop on absolute deadlines, one request
+server per channel (abort and kill have their own), and the telemetry publisher. Operator
+requests are applied between ticks. The setpoint stream to the vehicles runs from arming
+until they are disarmed; when the control loop stops, setpoints stop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Coroutine
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mocap.client import MocapSource
+from supervisor.assembly import body_names_from_config, flight_core_from_config, fusion_from_config
+from supervisor.channel import Channel
+from supervisor.config import Config
+from supervisor.estimation import Estimate, estimate_state
+from supervisor.flight_core import TickResult
+from supervisor.flight_log import FlightLogWriter
+from supervisor.modes import TRANSITIONS, Mode
+from supervisor.operator_requests import handle_request
+from supervisor.request_server import serve_requests
+from supervisor.scheduler import DeadlineTicker, TickTiming, TimingStats
+from supervisor.telemetry import MocapView, build_telemetry
+from supervisor.vehicles import (
+    PROOF_OF_LIFE_S,
+    VehicleLink,
+    arm_for_offboard,
+    disarm_all,
+    kill_all,
+)
+
+TELEMETRY_PERIOD_S = 0.04
+TELEMETRY_BACKLOG_BYTES = 1 << 20
+LANDING_TIMEOUT_S = 90.0
+
+
+def _percentiles(values: deque[float]) -> tuple[float, float]:
+    if not values:
+        return math.nan, math.nan
+    array = np.fromiter(values, float)
+    return float(np.percentile(array, 50)), float(np.percentile(array, 99))
+
+
+class FlightProcess:
+    """Everything that flies, on one event loop. ``mocap`` and ``links`` are already
+    running; ``run`` returns when ``stop`` has landed what was airborne."""
+
+    def __init__(
+        self,
+        config: Config,
+        mocap: MocapSource,
+        links: tuple[VehicleLink, VehicleLink],
+        log_folder: Path | None,
+        clock: Callable[[], float] = time.monotonic,
+        proof_of_life_s: float = PROOF_OF_LIFE_S,
+    ) -> None:
+        self.config = config
+        self.mocap = mocap
+        self.links = links
+        self.log_folder = log_folder
+        self.clock = clock
+        self.proof_of_life_s = proof_of_life_s
+        self.core = flight_core_from_config(config)
+        self.fusion = fusion_from_config(config)
+        self.names = body_names_from_config(config)
+        self.stats = TimingStats()
+        self.streaming = False
+        self.estimate: Estimate | None = None
+        self.last_tick: TickResult | None = None
+        self.latency_ms: deque[float] = deque(maxlen=3000)
+        self._log: FlightLogWriter | None = None
+        self._stopping = asyncio.Event()
+        self._on_ground = asyncio.Event()
+        self._sequences: set[asyncio.Task[None]] = set()
+        self._mocap_rate = (0, clock(), 0.0)  # frames, since, rate
+
+    # ---- lifecycle ------------------------------------------------------------------------
+    async def run(self, commands: Channel, urgent: Channel) -> None:
+        """Fly until ``stop``; the channels close with the API process (which also stops)."""
+        try:
+            async with asyncio.TaskGroup() as group:
+                control = group.create_task(self._control_loop(), name="control-loop")
+                servers = [
+                    group.create_task(serve_requests(commands, self._handle)),
+                    group.create_task(serve_requests(urgent, self._handle)),
+                    group.create_task(self._publish(commands)),
+                ]
+                await self._stopping.wait()
+                await self._land_if_airborne()
+                for task in servers:
+                    task.cancel()
+                control.cancel()
+        finally:
+            self.streaming = False
+            self._close_log()
+
+    def stop(self) -> None:
+        """Land (if airborne), disarm, then return from ``run``."""
+        self._stopping.set()
+
+    async def _land_if_airborne(self) -> None:
+        now = self.clock()
+        if self.core.modes.mode.airborne:
+            self.core.request("land", now)
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(LANDING_TIMEOUT_S):
+                    await self._on_ground.wait()
+        if self.core.modes.mode is Mode.ARMED:
+            self.core.request("disarm", self.clock())
+        if self.streaming:
+            await disarm_all(self.links)
+            self.streaming = False
+
+    # ---- the control loop -------------------------------------------------------------------
+    async def _control_loop(self) -> None:
+        ticker = DeadlineTicker(self.config.mpc.dt_s, clock=self.clock)
+        try:
+            async for timing in ticker:
+                self._tick(timing)
+        finally:
+            ticker.close()
+
+    def _tick(self, timing: TickTiming) -> None:
+        started = self.clock()
+        frames = self.mocap.drain()
+        for frame in frames:
+            self.fusion.update(frame)
+        self._count_frames(len(frames), started)
+        self.estimate = estimate_state(self.fusion.states(started), self.names)
+        before = self.core.modes.mode
+        connected = (self.links[0].connected, self.links[1].connected)
+        result = self.core.tick(started, self.estimate, connected, timing.lateness_s)
+        if self.streaming:
+            for link, command in zip(self.links, result.commands, strict=True):
+                link.send_setpoint(command)
+            sent = self.clock()
+            newest = self.mocap.latest()
+            if newest is not None and math.isfinite(newest.receive_time_s):
+                self.latency_ms.append((sent - newest.receive_time_s) * 1e3)
+        self._forward_mocap()
+        compute_s = self.clock() - started
+        self.stats.record(timing, compute_s, self.config.mpc.dt_s)
+        self.last_tick = result
+        if result.mode.airborne:
+            self._on_ground.clear()
+        else:
+            self._on_ground.set()
+        if self._log is not None:
+            record = result.record
+            record.extra["compute_total_ms"] = compute_s * 1e3
+            self._log.append(record)
+        self._react(before, result.mode)
+
+    def _count_frames(self, new_frames: int, now_s: float) -> None:
+        frames, since, rate = self._mocap_rate
+        frames += new_frames
+        if now_s - since >= 1.0:
+            rate, frames, since = frames / (now_s - since), 0, now_s
+        self._mocap_rate = (frames, since, rate)
+
+    def _forward_mocap(self) -> None:
+        frame = self.mocap.latest()
+        if frame is None:
+            return
+        for link, name in zip(self.links, (self.names.uav1, self.names.uav2), strict=True):
+            pose = frame.bodies.get(name)
+            if pose is not None and pose.tracked:
+                link.send_mocap(pose.position_m, pose.quaternion, frame.receive_time_s)
+
+    def _react(self, before: Mode, after: Mode) -> None:
+        """Vehicle sequences the tick core's own mode changes call for."""
+        if before is after:
+            return
+        if after is Mode.DISARMED and before.airborne:  # landed (after a landing or an abort)
+            self._sequence(self._disarm_vehicles())
+
+    def _sequence(self, coroutine: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.get_running_loop().create_task(coroutine)
+        self._sequences.add(task)
+        task.add_done_callback(self._sequences.discard)
+
+    async def _disarm_vehicles(self) -> None:
+        await disarm_all(self.links)
+        self.streaming = False
+        self._close_log()
+
+    # ---- requests ---------------------------------------------------------------------------
+    async def _handle(self, message: dict[str, Any]) -> dict[str, Any]:
+        kind = message.get("kind")
+        if kind == "arm":
+            return await self._arm(message)
+        if kind == "kill":
+            reply = handle_request(self.core, message, self.clock())
+            failures = await kill_all(self.links)
+            self.streaming = False
+            self._close_log()
+            if failures:
+                reply["reason"] = "; ".join(failures)
+            return reply
+        reply = handle_request(self.core, message, self.clock())
+        on_ground = self.core.modes.mode is Mode.DISARMED
+        if kind in ("disarm", "abort") and on_ground and self.streaming:
+            await self._disarm_vehicles()
+        return reply
+
+    async def _arm(self, message: dict[str, Any]) -> dict[str, Any]:
+        mode = self.core.modes.mode
+        if (mode, "arm") not in TRANSITIONS:
+            return handle_request(self.core, message, self.clock())  # the table's refusal
+        self.streaming = True  # idle setpoints: PX4's proof of life before offboard
+        failures = await arm_for_offboard(self.links, self.proof_of_life_s)
+        if failures:
+            self.streaming = False
+            return {
+                "id": message.get("id"),
+                "outcome": "refused",
+                "reason": "arming failed: " + "; ".join(failures),
+                "data": {"mode": self.core.modes.mode.value},
+            }
+        reply = handle_request(self.core, message, self.clock())
+        if reply["outcome"] == "ok" and self.log_folder is not None:
+            self._close_log()
+            self._log = FlightLogWriter(
+                self.log_folder, {"setup": self.config.name, "controller": self.core.controller}
+            )
+        return reply
+
+    def _close_log(self) -> None:
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    # ---- telemetry ----------------------------------------------------------------------------
+    def telemetry(self) -> dict[str, Any]:
+        """The status message now."""
+        stats = self.mocap.stats()
+        mocap = MocapView(stats.connected, self._mocap_rate[2], stats.frames, stats.frames_missed)
+        summary: dict[str, Any] = dict(self.stats.summary())
+        p50, p99 = _percentiles(self.latency_ms)
+        summary["latency_ms_p50"], summary["latency_ms_p99"] = p50, p99
+        message = build_telemetry(
+            self.core,
+            self.estimate,
+            self.last_tick,
+            (self.links[0].view(), self.links[1].view()),
+            mocap,
+            summary,
+            self.clock(),
+        )
+        message["streaming"] = self.streaming
+        message["log"] = str(self._log.path) if self._log is not None else None
+        return message
+
+    async def _publish(self, channel: Channel) -> None:
+        ticker = DeadlineTicker(TELEMETRY_PERIOD_S, clock=self.clock)
+        try:
+            async for _ in ticker:
+                if channel.buffered_bytes < TELEMETRY_BACKLOG_BYTES:  # a stuck reader: skip
+                    channel.send(self.telemetry())
+        finally:
+            ticker.close()
