@@ -26,15 +26,13 @@ from supervisor.flight_log import finite_or_none, read_flight_log
 from supervisor.report import summarize, write_report
 from supervisor.scenarios import available_scenarios, load_scenario, scenario_duration_s
 from supervisor.simulation import result_summary, run_scenario
+from supervisor.terminal_client import add_client_commands
+from supervisor.usage import UsageError
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "sim.toml"
 
 EXIT_USAGE = 2
-
-
-class UsageError(Exception):
-    """A command-line argument that cannot be used (exit status 2)."""
 
 
 def _add_config_options(parser: argparse.ArgumentParser) -> None:
@@ -174,6 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     report.set_defaults(handler=_report)
 
+    add_client_commands(commands)
     for sub in commands.choices.values():
         _add_config_options(sub)
     return parser

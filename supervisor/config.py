@@ -262,6 +262,9 @@ class SimSection(_Section):
     """The embedded simulator's plant: its step, actuators and deliberate mismatch against
     the ``system`` section the controllers use (the plant is built from ``system`` first)."""
 
+    # true: `serve` starts the simulated world (plant, PX4s, QTM) in its own process and
+    # connects to it on loopback; false: it connects to the lab's real QTM and PX4s.
+    embedded: bool = False
     seed: Annotated[int, Field(ge=0)] = 0
     step_s: PositiveFloat = 0.001
     motor_time_constant_s: NonNegativeFloat = 0.02
@@ -279,6 +282,21 @@ class SimSection(_Section):
     mocap: SimMocapSection = SimMocapSection()
 
 
+class ApiSection(_Section):
+    """The HTTP API and dashboard. ``token`` unset: the env var ``UAVBAR_TOKEN``, else one
+    is generated and printed at start."""
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=0, le=65535)] = 8000
+    token: Annotated[str, Field(min_length=8)] | None = None
+
+
+class LogSection(_Section):
+    """Flight logs: one JSON Lines file per flight, named by its start time."""
+
+    folder: str = "flight-logs"
+
+
 class Config(_Section):
     """One complete setup."""
 
@@ -287,6 +305,8 @@ class Config(_Section):
     arena: ArenaSection
     mpc: MpcSection
     mocap: MocapSection = MocapSection()
+    api: ApiSection = ApiSection()
+    log: LogSection = LogSection()
     sim: SimSection = SimSection()
 
 

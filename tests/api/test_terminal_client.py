@@ -1,0 +1,62 @@
+"""The terminal client against the API on loopback (the CLI runs in a worker thread, as it
+would in its own process)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import pytest
+
+from supervisor.cli import main
+from supervisor.modes import Mode
+from tests.api.conftest import TOKEN, ApiUnderTest
+
+
+async def cli(api: ApiUnderTest, *args: str, token: str | None = TOKEN) -> int:
+    options = ["--url", api.url] + (["--token", token] if token else [])
+    return await asyncio.to_thread(main, [*args, *options])
+
+
+async def test_status_prints_a_summary(
+    api: ApiUnderTest, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert await cli(api, "status") == 0
+    out = capsys.readouterr().out
+    assert "mode disarmed" in out and "controller centralized" in out and "uav2" in out
+
+
+async def test_commands_change_the_service(
+    api: ApiUnderTest, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert await cli(api, "arm") == 0
+    assert api.core.modes.mode is Mode.ARMED
+    assert await cli(api, "mode", "decentralized") == 0
+    assert api.core.controller == "decentralized"
+    assert await cli(api, "setpoint", "0.5", "0", "1", "--yaw", "0.2", "--hold", "3") == 0
+    assert await cli(api, "setpoint", "--json") == 0
+    listed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert listed["queued"][0]["bar_position"] == [0.5, 0.0, 1.0]
+    assert listed["queued"][0]["hold_s"] == 3.0
+    assert await cli(api, "setpoint", "--clear") == 0
+    assert api.core.queue.queued == []
+    assert await cli(api, "kill", "--confirm") == 0
+    assert api.core.modes.mode is Mode.KILLED
+
+
+async def test_refusals_exit_1_with_the_reason(
+    api: ApiUnderTest, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert await cli(api, "takeoff") == 1
+    assert "not allowed in mode 'disarmed'" in capsys.readouterr().err
+    assert await cli(api, "setpoint", "0", "0", "2.9") == 1
+    assert "outside the arena" in capsys.readouterr().err
+    assert await cli(api, "arm", token=None) == 1
+    assert "401" in capsys.readouterr().err
+    assert api.core.modes.mode is Mode.DISARMED
+
+
+async def test_an_unreachable_service_exits_3(capsys: pytest.CaptureFixture[str]) -> None:
+    status = await asyncio.to_thread(main, ["status", "--url", "http://127.0.0.1:9"])
+    assert status == 3
+    assert "cannot reach" in capsys.readouterr().err
