@@ -41,7 +41,7 @@ async def test_commands_change_the_service(
     assert await cli(api, "setpoint", "--clear") == 0
     assert api.core.queue.queued == []
     assert await cli(api, "kill", "--confirm") == 0
-    assert api.core.modes.mode is Mode.KILLED
+    assert api.core.modes.mode.value == "killed"
 
 
 async def test_refusals_exit_1_with_the_reason(
