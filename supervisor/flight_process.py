@@ -23,7 +23,7 @@ import numpy as np
 
 from mocap.client import MocapSource
 from supervisor.assembly import body_names_from_config, flight_core_from_config, fusion_from_config
-from supervisor.channel import Channel
+from supervisor.channel import Channel, ChannelClosedError
 from supervisor.config import Config
 from supervisor.estimation import Estimate, estimate_state
 from supervisor.flight_core import TickResult
@@ -93,8 +93,8 @@ class FlightProcess:
             async with asyncio.TaskGroup() as group:
                 control = group.create_task(self._control_loop(), name="control-loop")
                 servers = [
-                    group.create_task(serve_requests(commands, self._handle)),
-                    group.create_task(serve_requests(urgent, self._handle)),
+                    group.create_task(self._serve(commands)),
+                    group.create_task(self._serve(urgent)),
                     group.create_task(self._publish(commands)),
                 ]
                 await self._stopping.wait()
@@ -105,6 +105,13 @@ class FlightProcess:
         finally:
             self.streaming = False
             self._close_log()
+
+    async def _serve(self, channel: Channel) -> None:
+        """Answer requests; the API process going away lands the system like a stop."""
+        try:
+            await serve_requests(channel, self._handle)
+        except ChannelClosedError:
+            self.stop()
 
     def stop(self) -> None:
         """Land (if airborne), disarm, then return from ``run``."""
@@ -199,6 +206,9 @@ class FlightProcess:
     # ---- requests ---------------------------------------------------------------------------
     async def _handle(self, message: dict[str, Any]) -> dict[str, Any]:
         kind = message.get("kind")
+        if kind == "shutdown":
+            self.stop()
+            return {"id": message.get("id"), "outcome": "ok", "reason": "", "data": {}}
         if kind == "arm":
             return await self._arm(message)
         if kind == "kill":
@@ -268,6 +278,9 @@ class FlightProcess:
         try:
             async for _ in ticker:
                 if channel.buffered_bytes < TELEMETRY_BACKLOG_BYTES:  # a stuck reader: skip
-                    channel.send(self.telemetry())
+                    try:
+                        channel.send(self.telemetry())
+                    except ChannelClosedError:
+                        return
         finally:
             ticker.close()

@@ -43,6 +43,15 @@ def _floats(values: Any) -> list[float | None]:
     return [float(v) if math.isfinite(v) else None for v in np.asarray(values, dtype=float)]
 
 
+def _bar_ends(x: np.ndarray, arms_m: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Cable attachment points: p_b ∓ d_i n_b, n_b from the bar's pitch and yaw (5)."""
+    theta, psi = x[7], x[8]
+    n_b = np.array(
+        [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
+    )
+    return x[0:3] - arms_m[0] * n_b, x[0:3] + arms_m[1] * n_b
+
+
 def build_telemetry(
     core: FlightCore,
     estimate: Estimate | None,
@@ -65,6 +74,7 @@ def build_telemetry(
             "uav_yaw": list(reference.uav_yaw_rad),
             "theta_l": reference.theta_l_rad,
             "uav_positions": [_floats(eq.uav_position(i)) for i in (1, 2)],
+            "bar_ends": [_floats(end) for end in eq.bar_ends_m],
         }
     bar_error = (
         float(np.linalg.norm(x[0:3] - np.asarray(reference.bar_position_m)))
@@ -78,8 +88,10 @@ def build_telemetry(
         "phase": core.phase,
         "controller": core.controller,
         "armed": [v.armed for v in vehicles],
+        "arena": {"min": list(core.arena.min_m), "max": list(core.arena.max_m)},
         "bar": {
             "position": _floats(x[0:3]),
+            "ends": [_floats(end) for end in _bar_ends(x, core.params.arms_m)],
             "yaw": _floats(x[8:9])[0],
             "velocity": _floats(x[3:6]),
             "error_m": bar_error,
