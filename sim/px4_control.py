@@ -1,0 +1,126 @@
+"""The flight-control loops of the simulated PX4: body-rate PID (what PX4's rate
+controller does with SET_ATTITUDE_TARGET body rates) and the position/attitude cascade its
+own modes use (hold and land). Pure; SI units; body frame FLU, arena ENU.
+
+PX4 runs its rate loop at 250 Hz–1 kHz; here it runs whenever the world steps it (every
+plant chunk, ~500 Hz), integrating over the actual elapsed time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class RateGains:
+    """Per-axis (roll, pitch, yaw) gains of the rate PID: angular acceleration per rate
+    error [1/s], per integrated error [1/s²], per rate change [1] (derivative on the
+    measurement). Torque = J × (that acceleration); the integral is clamped."""
+
+    kp: tuple[float, float, float] = (18.0, 18.0, 10.0)
+    ki: tuple[float, float, float] = (20.0, 20.0, 10.0)
+    kd: tuple[float, float, float] = (0.3, 0.3, 0.0)
+    integral_limit_radps: float = 0.5
+
+
+@dataclass
+class RateController:
+    """Body-rate PID → body torque [N m], saturated per axis."""
+
+    inertia_kgm2: tuple[float, float, float]
+    torque_max_nm: float
+    gains: RateGains = field(default_factory=RateGains)
+    _integral: FloatArray = field(default_factory=lambda: np.zeros(3))
+    _last_rates: FloatArray | None = None
+
+    def reset(self) -> None:
+        self._integral = np.zeros(3)
+        self._last_rates = None
+
+    def torque(self, rates_sp: FloatArray, rates: FloatArray, dt: float) -> FloatArray:
+        """The torque that drives the body rates ``rates`` toward ``rates_sp`` [rad/s]."""
+        g = self.gains
+        error = rates_sp - rates
+        if dt > 0.0:
+            limit = g.integral_limit_radps
+            self._integral = np.clip(self._integral + error * dt, -limit, limit)
+        derivative = (
+            (rates - self._last_rates) / dt
+            if self._last_rates is not None and dt > 0.0
+            else np.zeros(3)
+        )
+        self._last_rates = rates.copy()
+        J = np.asarray(self.inertia_kgm2)
+        accel = np.asarray(g.kp) * error + np.asarray(g.ki) * self._integral
+        accel -= np.asarray(g.kd) * derivative
+        torque = J * accel + np.cross(rates, J * rates)
+        result: FloatArray = np.clip(torque, -self.torque_max_nm, self.torque_max_nm)
+        return result
+
+
+@dataclass(frozen=True)
+class HoldGains:
+    """Position hold/land cascade: position [1/s²], velocity [1/s], vertical-velocity
+    integral [1/s²·s⁻¹... as acceleration per m/s·s], attitude [1/s], max tilt."""
+
+    kp: float = 1.5
+    kv: float = 2.5
+    ki_z: float = 1.0
+    k_attitude: float = 6.0
+    max_tilt_rad: float = math.radians(20.0)
+
+
+@dataclass
+class HoldController:
+    """PX4's own position modes, reduced: hold a position (or descend at a rate) with a
+    level attitude and held yaw; returns (thrust [N], body-rate setpoint [rad/s])."""
+
+    hover_thrust_n: float
+    gains: HoldGains = field(default_factory=HoldGains)
+    _integral_z: float = 0.0
+
+    def reset(self) -> None:
+        self._integral_z = 0.0
+
+    def command(
+        self,
+        target_m: FloatArray,
+        climb_rate_mps: float | None,
+        yaw_rad: float,
+        position_m: FloatArray,
+        velocity_mps: FloatArray,
+        rotation: FloatArray,
+        dt: float,
+    ) -> tuple[float, FloatArray]:
+        """``climb_rate_mps`` None holds ``target_m``; a value tracks that vertical speed
+        (negative: descend) while holding x, y."""
+        g = self.gains
+        accel = g.kp * (target_m - position_m) - g.kv * velocity_mps
+        if climb_rate_mps is not None:
+            accel[2] = g.kv * (climb_rate_mps - velocity_mps[2])
+        self._integral_z = float(np.clip(self._integral_z + accel[2] * dt, -2.0, 2.0))
+        accel[2] += g.ki_z * self._integral_z
+        mass_g = self.hover_thrust_n
+        force = mass_g / 9.81 * accel + np.array([0.0, 0.0, mass_g])
+        horizontal = math.hypot(force[0], force[1])
+        limit = math.tan(g.max_tilt_rad) * max(force[2], 0.0)
+        if horizontal > limit and horizontal > 0.0:
+            force[0:2] *= limit / horizontal
+        force[2] = max(force[2], 0.0)
+        norm = float(np.linalg.norm(force))
+        z_desired = force / norm if norm > 0.0 else np.array([0.0, 0.0, 1.0])
+        heading = np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
+        y_desired = np.cross(z_desired, heading)
+        y_desired /= np.linalg.norm(y_desired)
+        R_desired = np.column_stack([np.cross(y_desired, z_desired), y_desired, z_desired])
+        error_matrix = R_desired.T @ rotation - rotation.T @ R_desired
+        e_R = 0.5 * np.array([error_matrix[2, 1], error_matrix[0, 2], error_matrix[1, 0]])
+        thrust = float(force @ rotation[:, 2])
+        rates_sp: FloatArray = -g.k_attitude * e_R
+        return max(thrust, 0.0), rates_sp
