@@ -77,7 +77,9 @@ class _Protocol(asyncio.DatagramProtocol):
         self.endpoint = endpoint
 
     def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
-        self.endpoint.handle_datagram(data, self.endpoint.clock_s())
+        if self.endpoint.handle_datagram(data, self.endpoint.clock_s()):
+            # Like PX4's UDP link, answer the client that talks to us.
+            self.endpoint.client_address = (str(addr[0]), int(addr[1]))
 
 
 class Px4Endpoint:
@@ -129,26 +131,38 @@ class Px4Endpoint:
             self._sink.transport = None
 
     def describe(self) -> str:
-        return f"udp {self.host}:{self.local_port} -> {self.host}:{self.client_port}"
+        return f"{self.host}:{self.local_port}"
 
     def clock_s(self) -> float:
         """The world time of the last ``step`` (received messages are stamped with it)."""
         return self._now_s
 
     # ---- receive ------------------------------------------------------------------------------
-    def handle_datagram(self, data: bytes, now_s: float) -> None:
-        """Parse and act on one datagram; malformed input is counted, never raised."""
+    @property
+    def client_address(self) -> tuple[str, int] | None:
+        """Where telemetry goes: the configured client port until a client talks to us."""
+        return self._sink.address
+
+    @client_address.setter
+    def client_address(self, address: tuple[str, int]) -> None:
+        self._sink.address = address
+
+    def handle_datagram(self, data: bytes, now_s: float) -> bool:
+        """Parse and act on one datagram; malformed input is counted, never raised.
+        Returns whether it held at least one valid message."""
         self.counters.datagrams += 1
         try:
             messages = self.mav.parse_buffer(data) or []
         except (mavlink.MAVError, ValueError, IndexError, TypeError, OverflowError):
             self.counters.bad_data += 1
-            return
+            return False
+        valid = False
         for message in messages:
             kind = message.get_type()
             if kind == "BAD_DATA":
                 self.counters.bad_data += 1
                 continue
+            valid = True
             self.counters.messages += 1
             self.counters.per_type[kind] = self.counters.per_type.get(kind, 0) + 1
             try:
@@ -160,6 +174,7 @@ class Px4Endpoint:
                 self.counters.handled += 1
             else:
                 self.counters.ignored += 1
+        return valid
 
     def _for_me(self, message: mavlink.MAVLink_message) -> bool:
         target = int(getattr(message, "target_system", 0))

@@ -21,9 +21,11 @@ from sim.plant_params import (
     WindParams,
     diagonal,
 )
+from sim.px4 import Px4Params
 from supervisor.config import Config
 from supervisor.estimation import BodyNames
 from supervisor.flight_core import CONTROLLERS, FlightCore
+from supervisor.mavlink_link import LinkConfig
 from supervisor.setpoints import Arena
 
 
@@ -131,4 +133,56 @@ def mocap_params_from_config(config: Config, seed: int | None = None) -> MocapPa
             burst_frames=(m.burst_frames[0], m.burst_frames[1]),
         ),
         seed=config.sim.seed if seed is None else seed,
+    )
+
+
+def _per_vehicle(value: float | list[float]) -> tuple[float, float]:
+    return (value[0], value[1]) if isinstance(value, list) else (value, value)
+
+
+def link_configs_from_config(
+    config: Config,
+    vehicle_addresses: tuple[tuple[str, int], tuple[str, int]] | None = None,
+    local_ports: tuple[int, int] | None = None,
+) -> tuple[LinkConfig, LinkConfig]:
+    """Both vehicles' MAVLink links (the embedded world passes its own addresses/ports)."""
+    v = config.vehicles
+    thrust, torque = _per_vehicle(v.thrust_max_n), _per_vehicle(v.torque_max_nm)
+    configured = [
+        (host, int(port)) for host, _, port in (a.rpartition(":") for a in v.addresses or [])
+    ]
+    addresses = vehicle_addresses or (tuple(configured) if configured else (None, None))
+    ports = local_ports or (v.ports[0], v.ports[1])
+    links = [
+        LinkConfig(
+            system_id=v.system_ids[k],
+            local_host=v.bind_host,
+            local_port=ports[k],
+            vehicle_address=addresses[k],
+            command_mode=v.command_mode,
+            mocap_message=v.mocap_message,
+            thrust_max_n=thrust[k],
+            torque_max_nm=torque[k],
+            ack_timeout_s=v.ack_timeout_s,
+            retries=v.retries,
+            link_loss_s=v.link_loss_s,
+        )
+        for k in range(2)
+    ]
+    return links[0], links[1]
+
+
+def px4_params_from_config(config: Config, uav: int) -> Px4Params:
+    """The simulated PX4 of UAV ``uav`` (1 or 2): the vehicle's true calibration (the
+    configured one, times ``sim.px4_thrust_scale``) and its hover thrust with half the bar."""
+    params = config.system.to_params()
+    k = uav - 1
+    inertia = params.uavs[k].inertia_kgm2
+    carried_kg = params.uavs[k].mass_kg + params.payload_mass_kg(uav)  # (13)
+    return Px4Params(
+        inertia_kgm2=(inertia[0], inertia[1], inertia[2]),
+        thrust_max_n=_per_vehicle(config.vehicles.thrust_max_n)[k],
+        torque_max_nm=_per_vehicle(config.vehicles.torque_max_nm)[k],
+        thrust_scale=config.sim.px4_thrust_scale[k],
+        hover_thrust_n=carried_kg * params.gravity_mps2,
     )

@@ -110,6 +110,18 @@ def _simulate(config: Config, args: argparse.Namespace) -> int:
     return 0 if result.completed else 1
 
 
+def _serve(config: Config, args: argparse.Namespace) -> int:
+    from supervisor.serve import run_serve  # the service stack only when serving
+
+    return run_serve(args.config, args.overrides)
+
+
+def _sitl(config: Config, args: argparse.Namespace) -> int:
+    from supervisor.world_process import run_sitl
+
+    return run_sitl(config)
+
+
 def _report(config: Config, args: argparse.Namespace) -> int:
     paths: list[Path] = args.logs
     if len(paths) > 2:
@@ -147,6 +159,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help="time every QP back-end on the same MPC ticks")
     _bench_arguments(bench)
     bench.set_defaults(handler=_bench)
+
+    serve = commands.add_parser(
+        "serve", help="the flight supervisor service (default setup: the embedded simulator)"
+    )
+    serve.set_defaults(handler=_serve)
+    sitl = commands.add_parser(
+        "sitl", help="the simulated world alone, in real time: plant, two PX4s, a QTM server"
+    )
+    sitl.set_defaults(handler=_sitl)
 
     simulate = commands.add_parser(
         "simulate", help="fly a scenario on the embedded simulator, faster than real time"

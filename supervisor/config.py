@@ -14,7 +14,7 @@ import math
 import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -269,6 +269,9 @@ class SimSection(_Section):
     step_s: PositiveFloat = 0.001
     motor_time_constant_s: NonNegativeFloat = 0.02
     uav_thrust_max_n: PositiveFloat = 30.0
+    # The simulated PX4s' own calibration against the supervisor's vehicles.thrust_max_n:
+    # true thrust = scale × commanded (1.0: the supervisor's calibration is right).
+    px4_thrust_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
     uav_mass_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
     bar_mass_scale: PositiveFloat = 1.0
     bar_com_shift_m: FiniteFloat = 0.0
@@ -280,6 +283,43 @@ class SimSection(_Section):
         0.0,
     ]
     mocap: SimMocapSection = SimMocapSection()
+
+
+Port = Annotated[int, Field(ge=0, le=65535)]
+
+
+class VehiclesSection(_Section):
+    """The two PX4s: MAVLink links, command mode and calibration (one value or one per
+    vehicle). ``ports`` are the local UDP ports the links listen on (PX4's offboard/API
+    link sends to 14540+i); ``addresses`` ("host:port"), when set, are contacted first."""
+
+    command_mode: Literal["actuator", "rates"] = "actuator"
+    mocap_message: Literal["vision_position_estimate", "odometry"] = "vision_position_estimate"
+    bind_host: str = "0.0.0.0"
+    ports: Annotated[list[Port], Field(min_length=2, max_length=2)] = [14540, 14541]
+    addresses: Annotated[list[str], Field(min_length=2, max_length=2)] | None = None
+    system_ids: Annotated[
+        list[Annotated[int, Field(ge=1, le=255)]], Field(min_length=2, max_length=2)
+    ] = [1, 2]
+    # Thrust [N] at PX4's normalized 1.0 and torque [N m] at ±1.0: identify them per vehicle.
+    thrust_max_n: (
+        PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    ) = 26.0
+    torque_max_nm: (
+        PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    ) = 1.0
+    ack_timeout_s: PositiveFloat = 0.5
+    retries: Annotated[int, Field(ge=1, le=10)] = 3
+    link_loss_s: PositiveFloat = 1.5
+
+    @field_validator("addresses")
+    @classmethod
+    def _host_port(cls, values: list[str] | None) -> list[str] | None:
+        for value in values or []:
+            host, _, port = value.rpartition(":")
+            if not host or not port.isdigit() or not 0 < int(port) < 65536:
+                raise ValueError(f"{value!r} is not host:port")
+        return values
 
 
 class ApiSection(_Section):
@@ -305,6 +345,7 @@ class Config(_Section):
     arena: ArenaSection
     mpc: MpcSection
     mocap: MocapSection = MocapSection()
+    vehicles: VehiclesSection = VehiclesSection()
     api: ApiSection = ApiSection()
     log: LogSection = LogSection()
     sim: SimSection = SimSection()

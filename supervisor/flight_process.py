@@ -149,13 +149,14 @@ class FlightProcess:
         before = self.core.modes.mode
         connected = (self.links[0].connected, self.links[1].connected)
         result = self.core.tick(started, self.estimate, connected, timing.lateness_s)
+        latency_ms = math.nan
         if self.streaming:
             for link, command in zip(self.links, result.commands, strict=True):
                 link.send_setpoint(command)
-            sent = self.clock()
-            newest = self.mocap.latest()
+            newest = frames[-1] if frames else None
             if newest is not None and math.isfinite(newest.receive_time_s):
-                self.latency_ms.append((sent - newest.receive_time_s) * 1e3)
+                latency_ms = (self.clock() - newest.receive_time_s) * 1e3
+                self.latency_ms.append(latency_ms)
         self._forward_mocap()
         compute_s = self.clock() - started
         self.stats.record(timing, compute_s, self.config.mpc.dt_s)
@@ -166,7 +167,9 @@ class FlightProcess:
             self._on_ground.set()
         if self._log is not None:
             record = result.record
-            record.extra["compute_total_ms"] = compute_s * 1e3
+            record.extra.update(
+                compute_total_ms=compute_s * 1e3, latency_ms=latency_ms, skipped=timing.skipped
+            )
             self._log.append(record)
         self._react(before, result.mode)
 

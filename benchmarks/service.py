@@ -1,0 +1,114 @@
+"""``uavbar-supervisor serve`` as a subprocess on free ports, driven over HTTP only
+(used by the tick benchmark and the end-to-end tests)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import re
+import signal
+import sys
+import time
+from collections.abc import AsyncIterator, Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+START_TIMEOUT_S = 120.0
+
+
+@dataclass
+class RunningService:
+    """A started ``serve``: its base URL, token, and the process."""
+
+    url: str
+    token: str
+    process: asyncio.subprocess.Process
+    output: list[str]
+
+    def client(self, **options: Any) -> httpx.AsyncClient:
+        """An HTTP client with the token set."""
+        headers = {"Authorization": f"Bearer {self.token}"}
+        return httpx.AsyncClient(base_url=self.url, headers=headers, timeout=10.0, **options)
+
+    async def status(self, http: httpx.AsyncClient) -> dict[str, Any]:
+        response = await http.get("/api/status")
+        response.raise_for_status()
+        result: dict[str, Any] = response.json()
+        return result
+
+    async def wait_for(
+        self,
+        http: httpx.AsyncClient,
+        condition: Callable[[dict[str, Any]], bool],
+        timeout_s: float,
+        what: str,
+    ) -> dict[str, Any]:
+        """Poll ``/api/status`` until ``condition(status)``; raises ``TimeoutError``."""
+        deadline = time.monotonic() + timeout_s
+        last: dict[str, Any] = {}
+        while time.monotonic() < deadline:
+            response = await http.get("/api/status")
+            if response.status_code == 200:
+                last = response.json()
+                if condition(last):
+                    return last
+            await asyncio.sleep(0.1)
+        brief = {k: last.get(k) for k in ("mode", "phase", "bar", "setpoints", "faults")}
+        raise TimeoutError(f"timed out after {timeout_s} s waiting for {what}; last: {brief}")
+
+
+async def _read_output(stream: asyncio.StreamReader, lines: list[str]) -> None:
+    while line := await stream.readline():
+        lines.append(line.decode(errors="replace").rstrip())
+
+
+@contextlib.asynccontextmanager
+async def running_service(
+    token: str, log_folder: Path, overrides: Sequence[str] = ()
+) -> AsyncIterator[RunningService]:
+    """Start ``serve`` (embedded simulator, API on a free port), stop it with SIGINT."""
+    arguments = ["-m", "supervisor.cli", "serve", "--set", "api.port=0"]
+    arguments += ["--set", f'log.folder="{log_folder}"']
+    for override in overrides:
+        arguments += ["--set", override]
+    env = {**os.environ, "UAVBAR_TOKEN": token, "PYTHONUNBUFFERED": "1"}
+    process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        *arguments,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+        env=env,
+    )
+    assert process.stdout is not None
+    output: list[str] = []
+    url = None
+    try:
+        async with asyncio.timeout(START_TIMEOUT_S):
+            while url is None:
+                line = await process.stdout.readline()
+                if not line:
+                    raise RuntimeError("serve exited:\n" + "\n".join(output))
+                output.append(line.decode(errors="replace").rstrip())
+                match = re.search(r"serving (http://\S+?)/? ", output[-1])
+                url = match.group(1).rstrip("/") if match else None
+        reader = asyncio.create_task(_read_output(process.stdout, output))
+        try:
+            yield RunningService(url, token, process, output)
+        finally:
+            if process.returncode is None:
+                process.send_signal(signal.SIGINT)
+            try:
+                async with asyncio.timeout(150.0):
+                    await process.wait()
+            except TimeoutError:
+                process.kill()
+                await process.wait()
+            await reader
+    finally:
+        if process.returncode is None:
+            process.kill()
+            await process.wait()

@@ -1,0 +1,162 @@
+"""Tick timing under API load: ``python -m benchmarks.tick [--duration S] [--json]``.
+
+Starts ``uavbar-supervisor serve`` on the embedded simulator (a subprocess, free ports),
+flies the paper's setpoint sequence over HTTP, and meanwhile loads the API with
+``--rate`` requests per second (status reads and setpoint posts, half each) and
+``--websockets`` telemetry clients. At the end it lands, and reads the tick timings of
+every tick of the flight from the flight log: compute time, lateness, missed deadlines,
+and the latency from receiving a mocap frame to sending the MAVLink setpoints computed
+from it (reported by the flight process).
+
+Targets on a 2-core machine: 0 missed deadlines, lateness p99 ≤ 1 ms, latency p99 ≤ 3 ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import websockets
+
+from benchmarks.service import RunningService, running_service
+from supervisor.flight_log import read_flight_log
+
+TOKEN = "benchmark-token"
+PAPER_SETPOINTS: list[dict[str, Any]] = [
+    {"bar_position": [0.0, 0.0, 1.0], "bar_yaw": math.pi / 2, "uav_yaw": [math.pi / 2, 0.0]},
+    {"bar_position": [1.0, 0.0, 1.0], "bar_yaw": math.pi / 2, "uav_yaw": [math.pi, math.pi / 2]},
+    {"bar_position": [0.0, 0.0, 1.0]},
+    {"bar_position": [0.0, 0.0, 1.0], "theta_l": math.pi / 4},
+    {"bar_position": [0.0, 0.0, 1.0]},
+]
+
+
+async def load(url: str, rate_hz: float, stop: asyncio.Event) -> int:
+    """Status reads and setpoint posts at ``rate_hz`` in total; returns the request count."""
+    count = 0
+    period = 1.0 / rate_hz
+    headers = {"Authorization": f"Bearer {TOKEN}"}
+    # Outside the arena: validated (equilibrium and geofence) and refused with 422, so the
+    # load exercises the setpoint path without changing the flight.
+    post = {"bar_position": [0.0, 0.0, 2.9], "hold_s": 1.0}
+    limits = httpx.Limits(max_connections=20)
+    async with httpx.AsyncClient(base_url=url, timeout=5.0, limits=limits) as http:
+        pending: set[asyncio.Task[Any]] = set()
+        started = time.monotonic()
+        while not stop.is_set():
+            request = (
+                http.get("/api/status")
+                if count % 2 == 0
+                else http.post("/api/setpoints", json=post, headers=headers)
+            )
+            task = asyncio.ensure_future(request)
+            pending.add(task)
+            task.add_done_callback(pending.discard)
+            count += 1
+            await asyncio.sleep(max(0.0, started + count * period - time.monotonic()))
+        await asyncio.gather(*pending, return_exceptions=True)
+    return count
+
+
+async def watch(url: str, stop: asyncio.Event) -> int:
+    """One telemetry WebSocket client; returns the messages received."""
+    received = 0
+    async with websockets.connect(url.replace("http", "ws") + "/api/telemetry") as ws:
+        while not stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(0.5):
+                    await ws.recv()
+                    received += 1
+    return received
+
+
+async def fly(service: RunningService, duration_s: float) -> str:
+    """Arm, take off, fly the paper's setpoints until ``duration_s`` has passed, land.
+    Returns the flight log's path."""
+    async with service.client() as http:
+        await service.wait_for(http, lambda s: s["mocap"]["healthy"], 30.0, "mocap")
+        for step in ("arm", "takeoff"):
+            (await http.post(f"/api/{step}")).raise_for_status()
+        status = await service.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
+        log = str(status["log"])
+        started = time.monotonic()
+        while time.monotonic() - started < duration_s:
+            for setpoint in PAPER_SETPOINTS:
+                response = await http.post("/api/setpoints", json={**setpoint, "hold_s": 3.0})
+                response.raise_for_status()
+            await service.wait_for(
+                http,
+                lambda s: not s["setpoints"]["active"] and not s["setpoints"]["queued"],
+                300.0,
+                "the setpoints",
+            )
+        (await http.post("/api/land")).raise_for_status()
+        await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landing")
+        return log
+
+
+def summarize(log_path: str, requests: int, duration_s: float) -> dict[str, Any]:
+    """Figures over every tick of the flight, from its log."""
+    log = read_flight_log(Path(log_path))
+
+    def column(name: str) -> np.ndarray:
+        return np.array([r.get(name, math.nan) for r in log.extra], dtype=float)
+
+    compute, latency = column("compute_total_ms"), column("latency_ms")
+    lateness = np.asarray(log.lateness_ms, dtype=float)
+    late = int(np.sum(lateness + compute >= 20.0))
+    return {
+        "duration_s": duration_s,
+        "api_requests_per_s": requests / duration_s,
+        "ticks": len(log.t_s),
+        "missed_deadlines": late + int(np.nansum(column("skipped"))),
+        "compute_ms_p50": float(np.nanpercentile(compute, 50)),
+        "compute_ms_p99": float(np.nanpercentile(compute, 99)),
+        "lateness_ms_p99": float(np.percentile(lateness, 99)),
+        "latency_ms_p50": float(np.nanpercentile(latency, 50)),
+        "latency_ms_p99": float(np.nanpercentile(latency, 99)),
+    }
+
+
+async def run(duration_s: float, rate_hz: float, n_websockets: int) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as scratch:
+        async with running_service(TOKEN, Path(scratch)) as service:
+            stop = asyncio.Event()
+            started = time.monotonic()
+            loaders = [asyncio.create_task(load(service.url, rate_hz, stop))]
+            loaders += [asyncio.create_task(watch(service.url, stop)) for _ in range(n_websockets)]
+            log_path = await fly(service, duration_s)
+            stop.set()
+            elapsed = time.monotonic() - started
+            requests = (await asyncio.gather(*loaders))[0]
+            return summarize(log_path, requests, elapsed)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=60.0, metavar="S")
+    parser.add_argument("--rate", type=float, default=200.0, help="API requests per second")
+    parser.add_argument("--websockets", type=int, default=10)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args(argv)
+    result = asyncio.run(run(args.duration, args.rate, args.websockets))
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for key, value in result.items():
+            print(f"{key:22s} {value:.3f}" if isinstance(value, float) else f"{key:22s} {value}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
