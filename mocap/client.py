@@ -1,0 +1,582 @@
+"""Asyncio QTM RT client: commands over TCP, 6D frames over UDP (protocols.md §1).
+
+Two layers, as in aioquic:
+
+* ``FrameReceiver`` — sans-IO. Takes UDP datagrams and the receive time, decodes them
+  (``mocap.qtm_protocol``), counts frame-number gaps, out-of-order and duplicate datagrams,
+  malformed packets and stream restarts, converts accepted frames to SI units through
+  ``mocap.frames`` (``frame_from_packet``) and keeps them in a bounded store.
+* ``QtmClient`` — the thin asyncio shell, an async context manager. Per session it connects
+  to the little-endian port, reads the greeting, negotiates the protocol version (asks 1.25,
+  falls back one minor version at a time down to 1.8, below which 6D is sent as doubles,
+  §1.2), reads the body names with ``GetParameters 6D``, binds a UDP socket on the address
+  the TCP connection uses, and sends ``StreamFrames AllFrames UDP:<port> 6D`` (or
+  ``6DEuler``/…; QTM answers nothing on success, §1.3). A lost connection, a server error or
+  a silent server (keep-alive unanswered) ends the session; the client reconnects with
+  exponential back-off until the context exits.
+
+``MocapSource`` is the small protocol the supervisor depends on; the sim or a test can supply
+any other implementation.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import socket
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Final, Protocol, Self
+
+from mocap.qtm_protocol import (
+    GREETING,
+    LITTLE_ENDIAN_PORT,
+    BodyPose,
+    CommandPacket,
+    ComponentType,
+    DataPacket,
+    ErrorPacket,
+    EventPacket,
+    MocapFrame,
+    NoMoreDataPacket,
+    Packet,
+    ProtocolVersion,
+    QtmProtocolError,
+    QtmStreamDecoder,
+    XmlPacket,
+    component_type_from_name,
+    decode_datagram,
+    encode_command,
+    format_version,
+    frame_from_packet,
+    parse_6d_parameters,
+    stream_frames_command,
+)
+
+__all__ = [
+    "BodyPose",
+    "FrameReceiver",
+    "MocapFrame",
+    "MocapSource",
+    "MocapStats",
+    "QtmClient",
+    "QtmServerError",
+]
+
+_FRAME_NUMBER_MODULUS: Final = 2**32
+MIN_PROTOCOL_VERSION: Final[ProtocolVersion] = (1, 8)
+"""Below 1.8, 6D records are doubles (§1.2); this client never goes there."""
+
+
+class QtmServerError(Exception):
+    """The server answered but refused: connection refused, no common protocol version, an
+    Error packet in reply to a command, or parameters the client cannot use."""
+
+
+@dataclass(frozen=True)
+class MocapStats:
+    """Counters of a mocap source since it was created (snapshots; never reset).
+
+    Datagram counters: ``datagrams`` received from the server's host, ``frames`` accepted,
+    ``gaps`` (forward jumps in the frame number) and ``frames_missed`` (frame numbers skipped
+    in total), ``out_of_order`` (older than the newest accepted), ``duplicates`` (same frame
+    number again), ``malformed`` (not a valid RT packet, or a corrupt record),
+    ``no_more_data`` (QTM not measuring), ``ignored`` (valid but not a usable data packet),
+    ``body_count_mismatches`` (the data has a different number of bodies than the 6D
+    parameters), ``stream_restarts`` (frame numbers restarted: a new measurement),
+    ``foreign_datagrams`` (from another host, dropped), ``queue_overflows`` (frames pushed
+    out of the bounded store before ``drain``). Connection: ``sessions`` (successful stream
+    starts), ``connect_failures``, ``connected``, ``protocol_version``, ``body_names``,
+    ``udp_port`` (local). ``last_receive_time_s`` is on the client's clock.
+    """
+
+    connected: bool = False
+    sessions: int = 0
+    connect_failures: int = 0
+    protocol_version: str | None = None
+    body_names: tuple[str, ...] = ()
+    udp_port: int | None = None
+    datagrams: int = 0
+    frames: int = 0
+    gaps: int = 0
+    frames_missed: int = 0
+    out_of_order: int = 0
+    duplicates: int = 0
+    malformed: int = 0
+    no_more_data: int = 0
+    ignored: int = 0
+    body_count_mismatches: int = 0
+    stream_restarts: int = 0
+    foreign_datagrams: int = 0
+    queue_overflows: int = 0
+    last_frame_number: int | None = None
+    last_receive_time_s: float | None = None
+    last_error: str | None = None
+
+    @property
+    def reconnects(self) -> int:
+        """Sessions after the first."""
+        return max(self.sessions - 1, 0)
+
+
+class MocapSource(Protocol):
+    """What the supervisor needs from motion capture (a QTM client, or a fake in tests)."""
+
+    def latest(self) -> MocapFrame | None:
+        """The newest frame, or None before the first."""
+        ...
+
+    def drain(self) -> list[MocapFrame]:
+        """Every frame received since the last call, oldest first (bounded)."""
+        ...
+
+    def stats(self) -> MocapStats:
+        """Counters and connection state."""
+        ...
+
+
+class FrameReceiver:
+    """Sans-IO UDP side of the client: datagram bytes and receive time in, frames out.
+
+    ``restart_after_backwards`` consecutive datagrams behind the newest frame, or one more
+    than ``restart_threshold_frames`` behind, mean QTM restarted its frame numbering (a new
+    measurement) rather than reordering: the sequence restarts from that frame.
+    """
+
+    def __init__(
+        self,
+        body_names: Sequence[str] = (),
+        component: ComponentType = ComponentType.SIX_D,
+        max_queue: int = 256,
+        restart_threshold_frames: int = 1000,
+        restart_after_backwards: int = 20,
+    ) -> None:
+        self.body_names: tuple[str, ...] = tuple(body_names)
+        self.component = component
+        self.restart_threshold_frames = restart_threshold_frames
+        self.restart_after_backwards = restart_after_backwards
+        self._queue: deque[MocapFrame] = deque(maxlen=max_queue)
+        self._latest: MocapFrame | None = None
+        self._last_frame_number: int | None = None
+        self._backwards_in_a_row = 0
+        self.consecutive_mismatches = 0
+        self.last_receive_time_s: float | None = None
+        self.counts: dict[str, int] = dict.fromkeys(
+            (
+                "datagrams",
+                "frames",
+                "gaps",
+                "frames_missed",
+                "out_of_order",
+                "duplicates",
+                "malformed",
+                "no_more_data",
+                "ignored",
+                "body_count_mismatches",
+                "stream_restarts",
+                "foreign_datagrams",
+                "queue_overflows",
+            ),
+            0,
+        )
+
+    def reset(self, body_names: Sequence[str], component: ComponentType) -> None:
+        """Start a new stream (after a reconnect): new names, sequence forgotten, counters kept."""
+        self.body_names = tuple(body_names)
+        self.component = component
+        self._last_frame_number = None
+        self._backwards_in_a_row = 0
+        self.consecutive_mismatches = 0
+
+    def latest(self) -> MocapFrame | None:
+        """The newest accepted frame (kept across reconnects)."""
+        return self._latest
+
+    def drain(self) -> list[MocapFrame]:
+        """Accepted frames since the last drain, oldest first."""
+        frames = list(self._queue)
+        self._queue.clear()
+        return frames
+
+    @property
+    def last_frame_number(self) -> int | None:
+        """Frame number of the newest accepted frame of the current stream."""
+        return self._last_frame_number
+
+    def count_foreign(self) -> None:
+        """A datagram from a host other than the server's arrived (and was dropped)."""
+        self.counts["foreign_datagrams"] += 1
+
+    def _classify(self, frame_number: int) -> str:
+        """'first', 'next', 'gap', 'duplicate', 'old' or 'restart' (no state change)."""
+        last = self._last_frame_number
+        if last is None:
+            return "first"
+        ahead = (frame_number - last) % _FRAME_NUMBER_MODULUS  # uint32 wraps (§1.4)
+        if ahead == 0:
+            return "duplicate"
+        if ahead < _FRAME_NUMBER_MODULUS // 2:
+            return "next" if ahead == 1 else "gap"
+        behind = _FRAME_NUMBER_MODULUS - ahead
+        if (
+            behind > self.restart_threshold_frames
+            or self._backwards_in_a_row + 1 >= self.restart_after_backwards
+        ):
+            return "restart"
+        return "old"
+
+    def receive_datagram(self, data: bytes, now_s: float) -> MocapFrame | None:
+        """Process one datagram received at ``now_s`` [s]; the frame if it was accepted."""
+        counts = self.counts
+        counts["datagrams"] += 1
+        self.last_receive_time_s = now_s
+        try:
+            packet: Packet = decode_datagram(data)
+        except QtmProtocolError:
+            counts["malformed"] += 1
+            return None
+        if isinstance(packet, NoMoreDataPacket):
+            counts["no_more_data"] += 1
+            return None
+        if not isinstance(packet, DataPacket):
+            counts["ignored"] += 1
+            return None
+        component = packet.six_d(self.component)
+        if component is None:
+            # e.g. the part of a frame QTM split over several datagrams that has no 6D (§1.3).
+            counts["ignored"] += 1
+            return None
+        if len(component.bodies) != len(self.body_names):
+            counts["body_count_mismatches"] += 1
+            self.consecutive_mismatches += 1
+            return None
+        self.consecutive_mismatches = 0
+        verdict = self._classify(packet.frame_number)
+        if verdict == "duplicate":
+            counts["duplicates"] += 1
+            return None
+        if verdict == "old":
+            counts["out_of_order"] += 1
+            self._backwards_in_a_row += 1
+            return None
+        try:
+            frame = frame_from_packet(packet, self.body_names, now_s, self.component)
+        except QtmProtocolError:
+            counts["malformed"] += 1
+            return None
+        if verdict == "gap":
+            assert self._last_frame_number is not None
+            counts["gaps"] += 1
+            counts["frames_missed"] += (
+                packet.frame_number - self._last_frame_number
+            ) % _FRAME_NUMBER_MODULUS - 1
+        elif verdict == "restart":
+            counts["stream_restarts"] += 1
+        self._backwards_in_a_row = 0
+        self._last_frame_number = packet.frame_number
+        counts["frames"] += 1
+        if len(self._queue) == self._queue.maxlen:
+            counts["queue_overflows"] += 1
+        self._queue.append(frame)
+        self._latest = frame
+        return frame
+
+
+class _DatagramProtocol(asyncio.DatagramProtocol):
+    def __init__(self, client: QtmClient, server_host: str) -> None:
+        self._client = client
+        self._server_host = server_host
+
+    def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
+        self._client._on_datagram(data, addr, self._server_host)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP errors (port unreachable after a server restart, …) are not fatal for UDP:
+        # the TCP connection decides whether the session is alive.
+        self._client._last_error = f"UDP: {exc}"
+
+
+class QtmClient:
+    """QTM RT client over TCP (commands) and UDP (frames); an async context manager.
+
+    ``async with QtmClient("127.0.0.1", port) as client:`` starts a background task that
+    connects, streams and reconnects until the block exits. ``component`` is ``"6D"``
+    (default, the rotation matrix: immune to QTM's Euler settings, §1.4), ``"6DRes"``,
+    ``"6DEuler"`` or ``"6DEulerRes"`` (Euler assumes QTM's default "Qualisys standard").
+    ``udp_port`` 0 lets the OS pick. ``clock`` [s] stamps each datagram's receive time.
+    Back-off between attempts doubles from ``reconnect_min_s`` to ``reconnect_max_s`` and
+    resets after a session that streamed. With no datagram for ``keepalive_s``, a
+    ``Version`` command probes the TCP connection; no answer in ``command_timeout_s`` ends
+    the session.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int = LITTLE_ENDIAN_PORT,
+        *,
+        component: str | ComponentType = ComponentType.SIX_D,
+        udp_port: int = 0,
+        version: ProtocolVersion = (1, 25),
+        clock: Callable[[], float] = time.monotonic,
+        connect_timeout_s: float = 2.0,
+        command_timeout_s: float = 2.0,
+        reconnect_min_s: float = 0.05,
+        reconnect_max_s: float = 2.0,
+        keepalive_s: float = 1.0,
+        max_queue: int = 256,
+    ) -> None:
+        if version < MIN_PROTOCOL_VERSION:
+            raise ValueError(f"protocol {format_version(version)} < 1.8 sends 6D as doubles")
+        self.host = host
+        self.port = port
+        self.component = (
+            component
+            if isinstance(component, ComponentType)
+            else component_type_from_name(component)
+        )
+        self._udp_port_request = udp_port
+        self._version_request = version
+        self._clock = clock
+        self.connect_timeout_s = connect_timeout_s
+        self.command_timeout_s = command_timeout_s
+        self.reconnect_min_s = reconnect_min_s
+        self.reconnect_max_s = reconnect_max_s
+        self.keepalive_s = keepalive_s
+        self.receiver = FrameReceiver(component=self.component, max_queue=max_queue)
+        self._task: asyncio.Task[None] | None = None
+        self._connected = asyncio.Event()
+        self._frame_arrived = asyncio.Event()
+        self._sessions = 0
+        self._connect_failures = 0
+        self._protocol_version: ProtocolVersion | None = None
+        self._udp_port: int | None = None
+        self._last_error: str | None = None
+        self._last_datagram_s = -math.inf  # loop time, for the keep-alive only
+        self._streamed = False
+        self.last_event: int | None = None
+        """The last Event packet's id seen on the command channel."""
+
+    # --- MocapSource -----------------------------------------------------------------------
+
+    def latest(self) -> MocapFrame | None:
+        """The newest frame, or None before the first."""
+        return self.receiver.latest()
+
+    def drain(self) -> list[MocapFrame]:
+        """Frames received since the last call, oldest first (at most ``max_queue``)."""
+        return self.receiver.drain()
+
+    def stats(self) -> MocapStats:
+        """A snapshot of the counters and the connection state."""
+        return MocapStats(
+            connected=self._connected.is_set(),
+            sessions=self._sessions,
+            connect_failures=self._connect_failures,
+            protocol_version=(
+                format_version(self._protocol_version) if self._protocol_version else None
+            ),
+            body_names=self.receiver.body_names,
+            udp_port=self._udp_port,
+            last_frame_number=self.receiver.last_frame_number,
+            last_receive_time_s=self.receiver.last_receive_time_s,
+            last_error=self._last_error,
+            **self.receiver.counts,
+        )
+
+    # --- Lifecycle -------------------------------------------------------------------------
+
+    async def __aenter__(self) -> Self:
+        self._task = asyncio.create_task(self._run(), name=f"qtm-client {self.host}:{self.port}")
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    @property
+    def connected(self) -> bool:
+        """True while a stream is set up (TCP alive, StreamFrames sent)."""
+        return self._connected.is_set()
+
+    @property
+    def udp_port(self) -> int | None:
+        """The local UDP port frames arrive on (None when not connected)."""
+        return self._udp_port
+
+    async def wait_connected(self) -> None:
+        """Return once a stream is set up (wrap in ``asyncio.timeout``)."""
+        await self._connected.wait()
+
+    async def wait_frame(self) -> MocapFrame:
+        """Return the next accepted frame (wrap in ``asyncio.timeout``)."""
+        self._frame_arrived.clear()
+        await self._frame_arrived.wait()
+        frame = self.receiver.latest()
+        assert frame is not None
+        return frame
+
+    # --- Sessions --------------------------------------------------------------------------
+
+    async def _run(self) -> None:
+        delay = self.reconnect_min_s
+        while True:
+            self._streamed = False
+            try:
+                await self._session()
+            except (OSError, TimeoutError, QtmProtocolError, QtmServerError) as error:
+                self._last_error = f"{type(error).__name__}: {error}"
+            if self._streamed:
+                delay = self.reconnect_min_s
+            else:
+                self._connect_failures += 1
+            await asyncio.sleep(delay)
+            delay = min(2.0 * delay, self.reconnect_max_s)
+
+    async def _session(self) -> None:
+        """One connection, from connect to loss: always ends with an exception. Sets
+        ``_streamed`` once the stream is set up (the back-off then starts afresh)."""
+        reader, writer = await asyncio.wait_for(
+            asyncio.open_connection(self.host, self.port), self.connect_timeout_s
+        )
+        transport: asyncio.DatagramTransport | None = None
+        try:
+            sock = writer.get_extra_info("socket")
+            if sock is not None:
+                # Commands are tiny and latency matters more than packet count (§1.2).
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            channel = _CommandChannel(reader, writer, self.command_timeout_s, self)
+            greeting = await channel.read()
+            if not (isinstance(greeting, CommandPacket) and greeting.text.startswith(GREETING)):
+                raise QtmServerError(f"unexpected greeting {greeting!r}")
+            self._protocol_version = await self._negotiate(channel)
+            reply = await channel.request("GetParameters 6D")
+            if not isinstance(reply, XmlPacket):
+                raise QtmServerError(f"GetParameters 6D answered with {reply!r}")
+            parameters = parse_6d_parameters(reply.text)
+            local_host: str = writer.get_extra_info("sockname")[0]
+            server_host: str = writer.get_extra_info("peername")[0]
+            loop = asyncio.get_running_loop()
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda: _DatagramProtocol(self, server_host),
+                local_addr=(local_host, self._udp_port_request),
+            )
+            self._udp_port = transport.get_extra_info("sockname")[1]
+            self.receiver.reset(parameters.names, self.component)
+            # QTM replies nothing to StreamFrames on success; an Error packet if it fails.
+            channel.send(stream_frames_command([self.component], udp_port=self._udp_port))
+            self._sessions += 1
+            self._last_datagram_s = loop.time()
+            self._connected.set()
+            self._streamed = True
+            await self._supervise(channel)
+        finally:
+            self._connected.clear()
+            self._udp_port = None
+            if transport is not None:
+                transport.close()
+            if self._streamed:
+                with contextlib.suppress(OSError):
+                    writer.write(encode_command("StreamFrames Stop"))
+            writer.close()
+            with contextlib.suppress(OSError, TimeoutError):
+                await asyncio.wait_for(writer.wait_closed(), 0.5)
+
+    async def _negotiate(self, channel: _CommandChannel) -> ProtocolVersion:
+        """Ask for the preferred version, then each lower minor down to 1.8 (§1.2)."""
+        major, minor = self._version_request
+        for candidate in range(minor, MIN_PROTOCOL_VERSION[1] - 1, -1):
+            text = format_version((major, candidate))
+            reply = await channel.request(f"Version {text}")
+            if isinstance(reply, CommandPacket) and reply.text.lower().startswith("version set"):
+                return major, candidate
+            if not isinstance(reply, (CommandPacket, ErrorPacket)):
+                raise QtmServerError(f"Version {text} answered with {reply!r}")
+        raise QtmServerError("no common protocol version ≥ 1.8")
+
+    async def _supervise(self, channel: _CommandChannel) -> None:
+        """Watch the command channel while frames flow over UDP; return never, raise on loss."""
+        loop = asyncio.get_running_loop()
+        while True:
+            try:
+                packet = await asyncio.wait_for(channel.read(), self.keepalive_s)
+            except TimeoutError:
+                if loop.time() - self._last_datagram_s >= self.keepalive_s:
+                    await channel.request("Version")  # raises TimeoutError if QTM is gone
+                continue
+            self._check_streaming_packet(packet)
+            if self.receiver.consecutive_mismatches >= 10:
+                # QTM's rigid-body set changed: reconnect to read the new names.
+                raise QtmServerError("body count differs from the 6D parameters")
+
+    def _check_streaming_packet(self, packet: Packet) -> None:
+        if isinstance(packet, ErrorPacket):
+            raise QtmServerError(f"server error while streaming: {packet.text}")
+        # Events, late replies and any TCP data are not needed for UDP streaming.
+
+    def _on_datagram(self, data: bytes, addr: tuple[str | int, ...], server_host: str) -> None:
+        if addr[0] != server_host:
+            # Only the QTM host may inject frames: on a shared lab network anything else
+            # reaching this port is a misdirected stream or worse.
+            self.receiver.count_foreign()
+            return
+        self._last_datagram_s = asyncio.get_running_loop().time()
+        if self.receiver.receive_datagram(data, self._clock()) is not None:
+            self._frame_arrived.set()
+        if self.receiver.consecutive_mismatches >= 10:
+            self._last_error = "body count differs from the 6D parameters"
+
+
+class _CommandChannel:
+    """The TCP command connection of one session: send commands, read packets."""
+
+    def __init__(
+        self,
+        reader: asyncio.StreamReader,
+        writer: asyncio.StreamWriter,
+        timeout_s: float,
+        client: QtmClient,
+    ) -> None:
+        self._reader = reader
+        self._writer = writer
+        self._timeout_s = timeout_s
+        self._client = client
+        self._decoder = QtmStreamDecoder()
+
+    def send(self, command: str) -> None:
+        self._writer.write(encode_command(command))
+
+    async def read(self) -> Packet:
+        """The next packet; raises ``ConnectionError`` at end of stream."""
+        while (packet := self._decoder.next_packet()) is None:
+            data = await self._reader.read(65536)
+            if not data:
+                raise ConnectionError("QTM closed the connection")
+            self._decoder.receive_data(data)
+        if isinstance(packet, EventPacket):
+            self._client.last_event = packet.event
+        return packet
+
+    async def request(self, command: str) -> Packet:
+        """Send a command and return its reply (Command, Error or XML packet), skipping
+        events and data that may be interleaved (§1.3)."""
+        self.send(command)
+        async with asyncio.timeout(self._timeout_s):
+            while True:
+                packet = await self.read()
+                if isinstance(packet, (CommandPacket, ErrorPacket, XmlPacket)):
+                    if isinstance(packet, ErrorPacket) and command.lower().startswith("getparam"):
+                        raise QtmServerError(f"{command}: {packet.text}")
+                    return packet

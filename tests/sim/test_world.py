@@ -1,0 +1,91 @@
+"""The simulated world of ``sitl``: the official Qualisys SDK and our own client read the
+plant's bodies from its QTM server."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import xml.etree.ElementTree as ET
+from collections.abc import AsyncIterator
+from typing import Any
+
+import numpy as np
+import qtm_rt
+
+from mocap import frames
+from mocap.client import MocapFrame, QtmClient
+from sim.world import SimulatedWorld
+from supervisor.config import load_config
+from supervisor.world_process import build_world
+from tests.conftest import CONFIGS
+
+BODIES = ("bar", "uav1", "uav2")
+
+
+@contextlib.asynccontextmanager
+async def running_world() -> AsyncIterator[SimulatedWorld]:
+    # No random dropouts: every body of every frame is compared with the plant.
+    config = load_config(CONFIGS / "sim.toml", ["sim.mocap.dropout_probability=0.0"])
+    world = build_world(config, qtm_port=0, vehicle_local_ports=(0, 0))
+    await world.start()
+    runner = asyncio.create_task(world.run())
+    try:
+        yield world
+    finally:
+        runner.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await runner
+        await world.close()
+
+
+def assert_matches_plant(world: SimulatedWorld, name: str, position_m: Any, R: Any) -> None:
+    """Within the measurement model's noise (0.5 mm, 0.1° 1σ) of the resting plant."""
+    truth = world.plant.body(name)
+    assert np.linalg.norm(np.asarray(position_m) - truth.position_m) < 0.004
+    relative = truth.rotation.T @ np.asarray(R)
+    angle = np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0))
+    assert np.degrees(angle) < 0.7
+
+
+async def test_qtm_rt_sdk_reads_the_bodies_and_streams_the_plants_poses() -> None:
+    async with running_world() as world:
+        connection = await qtm_rt.connect("127.0.0.1", port=world.qtm.port, version="1.25")
+        assert connection is not None
+        try:
+            xml = await connection.get_parameters(parameters=["6d"])
+            names = [e.text for e in ET.fromstring(xml).findall("*/Body/Name")]
+            assert names == list(BODIES)
+            packets: list[Any] = []
+            await connection.stream_frames(components=["6d"], on_packet=packets.append)
+            async with asyncio.timeout(5.0):
+                while len(packets) < 20:  # noqa: ASYNC110 - the SDK only offers a callback
+                    await asyncio.sleep(0.01)
+            await connection.stream_frames_stop()
+        finally:
+            connection.disconnect()
+    numbers = [p.framenumber for p in packets]
+    assert numbers == sorted(numbers)
+    for packet in packets:
+        info, bodies = packet.get_6d()
+        assert info.body_count == 3
+        for name, (position, rotation) in zip(BODIES, bodies, strict=True):
+            position_m = frames.mm_to_m(np.array([position.x, position.y, position.z]))
+            R = frames.rotation_from_qtm_matrix(rotation.matrix)
+            assert_matches_plant(world, name, position_m, R)
+
+
+async def test_our_client_gets_the_same_over_udp() -> None:
+    async with running_world() as world, QtmClient("127.0.0.1", world.qtm.port) as client:
+        received: list[MocapFrame] = []
+        async with asyncio.timeout(5.0):
+            while len(received) < 20:
+                await client.wait_frame()
+                received += client.drain()
+        stats = client.stats()
+    assert stats.body_names == BODIES and stats.udp_port is not None
+    assert stats.malformed == stats.out_of_order == 0
+    for frame in received:
+        for name in BODIES:
+            pose = frame.bodies[name]
+            assert pose.tracked
+            assert_matches_plant(world, name, pose.position_m, pose.rotation())
