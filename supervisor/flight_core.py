@@ -74,6 +74,7 @@ class CoreSettings:
     settle_on_ground_s: float = 1.0
     landing_clearance_m: float = 0.3
     bumpless_ticks: int = 15
+    rate_lookahead_steps: int = 3
     pd_gains: UavPdGains = field(default_factory=UavPdGains)
 
 
@@ -358,7 +359,11 @@ class FlightCore:
             u = (1.0 - alpha) * self._blend_from + alpha * u
             if self._blend_tick >= self.settings.bumpless_ticks:
                 self._blend_from = None
-        next_x = plan.x_pred[1] if len(plan.x_pred) > 1 else plan.x_pred[0]
+        # A rate-controlled PX4 turns a rate error into torque through its rate loop, whose
+        # time constant is ~1/K_P (50–70 ms): the MPC's predicted rate that far ahead asks
+        # it for about the MPC's own torque; the next step's rate would ask for a third.
+        ahead = min(self.settings.rate_lookahead_steps, len(plan.x_pred) - 1)
+        next_x = plan.x_pred[ahead]
         rate_slices = (
             ((21, 24), (33, 36)) if self.controller == "centralized" else ((9, 12), (27, 30))
         )

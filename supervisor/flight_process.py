@@ -109,7 +109,7 @@ class FlightProcess:
     async def _serve(self, channel: Channel) -> None:
         """Answer requests; the API process going away lands the system like a stop."""
         try:
-            await serve_requests(channel, self._handle)
+            await serve_requests(channel, self.handle)
         except ChannelClosedError:
             self.stop()
 
@@ -207,7 +207,8 @@ class FlightProcess:
         self._close_log()
 
     # ---- requests ---------------------------------------------------------------------------
-    async def _handle(self, message: dict[str, Any]) -> dict[str, Any]:
+    async def handle(self, message: dict[str, Any]) -> dict[str, Any]:
+        """Apply one operator request (the channels call this); returns the reply."""
         kind = message.get("kind")
         if kind == "shutdown":
             self.stop()
