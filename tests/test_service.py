@@ -1,0 +1,127 @@
+"""End to end: ``uavbar-supervisor serve`` on the embedded simulator, over HTTP only."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+
+from benchmarks.service import RunningService, running_service
+from supervisor.flight_log import read_flight_log
+
+TOKEN = "e2e-token-0123456789"
+SETPOINTS = [
+    {"bar_position": [0.5, 0.3, 1.2], "bar_yaw": 0.4, "hold_s": 1.0},
+    {"bar_position": [-0.3, 0.0, 1.0], "bar_yaw": -0.3, "uav_yaw": [0.0, -0.6], "hold_s": 1.0},
+]
+
+
+def bar_error(status: dict[str, Any], setpoint: dict[str, Any]) -> float:
+    position = status["bar"]["position"]
+    if any(v is None for v in position):
+        return math.inf
+    return float(np.linalg.norm(np.subtract(position, setpoint["bar_position"])))
+
+
+def reached(setpoint: dict[str, Any]) -> Callable[[dict[str, Any]], bool]:
+    return lambda status: bar_error(status, setpoint) < 0.05
+
+
+def flight_logs(folder: Path) -> list[Path]:
+    return sorted(folder.glob("flight-*.jsonl"))
+
+
+def all_connected(status: dict[str, Any]) -> bool:
+    return bool(status["mocap"]["healthy"]) and all(u["connected"] for u in status["uavs"])
+
+
+async def ready(service: RunningService, http: httpx.AsyncClient) -> None:
+    await service.wait_for(http, all_connected, 30.0, "healthy mocap and both links")
+
+
+async def take_off(service: RunningService, http: httpx.AsyncClient) -> None:
+    await ready(service, http)
+    for request in ("arm", "takeoff"):
+        response = await http.post(f"/api/{request}")
+        assert response.status_code == 200, response.text
+    await service.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
+
+
+async def refused_without_token(service: RunningService) -> None:
+    """Every mutating request without (or with a wrong) token: 401, nothing changes."""
+    async with httpx.AsyncClient(base_url=service.url, timeout=10.0) as anonymous:
+        before = (await anonymous.get("/api/status")).json()
+        for path, body in [
+            ("/api/arm", None),
+            ("/api/land", None),
+            ("/api/abort", None),
+            ("/api/kill", {"confirm": True}),
+            ("/api/mode", {"controller": "decentralized"}),
+            ("/api/setpoints", {"bar_position": [0.0, 0.0, 1.0]}),
+        ]:
+            for headers in ({}, {"Authorization": "Bearer wrong"}):
+                response = await anonymous.post(path, json=body, headers=headers)
+                assert response.status_code == 401, path
+        assert (await anonymous.delete("/api/setpoints")).status_code == 401
+        after = (await anonymous.get("/api/status")).json()
+    for key in ("mode", "controller", "armed", "setpoints"):
+        assert after[key] == before[key], key
+
+
+@pytest.mark.slow
+async def test_a_whole_flight_over_http(tmp_path: Path) -> None:
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        await ready(service, http)
+        await refused_without_token(service)
+        await take_off(service, http)
+        response = await http.post("/api/setpoints", json=SETPOINTS)
+        assert response.status_code == 200 and response.json()["queued"] == 2
+        for index, setpoint in enumerate(SETPOINTS):
+            await service.wait_for(http, reached(setpoint), 40.0, f"setpoint {index}")
+        await service.wait_for(http, lambda s: s["mode"] == "hover", 40.0, "the queue to finish")
+        switched = await http.post("/api/mode", json={"controller": "decentralized"})
+        assert switched.status_code == 200 and switched.json()["mode"] == "hover"
+        await asyncio.sleep(3.0)  # fly on the decentralized controller for a while
+        status = await service.status(http)
+        assert status["controller"] == "decentralized" and status["mode"] == "hover"
+        assert bar_error(status, SETPOINTS[-1]) < 0.15
+        await refused_without_token(service)
+        assert (await http.post("/api/land")).status_code == 200
+        status = await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+        status = await service.wait_for(
+            http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
+        )
+        assert status["tick"]["missed_deadlines"] == 0
+        log_path = status["log"] or ""
+    logs = flight_logs(tmp_path)
+    assert len(logs) == 1 and not log_path  # the log closed with the flight
+    log = read_flight_log(logs[0])
+    assert {"takeoff", "hover", "tracking", "landing", "disarmed"} <= set(log.modes)
+    assert set(log.controllers) == {"centralized", "decentralized"}
+    # The thrust never jumps at the switch (bumpless transfer): compare tick to tick.
+    switch = log.controllers.index("decentralized")
+    jumps = np.abs(np.diff(log.inputs[switch - 5 : switch + 20, [0, 4]], axis=0))
+    assert jumps.max() < 1.5
+
+
+@pytest.mark.slow
+async def test_abort_mid_flight_lands_and_disarms(tmp_path: Path) -> None:
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        await take_off(service, http)
+        await http.post("/api/setpoints", json={"bar_position": [1.0, 0.0, 1.2], "hold_s": 5.0})
+        await service.wait_for(http, lambda s: s["mode"] == "tracking", 10.0, "tracking")
+        response = await http.post("/api/abort")
+        assert response.status_code == 200 and response.json()["mode"] == "abort"
+        status = await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+        status = await service.wait_for(
+            http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
+        )
+        assert status["bar"]["position"][2] < 0.05
+        assert all(uav["position"][2] < 0.15 for uav in status["uavs"])
+        assert status["setpoints"] == {"active": None, "queued": []}
