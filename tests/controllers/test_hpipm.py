@@ -1,0 +1,97 @@
+"""The HPIPM back-end against the exact active-set solver (DAQP) on the lab's QPs."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from controllers.equilibria import Reference, bar_equilibrium
+from controllers.mpc import CentralizedMpc
+from controllers.params import BarSystemParams
+from controllers.qp.base import OcpQp, QpStatus
+from controllers.qp.condensed import CondensedDaqpBackend
+from controllers.qp.hpipm import HpipmBackend
+from supervisor.config import load_config
+from tests.conftest import CONFIGS
+
+CONFIG = load_config(CONFIGS / "kth_sml.toml")
+
+
+def lab_qp(params: BarSystemParams, deviation: float, seed: int) -> OcpQp:
+    """A centralized-MPC QP of the lab (Table I) at random yaws, from a perturbed state."""
+    rng = np.random.default_rng(seed)
+    settings = CONFIG.mpc.settings("centralized")
+    reference = Reference((0.0, 0.0, 1.0), rng.uniform(-3, 3), (rng.uniform(-3, 3), 0.2), 0.3)
+    eq = bar_equilibrium(params, reference)
+    A, B = CentralizedMpc(params, settings, "daqp").linearization(eq.x, reference)
+    w, lim = settings.weights, settings.limits
+    u_lb = np.tile([lim.thrust_min_n, -1.0, -1.0, -1.0], 2) - eq.u
+    u_ub = np.tile([lim.thrust_max_n, 1.0, 1.0, 1.0], 2) - eq.u
+    q = np.asarray(w.q_diag, dtype=float)
+    return OcpQp(
+        A=A, B=B, q_diag=q, r_diag=np.asarray(w.r_diag, dtype=float),
+        q_terminal_diag=w.terminal_scale * q, x0=deviation * rng.normal(size=36),
+        u_lb=u_lb, u_ub=u_ub, horizon=settings.horizon,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("deviation", [0.01, 0.3, 1.0])
+def test_hpipm_agrees_with_daqp_from_small_to_saturating_errors(
+    lab_params: BarSystemParams, deviation: float
+) -> None:
+    template = lab_qp(lab_params, deviation, 0)
+    hpipm, daqp = HpipmBackend(template), CondensedDaqpBackend(template)
+    for seed in range(8):  # warm-started sequence of changing QPs
+        qp = lab_qp(lab_params, deviation, seed)
+        a, b = hpipm.solve(qp), daqp.solve(qp)
+        assert a.status is QpStatus.SOLVED and b.status is QpStatus.SOLVED
+        np.testing.assert_allclose(a.u, b.u, atol=1e-4 * 2.0)
+        np.testing.assert_allclose(a.x[1], qp.A @ qp.x0 + qp.B @ a.u[0], atol=1e-8)
+        assert np.all(a.u >= qp.u_lb - 1e-7) and np.all(a.u <= qp.u_ub + 1e-7)
+
+
+def bounded(qp: OcpQp, terminal_m: float) -> OcpQp:
+    """The bar height held within ±2 cm on every stage, every state within ±terminal at N."""
+    x_lb, x_ub = np.full(36, -np.inf), np.full(36, np.inf)
+    x_lb[2], x_ub[2] = -0.02, 0.02
+    return dataclasses.replace(
+        qp, x0=np.where(np.arange(36) == 2, 0.0, qp.x0), x_lb=x_lb, x_ub=x_ub,
+        x_terminal_lb=np.full(36, -terminal_m), x_terminal_ub=np.full(36, terminal_m),
+    )  # fmt: skip
+
+
+def test_state_and_terminal_boxes(lab_params: BarSystemParams) -> None:
+    qp = bounded(lab_qp(lab_params, 0.1, 3), 0.4)
+    a = HpipmBackend(qp).solve(qp)
+    b = CondensedDaqpBackend(qp).solve(qp)
+    assert a.status is QpStatus.SOLVED and b.status is QpStatus.SOLVED
+    np.testing.assert_allclose(a.u, b.u, atol=2e-4)
+    assert np.all(np.abs(a.x[1:-1, 2]) <= 0.02 + 1e-6)
+    assert np.max(np.abs(a.x[-1])) == pytest.approx(0.4, abs=1e-6)  # the terminal box is active
+    unbounded = HpipmBackend(lab_qp(lab_params, 0.1, 3)).solve(lab_qp(lab_params, 0.1, 3))
+    assert np.max(np.abs(unbounded.x[-1])) > 0.4  # ... and it changed the solution
+
+
+def test_an_unreachable_terminal_box_is_a_failed_solve_not_an_exception(
+    lab_params: BarSystemParams,
+) -> None:
+    qp = bounded(lab_qp(lab_params, 0.1, 3), 0.05)
+    backend = HpipmBackend(qp)
+    assert backend.solve(qp).status is not QpStatus.SOLVED
+    assert CondensedDaqpBackend(qp).solve(qp).status is QpStatus.INFEASIBLE  # the oracle agrees
+    feasible = bounded(lab_qp(lab_params, 0.1, 3), 0.4)
+    assert backend.solve(feasible).status is QpStatus.SOLVED
+
+
+def test_bad_qps_report_a_status_instead_of_raising(lab_params: BarSystemParams) -> None:
+    qp = lab_qp(lab_params, 0.3, 1)
+    backend = HpipmBackend(qp)
+    x0 = qp.x0.copy()
+    x0[4] = math.nan
+    assert backend.solve(dataclasses.replace(qp, x0=x0)).status is QpStatus.NUMERICAL_ERROR
+    empty = dataclasses.replace(qp, u_lb=qp.u_ub + 1.0)
+    assert backend.solve(empty).status is QpStatus.INFEASIBLE
+    assert backend.solve(qp).status is QpStatus.SOLVED  # and it recovers
