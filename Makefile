@@ -6,13 +6,16 @@ VENV := .venv
 BIN := $(VENV)/bin
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: serve equilibria test lint
+.PHONY: serve equilibria test lint browser
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
 	touch $@
+
+serve: $(BIN)/.installed
+	$(BIN)/uavbar-supervisor serve
 
 equilibria: $(BIN)/.installed
 	$(BIN)/uavbar-supervisor equilibria --theta-l 45
@@ -22,5 +25,11 @@ lint: $(BIN)/.installed
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-test: lint
+# The dashboard test drives Debian's chromium; as root (CI) it is installed here.
+browser:
+	@command -v chromium >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && \
+		apt-get update -qq && apt-get install -y -qq chromium >/dev/null; } || \
+		echo "chromium is not installed: the dashboard browser tests will be skipped"
+
+test: lint browser
 	$(BIN)/pytest

@@ -1,0 +1,119 @@
+"""The operator dashboard in headless Chromium (Debian's), against ``serve`` on the
+embedded simulator."""
+
+from __future__ import annotations
+
+import re
+import shutil
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+from playwright.async_api import Browser, Page, async_playwright, expect
+
+from benchmarks.service import RunningService, running_service
+from tests.test_service import all_connected
+
+CHROMIUM = shutil.which("chromium")
+SCREENSHOT = Path(__file__).resolve().parent.parent / "docs" / "images" / "dashboard.png"
+TOKEN = "dashboard-token-0123"
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed"),
+]
+
+
+@pytest.fixture
+async def browser() -> AsyncIterator[Browser]:
+    assert CHROMIUM is not None
+    async with async_playwright() as playwright:
+        chromium = await playwright.chromium.launch(
+            executable_path=CHROMIUM, args=["--no-sandbox"], headless=True
+        )
+        yield chromium
+        await chromium.close()
+
+
+async def open_dashboard(browser: Browser, service: RunningService, token: str) -> Page:
+    async with service.client() as http:
+        await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
+    page = await browser.new_page(viewport={"width": 1500, "height": 1000})
+    await page.goto(f"{service.url}/#token={token}")
+    connection = page.get_by_test_id("connection")
+    await expect(connection).to_have_text(re.compile("connected"), timeout=20_000)
+    # Live telemetry: the mode shows, and the mocap lamp turns healthy.
+    await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
+    await expect(page.locator("#lamp-mocap")).to_have_class(re.compile("good"), timeout=20_000)
+    await expect(page.locator("#lamp-uav2")).to_have_class(re.compile("good"), timeout=20_000)
+    assert "token" not in page.url  # the fragment is removed from the address bar
+    return page
+
+
+async def take_off(page: Page) -> None:
+    await page.get_by_test_id("arm").click()
+    await expect(page.get_by_test_id("mode")).to_have_text("armed", timeout=10_000)
+    await page.get_by_test_id("takeoff").click()
+    await expect(page.get_by_test_id("mode")).to_have_text("hover", timeout=60_000)
+
+
+async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
+    browser: Browser, tmp_path: Path
+) -> None:
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, "not-the-token")
+        await page.get_by_test_id("arm").click()
+        await expect(page.get_by_test_id("flight-reason")).to_contain_text("401")
+        await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
+
+        # The refused token was dropped; the next command asks for it once.
+        page.once("dialog", lambda dialog: dialog.dismiss())
+        await page.get_by_test_id("arm").click()
+        await page.get_by_test_id("token-input").fill(TOKEN)
+        await page.get_by_test_id("token-ok").click()
+        await expect(page.get_by_test_id("mode")).to_have_text("armed", timeout=10_000)
+        await page.get_by_test_id("takeoff").click()
+        await expect(page.get_by_test_id("mode")).to_have_text("hover", timeout=60_000)
+        await page.wait_for_timeout(3000)  # a few seconds of live plots for the picture
+        SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+        await page.screenshot(path=str(SCREENSHOT))
+
+        await page.get_by_test_id("mode").click()  # focus anywhere; Escape aborts
+        await page.keyboard.press("Escape")
+        await expect(page.get_by_test_id("mode")).to_have_text(re.compile("abort"))
+        await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
+        async with service.client() as http:
+            status = await service.status(http)
+        assert status["armed"] == [False, False]
+        assert status["bar"]["position"][2] < 0.05
+
+
+async def test_switch_controller_and_queue_a_setpoint_from_the_page(
+    browser: Browser, tmp_path: Path
+) -> None:
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        await take_off(page)
+        await page.get_by_test_id("controller-decentralized").click()
+        await expect(page.get_by_test_id("controller")).to_have_text("decentralized")
+        form = page.get_by_test_id("setpoint-form")
+        await form.locator("input[name=x]").fill("0.4")
+        await form.locator("input[name=y]").fill("-0.2")
+        await form.locator("input[name=z]").fill("1.1")
+        await form.locator("input[name=theta_l]").fill("20")
+        await expect(page.get_by_test_id("equilibrium")).to_contain_text("θf")
+        await page.get_by_test_id("queue-setpoint").click()
+        await expect(page.get_by_test_id("setpoint-reason")).to_have_text("accepted")
+        await expect(page.get_by_test_id("active-setpoint")).to_contain_text("0.40, -0.20, 1.10")
+
+        # A setpoint outside the arena is refused, with the reason next to the form.
+        await form.locator("input[name=z]").fill("2.9")
+        await page.get_by_test_id("queue-setpoint").click()
+        await expect(page.get_by_test_id("setpoint-reason")).to_contain_text("outside the arena")
+
+        # The bar reaches it in the view (to the centimetres the page shows: ±0.1 m).
+        position = page.get_by_test_id("bar-position")
+        near = re.compile(r"\(0\.[3-5]\d, -0\.[1-3]\d, 1\.[01]\d\)")
+        await expect(position).to_have_text(near, timeout=40_000)
+        await page.get_by_test_id("land").click()
+        await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
