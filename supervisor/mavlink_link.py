@@ -197,6 +197,11 @@ class MavlinkLink:
         except (mavlink.MAVError, ValueError, IndexError, TypeError, OverflowError):
             self.counters.bad_data += 1
             return
+        finally:
+            # A datagram holds whole frames: what is left is garbage, not the start of the
+            # next datagram's frame (pymavlink's parser would prepend it).
+            self.mav.buf, self.mav.buf_index = bytearray(), 0
+            self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
         for message in messages:
             if message.get_type() == "BAD_DATA":
                 self.counters.bad_data += 1
