@@ -35,6 +35,7 @@ from supervisor.terminal_client import TOKEN_ENV
 
 SPAWN = multiprocessing.get_context("spawn")
 WORLD_START_TIMEOUT_S = 60.0
+API_NICENESS = 5
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,9 @@ async def serve(setup: Setup) -> int:
     flight.start()
     for _, child_end in pairs:
         child_end.close()
+    # The flight process and the world it flies come first on a busy machine: requests
+    # and WebSocket clients may wait, ticks and mocap frames may not.
+    os.nice(API_NICENESS)
     commands, urgent = [await Channel.open(parent_end) for parent_end, _ in pairs]
     client = FlightClient(commands, urgent)
     app = create_app(client, config.system.to_params(), arena_from_config(config), token)

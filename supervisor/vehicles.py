@@ -96,9 +96,28 @@ async def arm_for_offboard(links: tuple[VehicleLink, ...], proof_of_life_s: floa
     return failures
 
 
+async def _disarm_landed(link: VehicleLink) -> None:
+    """Disarm a vehicle the motion capture shows on the ground. PX4 refuses a normal disarm
+    while its own land detector still says airborne (it lags a second or two after
+    touch-down); on the ground a forced disarm is safe, and waiting would leave it armed
+    with motors idling next to people."""
+    try:
+        await link.disarm()
+    except VehicleCommandError:
+        await link.kill()
+
+
 async def disarm_all(links: tuple[VehicleLink, ...]) -> list[str]:
-    """Disarm every vehicle and leave offboard; returns the failures."""
-    failures = await _each(links, "disarm")
+    """Disarm every landed vehicle (forced if PX4 refuses) and leave offboard; returns the
+    failures."""
+    results = await asyncio.gather(
+        *(_disarm_landed(link) for link in links), return_exceptions=True
+    )
+    failures = [
+        f"vehicle {i}: {result}"
+        for i, result in enumerate(results, start=1)
+        if isinstance(result, BaseException)
+    ]
     return failures + await _each(links, "set_hold")
 
 

@@ -17,6 +17,7 @@ from tests.test_service import all_connected
 CHROMIUM = shutil.which("chromium")
 SCREENSHOT = Path(__file__).resolve().parent.parent / "docs" / "images" / "dashboard.png"
 TOKEN = "dashboard-token-0123"
+PAGE_ERRORS: list[str] = []
 
 pytestmark = [
     pytest.mark.slow,
@@ -25,11 +26,16 @@ pytestmark = [
 
 
 @pytest.fixture
-async def browser() -> AsyncIterator[Browser]:
+async def browser(tmp_path: Path) -> AsyncIterator[Browser]:
+    """Chromium at a lower priority: on a 2-core machine the browser's rendering must not
+    starve the simulated world (a lab's mocap runs on its own computer)."""
     assert CHROMIUM is not None
+    launcher = tmp_path / "chromium-niced"
+    launcher.write_text(f'#!/bin/sh\nexec nice -n 10 {CHROMIUM} "$@"\n')
+    launcher.chmod(0o755)
     async with async_playwright() as playwright:
         chromium = await playwright.chromium.launch(
-            executable_path=CHROMIUM, args=["--no-sandbox"], headless=True
+            executable_path=str(launcher), args=["--no-sandbox"], headless=True
         )
         yield chromium
         await chromium.close()
@@ -39,6 +45,7 @@ async def open_dashboard(browser: Browser, service: RunningService, token: str) 
     async with service.client() as http:
         await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
     page = await browser.new_page(viewport={"width": 1500, "height": 1000})
+    page.on("pageerror", lambda error: PAGE_ERRORS.append(str(error)))
     await page.goto(f"{service.url}/#token={token}")
     connection = page.get_by_test_id("connection")
     await expect(connection).to_have_text(re.compile("connected"), timeout=20_000)
@@ -83,9 +90,11 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
         await expect(page.get_by_test_id("mode")).to_have_text(re.compile("abort"))
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
         async with service.client() as http:
-            status = await service.status(http)
-        assert status["armed"] == [False, False]
+            status = await service.wait_for(
+                http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
+            )
         assert status["bar"]["position"][2] < 0.05
+        assert not PAGE_ERRORS, PAGE_ERRORS
 
 
 async def test_switch_controller_and_queue_a_setpoint_from_the_page(
@@ -104,7 +113,8 @@ async def test_switch_controller_and_queue_a_setpoint_from_the_page(
         await expect(page.get_by_test_id("equilibrium")).to_contain_text("θf")
         await page.get_by_test_id("queue-setpoint").click()
         await expect(page.get_by_test_id("setpoint-reason")).to_have_text("accepted")
-        await expect(page.get_by_test_id("active-setpoint")).to_contain_text("0.40, -0.20, 1.10")
+        active = page.get_by_test_id("active-setpoint")
+        await expect(active).to_contain_text("0.40, -0.20, 1.10", timeout=15_000)
 
         # A setpoint outside the arena is refused, with the reason next to the form.
         await form.locator("input[name=z]").fill("2.9")
@@ -117,3 +127,4 @@ async def test_switch_controller_and_queue_a_setpoint_from_the_page(
         await expect(position).to_have_text(near, timeout=40_000)
         await page.get_by_test_id("land").click()
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
+        assert not PAGE_ERRORS, PAGE_ERRORS

@@ -5,7 +5,10 @@
 
 const STALE_AFTER_MS = 500;
 const PLOT_SECONDS = 20;
-const state = { telemetry: null, lastMessageAt: 0, socket: null, retryMs: 500, everConnected: false };
+const state = {
+  telemetry: null, lastMessageAt: 0, socket: null, retryMs: 500,
+  everConnected: false, everLive: false, stale: true,
+};
 const plots = { error: [], solve: [] };
 
 // ---- token ---------------------------------------------------------------------------------
@@ -93,14 +96,22 @@ function connect() {
     state.retryMs = 500;
     setConnection(state.everConnected ? "reconnected" : "connected", "good");
     state.everConnected = true;
+    state.stale = true;  // until the first message arrives
   };
   socket.onmessage = (event) => {
     state.telemetry = JSON.parse(event.data);
     state.lastMessageAt = performance.now();
+    if (state.stale) {
+      state.stale = false;
+      markStale(false);
+      setConnection(state.everLive ? "live again" : "connected", "good");
+    }
+    state.everLive = true;
     render(state.telemetry);
   };
   socket.onclose = () => {
     setConnection(`connection lost — reconnecting in ${(state.retryMs / 1000).toFixed(1)} s`, "bad");
+    state.stale = true;
     markStale(true);
     setTimeout(connect, state.retryMs);
     state.retryMs = Math.min(state.retryMs * 2, 5000);
@@ -125,9 +136,12 @@ function markStale(stale) {
 
 function watchStaleness() {
   const stale = !state.telemetry || performance.now() - state.lastMessageAt > STALE_AFTER_MS;
-  markStale(stale);
-  if (stale && state.socket && state.socket.readyState === WebSocket.OPEN) {
-    setConnection("no telemetry", "warn");
+  if (stale && !state.stale) {
+    state.stale = true;
+    markStale(true);
+    if (state.socket && state.socket.readyState === WebSocket.OPEN) {
+      setConnection("no telemetry", "warn");
+    }
   }
 }
 
