@@ -69,14 +69,19 @@ async def load(url: str, rate_hz: float, stop: asyncio.Event) -> int:
 
 
 async def watch(url: str, stop: asyncio.Event) -> int:
-    """One telemetry WebSocket client; returns the messages received."""
+    """One telemetry WebSocket client (reconnecting, as the dashboard does); returns the
+    messages received."""
     received = 0
-    async with websockets.connect(url.replace("http", "ws") + "/api/telemetry") as ws:
-        while not stop.is_set():
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(0.5):
-                    await ws.recv()
-                    received += 1
+    while not stop.is_set():
+        try:
+            async with websockets.connect(url.replace("http", "ws") + "/api/telemetry") as ws:
+                while not stop.is_set():
+                    with contextlib.suppress(TimeoutError):
+                        async with asyncio.timeout(0.5):
+                            await ws.recv()
+                            received += 1
+        except (websockets.ConnectionClosed, OSError):
+            await asyncio.sleep(0.5)
     return received
 
 
@@ -84,7 +89,12 @@ async def fly(service: RunningService, duration_s: float) -> str:
     """Arm, take off, fly the paper's setpoints until ``duration_s`` has passed, land.
     Returns the flight log's path."""
     async with service.client() as http:
-        await service.wait_for(http, lambda s: s["mocap"]["healthy"], 30.0, "mocap")
+        await service.wait_for(
+            http,
+            lambda s: s["mocap"]["healthy"] and all(u["connected"] for u in s["uavs"]),
+            60.0,
+            "healthy mocap and both links",
+        )
         for step in ("arm", "takeoff"):
             (await http.post(f"/api/{step}")).raise_for_status()
         status = await service.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
@@ -100,7 +110,12 @@ async def fly(service: RunningService, duration_s: float) -> str:
                 300.0,
                 "the setpoints",
             )
-        (await http.post("/api/land")).raise_for_status()
+        landing = await http.post("/api/land")
+        if landing.status_code != 200:
+            status = await service.status(http)
+            raise RuntimeError(
+                f"the flight did not last: {landing.text}; faults {status['faults']}"
+            )
         await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landing")
         return log
 
