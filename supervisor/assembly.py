@@ -185,4 +185,5 @@ def px4_params_from_config(config: Config, uav: int) -> Px4Params:
         torque_max_nm=_per_vehicle(config.vehicles.torque_max_nm)[k],
         thrust_scale=config.sim.px4_thrust_scale[k],
         hover_thrust_n=carried_kg * params.gravity_mps2,
+        require_vision=config.sim.px4_require_vision,
     )

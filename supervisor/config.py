@@ -272,6 +272,9 @@ class SimSection(_Section):
     # The simulated PX4s' own calibration against the supervisor's vehicles.thrust_max_n:
     # true thrust = scale × commanded (1.0: the supervisor's calibration is right).
     px4_thrust_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
+    # The simulated PX4s refuse to arm without fresh external vision (the forwarded mocap),
+    # as PX4 does when its estimator has no position.
+    px4_require_vision: bool = True
     uav_mass_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
     bar_mass_scale: PositiveFloat = 1.0
     bar_com_shift_m: FiniteFloat = 0.0

@@ -125,3 +125,24 @@ async def test_abort_mid_flight_lands_and_disarms(tmp_path: Path) -> None:
         assert status["bar"]["position"][2] < 0.05
         assert all(uav["position"][2] < 0.15 for uav in status["uavs"])
         assert status["setpoints"] == {"active": None, "queued": []}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command_mode", ["actuator", "rates"])
+async def test_both_command_modes_hover_within_5_cm(tmp_path: Path, command_mode: str) -> None:
+    """The simulated PX4s arm only on fresh external vision, so taking off at all shows the
+    mocap is forwarded; then the bar hovers 5 s within 5 cm of its reference."""
+    overrides = [f'vehicles.command_mode="{command_mode}"', "sim.px4_require_vision=true"]
+    async with (
+        running_service(TOKEN, tmp_path, overrides) as service,
+        service.client() as http,
+    ):
+        await take_off(service, http)
+        errors = []
+        for _ in range(50):
+            status = await service.status(http)
+            reference = status["reference"]["bar_position"]
+            errors.append(bar_error(status, {"bar_position": reference}))
+            await asyncio.sleep(0.1)
+        assert status["mode"] == "hover"
+        assert max(errors) < 0.05, max(errors)
