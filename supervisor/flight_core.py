@@ -136,18 +136,27 @@ class FlightCore:
     # ---- operator interface -------------------------------------------------------------
     def request(self, event: str, now_s: float) -> Transition:
         """An operator request (arm, disarm, takeoff, land, abort, kill)."""
-        unhealthy = self._last_estimate is None or not self._last_estimate.healthy
-        if event == "takeoff" and self.modes.mode is Mode.ARMED and unhealthy:
+        if event == "takeoff" and self.modes.mode is Mode.ARMED and not self._mocap_fresh():
             return Transition(
                 False,
                 self.modes.mode,
-                "cannot take off without healthy motion capture of all bodies",
+                "cannot take off without fresh motion capture of all bodies",
             )
         before = self.modes.mode
         result = self.modes.handle(event, now_s)
         if result.accepted and result.mode is not before:
             self._entered(result.mode, now_s)
         return result
+
+    def _mocap_fresh(self) -> bool:
+        """Every body measured, none older than the safety monitor's coasting limit: one
+        dropped frame (10 ms) must not refuse a take-off, a lost body must."""
+        estimate = self._last_estimate
+        return (
+            estimate is not None
+            and bool(np.all(np.isfinite(estimate.x)))
+            and estimate.age_s <= self.safety.limits.mocap_coast_s
+        )
 
     def set_controller(self, name: str, now_s: float) -> Transition:
         """Switch between the centralized and decentralized MPC, bumplessly in flight."""
