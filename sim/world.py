@@ -88,7 +88,6 @@ class SimulatedWorld:
         self.step_period_s = step_period_s
         self._clock = clock
         self._t0 = 0.0
-        self.frames_published = 0
 
     @property
     def now_s(self) -> float:
@@ -123,7 +122,6 @@ class SimulatedWorld:
                 vehicle.step(plant.time_s)
         for frame in self.mocap.poll(until_s):
             self.qtm.publish(_poses(frame))
-            self.frames_published += 1
 
     async def run(self) -> None:
         """Follow the wall clock until cancelled. A stall longer than ``MAX_CATCH_UP_S`` is
