@@ -34,6 +34,7 @@ from controllers.model import (
     uav_slices,
 )
 from controllers.params import BarSystemParams
+from controllers.vectors import cross3
 
 FloatArray = NDArray[np.float64]
 
@@ -128,7 +129,7 @@ class Equilibrium:
         x_i = np.zeros(PAYLOAD_STATES)
         x_i[0:12] = self.x[first : first + 12]
         x_i[12:15] = self.bar_ends_m[i - 1]
-        x_i[15:18] = self.x[V_B] + np.cross(self.x[W_B], self.bar_ends_m[i - 1] - self.x[P_B])
+        x_i[15:18] = self.x[V_B] + cross3(self.x[W_B], self.bar_ends_m[i - 1] - self.x[P_B])
         return x_i
 
     def payload_input(self, i: int) -> FloatArray:
@@ -205,7 +206,7 @@ def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibriu
 
         p_i, v_i, th_i, w_i = uav_slices(i)
         x[p_i] = end + params.cable_lengths_m[k] * n_i
-        x[v_i] = velocity + bar_rate * np.cross(e_z, x[p_i] - p_b)
+        x[v_i] = velocity + bar_rate * cross3(e_z, x[p_i] - p_b)
         x[th_i] = (roll, pitch, yaw)
         # A turn about the vertical at ψ̇, in the body frame: ψ̇ Rᵀ e_z, with R of (2).
         x[w_i] = uav_rates[k] * np.array(

@@ -38,6 +38,7 @@ from controllers.model import (
 from controllers.params import BarSystemParams, MpcSettings, StateBound
 from controllers.qp.base import OcpQp, QpBackend, QpStatus
 from controllers.qp.registry import make_backend
+from controllers.vectors import cross3
 
 FloatArray = NDArray[np.float64]
 
@@ -310,7 +311,7 @@ def agent_state(state: FloatArray, params: BarSystemParams, i: int) -> FloatArra
     x_i = np.empty(PAYLOAD_STATES)
     x_i[0:12] = state[first : first + 12]
     x_i[12:15] = state[P_B] + sign * d * n_b
-    x_i[15:18] = state[V_B] + sign * d * np.cross(state[W_B], n_b)
+    x_i[15:18] = state[V_B] + sign * d * cross3(state[W_B], n_b)
     return x_i
 
 

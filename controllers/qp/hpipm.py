@@ -3,14 +3,21 @@
 The casadi wheel ships ``libhpipm.so`` and ``libblasfeo.so``; CasADi's own ``hpipm`` plugin
 costs ~6 ms per call here (qp-solvers.md), the library itself a fraction of that. HPIPM
 builds its objects in caller-provided memory sized by ``*_memsize``, so every buffer lives
-in this object, allocated once; what never changes (weights, bound indices) is set once,
-and a tick hands the library pointers to numpy arrays holding A, B, b₀ and the boxes.
+in this object, allocated once; what never changes (bound indices, Q_N) is set once, and a
+tick hands the library pointers to numpy arrays holding the condensed data and the boxes.
 
-Formulation (base.py's ``OcpQp``): the initial state is eliminated — stage 0 has no state
-(nx₀ = 0) and x₁ = B Δu₀ + b₀ with b₀ = A x₀ — so stage 0 carries only its input box.
-Stages 1…N−1 carry the finite entries of the state box, stage N those of the terminal box
-(±inf entries are left out: HPIPM's IPM stalls on huge bounds). The interior-point solver
-runs in ``SPEED`` mode, warm-started from the previous solution.
+Formulation (base.py's ``OcpQp``), partially condensed (partial_condensing.py) into blocks
+of stages: the initial state is eliminated — block 0 has no state (nx₀ = 0), its end state
+is B̄ U₀ + b₀ with b₀ = Ā x₀, and its cost's cross term S̄ x₀ becomes a linear term — so it
+carries only its input box. Later block starts carry the finite entries of the state box,
+the last node those of the terminal box (±inf entries are left out: HPIPM's IPM stalls on
+huge bounds). The interior-point solver runs in ``SPEED`` mode, warm-started.
+
+Most ticks of a hovering or tracking flight have no active bound, and then the QP's
+solution is that of the same QP without boxes — one Riccati recursion instead of an
+interior-point iteration sequence. So each solve first solves the box-free QP and keeps it
+when it satisfies every box (exactly the KKT conditions with zero multipliers); otherwise
+the boxed QP is solved.
 """
 
 from __future__ import annotations
@@ -26,7 +33,9 @@ import casadi
 import numpy as np
 
 from controllers.qp.base import FloatArray, OcpQp, QpSolution, QpStatus
+from controllers.qp.partial_condensing import CondensedBlock, block_lengths, condense
 
+DEFAULT_BLOCK_STAGES = 5  # `uavbar-supervisor bench` compares block lengths
 _SPEED = 1  # enum hpipm_mode: SPEED_ABS, SPEED, BALANCE, ROBUST
 _STATUS = {
     0: QpStatus.SOLVED,
@@ -75,18 +84,49 @@ def _finite_indices(lower: FloatArray | None, upper: FloatArray | None) -> np.nd
     return np.flatnonzero(np.isfinite(lower) | np.isfinite(upper)).astype(np.int32)
 
 
-class HpipmBackend:
-    """``QpBackend`` on HPIPM's OCP-QP interior-point solver (Riccati recursion)."""
+class _BlockBuffers:
+    """Column-major copies of one block length's condensed data, handed to HPIPM by pointer."""
 
-    name = "hpipm"
+    def __init__(self, nx: int, nu: int) -> None:
+        self.A = np.zeros((nx, nx), order="F")
+        self.B = np.zeros((nx, nu), order="F")
+        self.R = np.zeros((nu, nu), order="F")
+        self.S = np.zeros((nu, nx), order="F")
+        self.Q = np.zeros((nx, nx), order="F")
+        self.pointers = tuple(_pointer(m) for m in (self.A, self.B, self.R, self.S, self.Q))
+        self.block: CondensedBlock | None = None
 
-    def __init__(self, template: OcpQp, tolerance: float = 1e-8, max_iterations: int = 50) -> None:
+    def load(self, block: CondensedBlock) -> None:
+        self.block = block
+        self.A[:] = block.A
+        self.B[:] = block.B
+        self.R[:] = block.R
+        self.S[:] = block.S
+        self.Q[:] = block.Q
+
+
+class _HpipmProblem:
+    """One HPIPM OCP-QP (dimensions, data, solution, solver) over the blocks of a horizon.
+
+    ``boxed=False`` leaves every bound out: HPIPM then solves it with one Riccati recursion.
+    """
+
+    def __init__(
+        self,
+        lengths: tuple[int, ...],
+        nx: int,
+        nu: int,
+        state_idx: np.ndarray,
+        terminal_idx: np.ndarray,
+        boxed: bool,
+        tolerance: float,
+        max_iterations: int,
+    ) -> None:
         lib = _load()
         self._lib = lib
-        nx, nu, N = template.nx, template.nu, template.horizon
-        self._dims = (nx, nu, N)
-        self._state_idx = _finite_indices(template.x_lb, template.x_ub)
-        self._terminal_idx = _finite_indices(template.x_terminal_lb, template.x_terminal_ub)
+        self.boxed = boxed
+        nb = len(lengths)
+        self._nb = nb
         self._keep: list[Any] = []  # memory the C side points into
 
         def block(size: int) -> Any:
@@ -94,61 +134,40 @@ class HpipmBackend:
             self._keep.append(memory)
             return memory
 
+        if not boxed:
+            state_idx = terminal_idx = np.zeros(0, dtype=np.int32)
+        self._has_state_boxes = bool(state_idx.size or terminal_idx.size)
         self._dim = block(lib.d_ocp_qp_dim_strsize())
-        lib.d_ocp_qp_dim_create(c_int(N), self._dim, block(lib.d_ocp_qp_dim_memsize(N)))
-        stage_nx = [0] + [nx] * N
-        stage_nu = [nu] * N + [0]
-        stage_nbx = [0] + [self._state_idx.size] * (N - 1) + [self._terminal_idx.size]
+        lib.d_ocp_qp_dim_create(c_int(nb), self._dim, block(lib.d_ocp_qp_dim_memsize(nb)))
+        stage_nu = [m * nu for m in lengths] + [0]
         for setter, values in (
-            (lib.d_ocp_qp_dim_set_nx, stage_nx),
+            (lib.d_ocp_qp_dim_set_nx, [0] + [nx] * nb),
             (lib.d_ocp_qp_dim_set_nu, stage_nu),
-            (lib.d_ocp_qp_dim_set_nbx, stage_nbx),
-            (lib.d_ocp_qp_dim_set_nbu, stage_nu),
-            (lib.d_ocp_qp_dim_set_ng, [0] * (N + 1)),
-            (lib.d_ocp_qp_dim_set_ns, [0] * (N + 1)),
+            (lib.d_ocp_qp_dim_set_nbx, [0] + [state_idx.size] * (nb - 1) + [terminal_idx.size]),
+            (lib.d_ocp_qp_dim_set_nbu, stage_nu if boxed else [0] * (nb + 1)),
+            (lib.d_ocp_qp_dim_set_ng, [0] * (nb + 1)),
+            (lib.d_ocp_qp_dim_set_ns, [0] * (nb + 1)),
         ):
             for stage, count in enumerate(values):
                 setter(c_int(stage), c_int(count), self._dim)
         self._qp = block(lib.d_ocp_qp_strsize())
         lib.d_ocp_qp_create(self._dim, self._qp, block(lib.d_ocp_qp_memsize(self._dim)))
-
-        # Buffers (column-major matrices); every stage shares A, B, Q, R.
-        self._A = np.zeros((nx, nx), order="F")
-        self._B = np.zeros((nx, nu), order="F")
-        self._b0 = np.zeros(nx)
-        self._lbu = np.zeros((N, nu))
-        self._ubu = np.zeros((N, nu))
-        self._lbx = np.zeros((N + 1, max(nx, 1)))
-        self._ubx = np.zeros((N + 1, max(nx, 1)))
-        Q = np.asfortranarray(np.diag(template.q_diag))
-        QN = np.asfortranarray(np.diag(template.q_terminal_diag))
-        R = np.asfortranarray(np.diag(template.r_diag))
-        S = np.zeros((nu, nx), order="F")
-        zeros = np.zeros(max(nx, nu))
-        idxbu = np.arange(nu, dtype=np.int32)
-        idxbx = [np.zeros(1, np.int32), *[self._state_idx] * (N - 1), self._terminal_idx]
-        self._keep += [Q, QN, R, S, zeros, idxbu, idxbx]
-        self._stage = [c_int(k) for k in range(N + 1)]
-        for k in range(N + 1):
-            lib.d_ocp_qp_set_Q(self._stage[k], _pointer(QN if k == N else Q), self._qp)
-            lib.d_ocp_qp_set_R(self._stage[k], _pointer(R), self._qp)
-            lib.d_ocp_qp_set_S(self._stage[k], _pointer(S), self._qp)
-            lib.d_ocp_qp_set_q(self._stage[k], _pointer(zeros), self._qp)
-            lib.d_ocp_qp_set_r(self._stage[k], _pointer(zeros), self._qp)
-            int_pointer = POINTER(c_int)
-            lib.d_ocp_qp_set_idxbu(self._stage[k], idxbu.ctypes.data_as(int_pointer), self._qp)
-            lib.d_ocp_qp_set_idxbx(self._stage[k], idxbx[k].ctypes.data_as(int_pointer), self._qp)
-            if 0 < k < N:
-                lib.d_ocp_qp_set_b(self._stage[k], _pointer(zeros), self._qp)
-        self._ptr_A, self._ptr_B, self._ptr_b0 = (
-            _pointer(self._A),
-            _pointer(self._B),
-            _pointer(self._b0),
-        )
-        self._ptr_lbu = [_pointer(row) for row in self._lbu]
-        self._ptr_ubu = [_pointer(row) for row in self._ubu]
-        self._ptr_lbx = [_pointer(row) for row in self._lbx]
-        self._ptr_ubx = [_pointer(row) for row in self._ubx]
+        self.stages = [c_int(k) for k in range(nb + 1)]
+        zeros = np.zeros(max(nx, max(lengths) * nu))
+        idxbu = np.arange(max(lengths) * nu, dtype=np.int32)
+        idxbx = [np.zeros(1, np.int32), *[state_idx] * (nb - 1), terminal_idx]
+        self._keep += [zeros, idxbu, idxbx]
+        int_pointer = POINTER(c_int)
+        for k in range(nb + 1):
+            lib.d_ocp_qp_set_q(self.stages[k], _pointer(zeros), self._qp)
+            lib.d_ocp_qp_set_r(self.stages[k], _pointer(zeros), self._qp)
+            if boxed:
+                lib.d_ocp_qp_set_idxbu(self.stages[k], idxbu.ctypes.data_as(int_pointer), self._qp)
+                lib.d_ocp_qp_set_idxbx(
+                    self.stages[k], idxbx[k].ctypes.data_as(int_pointer), self._qp
+                )
+            if 0 < k < nb:
+                lib.d_ocp_qp_set_b(self.stages[k], _pointer(zeros), self._qp)
 
         self._sol = block(lib.d_ocp_qp_sol_strsize())
         lib.d_ocp_qp_sol_create(self._dim, self._sol, block(lib.d_ocp_qp_sol_memsize(self._dim)))
@@ -170,67 +189,188 @@ class HpipmBackend:
         self._ws = block(lib.d_ocp_qp_ipm_ws_strsize())
         workspace = block(lib.d_ocp_qp_ipm_ws_memsize(self._dim, self._arg))
         lib.d_ocp_qp_ipm_ws_create(self._dim, self._arg, self._ws, workspace)
-
-        self._u = np.zeros((N, nu))
-        self._x = np.zeros((N + 1, nx))
-        self._ptr_u = [_pointer(row) for row in self._u]
-        self._ptr_x = [_pointer(row) for row in self._x]
         self._status = c_int(0)
         self._iterations = c_int(0)
+
+    def set_dynamics_and_cost(
+        self, block_pointers: list[tuple[Any, ...]], b0: Any, r0: Any, q_terminal: Any
+    ) -> None:
+        """Point every block at its condensed (A, B, R, S, Q); block 0 gets b₀ and r₀."""
+        lib, stages, qp = self._lib, self.stages, self._qp
+        lib.d_ocp_qp_set_b(stages[0], b0, qp)
+        lib.d_ocp_qp_set_r(stages[0], r0, qp)
+        for k, (ptr_A, ptr_B, ptr_R, ptr_S, ptr_Q) in enumerate(block_pointers):
+            if k:
+                lib.d_ocp_qp_set_A(stages[k], ptr_A, qp)
+                lib.d_ocp_qp_set_Q(stages[k], ptr_Q, qp)
+                lib.d_ocp_qp_set_S(stages[k], ptr_S, qp)
+            lib.d_ocp_qp_set_B(stages[k], ptr_B, qp)
+            lib.d_ocp_qp_set_R(stages[k], ptr_R, qp)
+        lib.d_ocp_qp_set_Q(stages[self._nb], q_terminal, qp)
+
+    def set_boxes(self, lbu: list[Any], ubu: list[Any], lbx: list[Any], ubx: list[Any]) -> None:
+        """Input boxes of every block; state boxes of the block starts and the last node."""
+        lib, stages, qp = self._lib, self.stages, self._qp
+        for k in range(self._nb):
+            lib.d_ocp_qp_set_lbu(stages[k], lbu[k], qp)
+            lib.d_ocp_qp_set_ubu(stages[k], ubu[k], qp)
+        if self._has_state_boxes:
+            for k in range(1, self._nb + 1):
+                lib.d_ocp_qp_set_lbx(stages[k], lbx[k], qp)
+                lib.d_ocp_qp_set_ubx(stages[k], ubx[k], qp)
+
+    def solve(self, inputs: list[Any], states: list[Any]) -> tuple[int, int]:
+        """Run the solver; write block inputs and block-start states; (status, iterations)."""
+        lib, stages = self._lib, self.stages
+        lib.d_ocp_qp_ipm_solve(self._qp, self._sol, self._arg, self._ws)
+        lib.d_ocp_qp_ipm_get_status(self._ws, ctypes.byref(self._status))
+        lib.d_ocp_qp_ipm_get_iter(self._ws, ctypes.byref(self._iterations))
+        for k in range(self._nb):
+            lib.d_ocp_qp_sol_get_u(stages[k], self._sol, inputs[k])
+            lib.d_ocp_qp_sol_get_x(stages[k + 1], self._sol, states[k + 1])
+        return self._status.value, self._iterations.value
+
+
+class HpipmBackend:
+    """``QpBackend`` on HPIPM's OCP-QP interior-point solver, partially condensed.
+
+    The N stages are condensed into blocks of ``block_stages`` (partial_condensing.py);
+    HPIPM's Riccati recursion then runs over the blocks. State boxes inside a block would
+    become general constraints, so a QP with a state set is solved stage by stage
+    (blocks of one stage, no condensing).
+    """
+
+    name = "hpipm"
+
+    def __init__(
+        self,
+        template: OcpQp,
+        tolerance: float = 1e-6,
+        max_iterations: int = 50,
+        block_stages: int = DEFAULT_BLOCK_STAGES,
+    ) -> None:
+        nx, nu, N = template.nx, template.nu, template.horizon
+        self._dims = (nx, nu, N)
+        self._state_idx = _finite_indices(template.x_lb, template.x_ub)
+        self._terminal_idx = _finite_indices(template.x_terminal_lb, template.x_terminal_ub)
+        if self._state_idx.size:
+            block_stages = 1
+        self._lengths = block_lengths(N, block_stages)
+        nb = len(self._lengths)
+        shape = (self._lengths, nx, nu, self._state_idx, self._terminal_idx)
+        self._free = _HpipmProblem(*shape, False, tolerance, max_iterations)
+        self._boxed = _HpipmProblem(*shape, True, tolerance, max_iterations)
+
+        self._buffers = {m: _BlockBuffers(nx, m * nu) for m in set(self._lengths)}
+        self._block_pointers = [self._buffers[m].pointers for m in self._lengths]
+        self._b0 = np.zeros(nx)
+        self._r0 = np.zeros(self._lengths[0] * nu)
+        self._QN = np.asfortranarray(np.diag(template.q_terminal_diag))
+        self._lbu = [np.zeros(m * nu) for m in self._lengths]
+        self._ubu = [np.zeros(m * nu) for m in self._lengths]
+        self._lbx = np.zeros((nb + 1, max(nx, 1)))
+        self._ubx = np.zeros((nb + 1, max(nx, 1)))
+        self._ptr_b0, self._ptr_r0, self._ptr_QN = (
+            _pointer(self._b0),
+            _pointer(self._r0),
+            _pointer(self._QN),
+        )
+        self._ptr_lbu = [_pointer(row) for row in self._lbu]
+        self._ptr_ubu = [_pointer(row) for row in self._ubu]
+        self._ptr_lbx = [_pointer(row) for row in self._lbx]
+        self._ptr_ubx = [_pointer(row) for row in self._ubx]
+        self._U = [np.zeros(m * nu) for m in self._lengths]
+        self._X = np.zeros((nb + 1, nx))
+        self._ptr_U = [_pointer(row) for row in self._U]
+        self._ptr_X = [_pointer(row) for row in self._X]
         self.last_solve_s = 0.0
         """Time spent in ``d_ocp_qp_ipm_solve`` by the last ``solve`` [s]."""
+        self.last_was_box_free = False
+        """Whether the last solve's box-free solution met every box (no IPM run)."""
+
+    @property
+    def block_lengths(self) -> tuple[int, ...]:
+        """Stages per block of the QP HPIPM solves."""
+        return self._lengths
 
     def solve(self, qp: OcpQp) -> QpSolution:
-        """Write the tick's data, solve, read u and x; never raises for a bad QP."""
-        N = self._dims[2]
+        """Condense, solve box-free, and if a box is violated solve boxed; never raises."""
         start = time.perf_counter()
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
         if not all(np.all(np.isfinite(a)) for a in data):
             return self._failure(QpStatus.NUMERICAL_ERROR, start)
         if self._boxes_empty(qp):
             return self._failure(QpStatus.INFEASIBLE, start)
-        self._A[:] = qp.A
-        self._B[:] = qp.B
-        self._b0[:] = qp.A @ qp.x0
-        self._lbu[:] = qp.u_lb
-        self._ubu[:] = qp.u_ub
+        for m, buffers in self._buffers.items():
+            buffers.load(condense(qp.A, qp.B, qp.q_diag, qp.r_diag, m))
+        first = self._buffers[self._lengths[0]]
+        self._b0[:] = first.A @ qp.x0
+        self._r0[:] = first.S @ qp.x0
+        solve_started = time.perf_counter()
+        self._free.set_dynamics_and_cost(
+            self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
+        )
+        status, iterations = self._free.solve(self._ptr_U, self._ptr_X)
+        u, x = self._expand(qp.x0)
+        self.last_was_box_free = status == 0 and self._within_boxes(qp, u, x)
+        if not self.last_was_box_free:
+            self._load_boxes(qp)
+            self._boxed.set_dynamics_and_cost(
+                self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
+            )
+            self._boxed.set_boxes(self._ptr_lbu, self._ptr_ubu, self._ptr_lbx, self._ptr_ubx)
+            status, boxed_iterations = self._boxed.solve(self._ptr_U, self._ptr_X)
+            iterations += boxed_iterations
+            u, x = self._expand(qp.x0)
+        self.last_solve_s = time.perf_counter() - solve_started
+        result = _STATUS.get(status, QpStatus.NUMERICAL_ERROR)
+        if result is QpStatus.SOLVED and not (np.all(np.isfinite(u)) and np.all(np.isfinite(x))):
+            result = QpStatus.NUMERICAL_ERROR
+        return QpSolution(u, x, result, iterations, time.perf_counter() - start)
+
+    def _load_boxes(self, qp: OcpQp) -> None:
+        nb = len(self._lengths)
+        for k, m in enumerate(self._lengths):
+            self._lbu[k].reshape(m, -1)[:] = qp.u_lb
+            self._ubu[k].reshape(m, -1)[:] = qp.u_ub
         if self._state_idx.size:
             assert qp.x_lb is not None and qp.x_ub is not None
             n = self._state_idx.size
-            self._lbx[1:N, :n] = qp.x_lb[self._state_idx]
-            self._ubx[1:N, :n] = qp.x_ub[self._state_idx]
+            self._lbx[1:nb, :n] = qp.x_lb[self._state_idx]
+            self._ubx[1:nb, :n] = qp.x_ub[self._state_idx]
         if self._terminal_idx.size:
             assert qp.x_terminal_lb is not None and qp.x_terminal_ub is not None
             n = self._terminal_idx.size
-            self._lbx[N, :n] = qp.x_terminal_lb[self._terminal_idx]
-            self._ubx[N, :n] = qp.x_terminal_ub[self._terminal_idx]
-        lib, stages, qp_struct = self._lib, self._stage, self._qp
-        lib.d_ocp_qp_set_b(stages[0], self._ptr_b0, qp_struct)
-        for k in range(N):
-            if k:
-                lib.d_ocp_qp_set_A(stages[k], self._ptr_A, qp_struct)
-            lib.d_ocp_qp_set_B(stages[k], self._ptr_B, qp_struct)
-            lib.d_ocp_qp_set_lbu(stages[k], self._ptr_lbu[k], qp_struct)
-            lib.d_ocp_qp_set_ubu(stages[k], self._ptr_ubu[k], qp_struct)
-        if self._state_idx.size or self._terminal_idx.size:
-            for k in range(1, N + 1):
-                lib.d_ocp_qp_set_lbx(stages[k], self._ptr_lbx[k], qp_struct)
-                lib.d_ocp_qp_set_ubx(stages[k], self._ptr_ubx[k], qp_struct)
-        solve_started = time.perf_counter()
-        lib.d_ocp_qp_ipm_solve(qp_struct, self._sol, self._arg, self._ws)
-        self.last_solve_s = time.perf_counter() - solve_started
-        lib.d_ocp_qp_ipm_get_status(self._ws, ctypes.byref(self._status))
-        lib.d_ocp_qp_ipm_get_iter(self._ws, ctypes.byref(self._iterations))
-        for k in range(N):
-            lib.d_ocp_qp_sol_get_u(stages[k], self._sol, self._ptr_u[k])
-            lib.d_ocp_qp_sol_get_x(stages[k + 1], self._sol, self._ptr_x[k + 1])
-        u = self._u.copy()
-        x = self._x.copy()
-        x[0] = qp.x0
-        status = _STATUS.get(self._status.value, QpStatus.NUMERICAL_ERROR)
-        if status is QpStatus.SOLVED and not (np.all(np.isfinite(u)) and np.all(np.isfinite(x))):
-            status = QpStatus.NUMERICAL_ERROR
-        return QpSolution(u, x, status, self._iterations.value, time.perf_counter() - start)
+            self._lbx[nb, :n] = qp.x_terminal_lb[self._terminal_idx]
+            self._ubx[nb, :n] = qp.x_terminal_ub[self._terminal_idx]
+
+    @staticmethod
+    def _within_boxes(qp: OcpQp, u: FloatArray, x: FloatArray) -> bool:
+        if np.any(u < qp.u_lb) or np.any(u > qp.u_ub):
+            return False
+        inner, last = x[1:-1], x[-1]
+        for states, lower, upper in (
+            (inner, qp.x_lb, qp.x_ub),
+            (last, qp.x_terminal_lb, qp.x_terminal_ub),
+        ):
+            if lower is None or upper is None:
+                continue
+            if np.any(states < lower) or np.any(states > upper):
+                return False
+        return True
+
+    def _expand(self, x0: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The block solution as the N inputs and N + 1 states of the original QP."""
+        nu = self._dims[1]
+        self._X[0] = x0
+        u = np.concatenate(self._U).reshape(-1, nu)
+        states = []
+        for k, m in enumerate(self._lengths):
+            block = self._buffers[m].block
+            assert block is not None
+            states.append(block.states(self._X[k], self._U[k]))
+        states.append(self._X[-1:])
+        return u, np.vstack(states)
 
     @staticmethod
     def _boxes_empty(qp: OcpQp) -> bool:

@@ -95,3 +95,29 @@ def test_bad_qps_report_a_status_instead_of_raising(lab_params: BarSystemParams)
     empty = dataclasses.replace(qp, u_lb=qp.u_ub + 1.0)
     assert backend.solve(empty).status is QpStatus.INFEASIBLE
     assert backend.solve(qp).status is QpStatus.SOLVED  # and it recovers
+
+
+@pytest.mark.parametrize("deviation, box_free", [(0.01, True), (1.0, False)])
+def test_the_box_free_solution_is_kept_only_when_it_meets_every_box(
+    lab_params: BarSystemParams, deviation: float, box_free: bool
+) -> None:
+    qp = lab_qp(lab_params, deviation, 5)
+    backend = HpipmBackend(qp)
+    solution = backend.solve(qp)
+    assert backend.last_was_box_free is box_free
+    assert solution.status is QpStatus.SOLVED
+    np.testing.assert_allclose(solution.u, CondensedDaqpBackend(qp).solve(qp).u, atol=2e-4)
+
+
+@pytest.mark.parametrize("block_stages", [1, 4, 7, 30])
+def test_every_block_length_gives_the_same_solution_and_trajectory(
+    lab_params: BarSystemParams, block_stages: int
+) -> None:
+    qp = lab_qp(lab_params, 0.3, 2)
+    solution = HpipmBackend(qp, block_stages=block_stages).solve(qp)
+    assert solution.status is QpStatus.SOLVED
+    np.testing.assert_allclose(solution.u, CondensedDaqpBackend(qp).solve(qp).u, atol=2e-4)
+    for k in range(qp.horizon):  # x is the trajectory of u, stage by stage
+        np.testing.assert_allclose(
+            solution.x[k + 1], qp.A @ solution.x[k] + qp.B @ solution.u[k], atol=1e-9
+        )
