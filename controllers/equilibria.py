@@ -18,7 +18,8 @@ UAV's x axis lies along the bar).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -171,9 +172,17 @@ def _check_reference(reference: Reference) -> None:
 def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibrium:
     """The equilibrium (x_eq, u_eq) of Section IV for ``reference``, in closed form.
 
-    Raises ``EquilibriumError`` for θ_l outside [0°, 90°) or non-finite values.
+    Raises ``EquilibriumError`` for θ_l outside [0°, 90°) or non-finite values. A tick asks
+    for the same reference more than once (safety, controller), so recent answers are
+    kept (callers get their own x and u; the bar ends and forces are read-only).
     """
     _check_reference(reference)
+    cached = _cached_equilibrium(params, reference)
+    return replace(cached, x=cached.x.copy(), u=cached.u.copy())
+
+
+@lru_cache(maxsize=8)
+def _cached_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibrium:
     g = params.gravity_mps2
     d = params.arms_m
     signs = (-1.0, 1.0)
@@ -220,6 +229,8 @@ def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibriu
         theta_fs.append(math.atan2(pull, float(thrust_vector[2])))
         ends.append(end)
         forces.append(-signs[k] * pull * n_b)
+    for array in (*ends, *forces):
+        array.setflags(write=False)
     return Equilibrium(
         x=x,
         u=u,

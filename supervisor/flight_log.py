@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
@@ -43,6 +43,9 @@ class TickRecord:
     lateness_ms: float
     mocap_age_ms: float
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+_TICK_FIELDS = tuple(f.name for f in fields(TickRecord))
 
 
 def finite_or_none(value: Any) -> Any:
@@ -90,7 +93,11 @@ class FlightLogWriter:
         self._sync()
 
     def _write(self, payload: dict[str, Any]) -> None:
-        self._file.write(json.dumps(finite_or_none(payload), separators=(",", ":")) + "\n")
+        try:
+            line = json.dumps(payload, separators=(",", ":"), allow_nan=False)
+        except ValueError:  # a NaN or inf somewhere: the rare path pays for the walk
+            line = json.dumps(finite_or_none(payload), separators=(",", ":"))
+        self._file.write(line + "\n")
         self._file.flush()
 
     def _sync(self) -> None:
@@ -98,7 +105,8 @@ class FlightLogWriter:
 
     def append(self, record: TickRecord) -> None:
         """Write one tick; fsync when the last sync is more than a second (of ``t_s``) old."""
-        self._write({"kind": "tick", **asdict(record)})
+        values = {name: getattr(record, name) for name in _TICK_FIELDS}  # shallow: no deepcopy
+        self._write({"kind": "tick", **values})
         if record.t_s - self._last_sync_s >= FSYNC_INTERVAL_S:
             self._sync()
             self._last_sync_s = record.t_s
