@@ -127,7 +127,11 @@ def summarize(log_path: str, requests: int, duration_s: float) -> dict[str, Any]
     def column(name: str) -> np.ndarray:
         return np.array([r.get(name, math.nan) for r in log.extra], dtype=float)
 
-    compute, latency = column("compute_total_ms"), column("latency_ms")
+    compute, latency, wait = (
+        column("compute_total_ms"),
+        column("latency_ms"),
+        column("mocap_wait_ms"),
+    )
     lateness = np.asarray(log.lateness_ms, dtype=float)
     late = int(np.sum(lateness + compute >= 20.0))
     return {
@@ -140,6 +144,10 @@ def summarize(log_path: str, requests: int, duration_s: float) -> dict[str, Any]
         "lateness_ms_p99": float(np.percentile(lateness, 99)),
         "latency_ms_p50": float(np.nanpercentile(latency, 50)),
         "latency_ms_p99": float(np.nanpercentile(latency, 99)),
+        # Where the latency goes: the newest frame's wait for its tick, then the tick.
+        "mocap_wait_ms_p50": float(np.nanpercentile(wait, 50)),
+        "mocap_wait_ms_p99": float(np.nanpercentile(wait, 99)),
+        "compute_ms_max": float(np.nanmax(compute)),
     }
 
 

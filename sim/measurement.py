@@ -176,6 +176,13 @@ class MocapModel:
         return self._params.start_time_s + self._next_slot / self._params.rate_hz
 
     @property
+    def next_delivery_time_s(self) -> float:
+        """When the next frame reaches the receiver, if it is not dropped as a whole [s]."""
+        if self._queue:
+            return self._queue[0].delivery_time_s
+        return self.next_capture_time_s + self._params.latency_s
+
+    @property
     def pending(self) -> int:
         """Frames captured but not yet delivered."""
         return len(self._queue)

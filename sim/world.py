@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -86,6 +87,7 @@ class SimulatedWorld:
         self.vehicles = [vehicles(self.plant, i) for i in (1, 2)]
         self.qtm = QtmServer(list(body_names), host=qtm_host, port=qtm_port, rate_hz=None)
         self.step_period_s = step_period_s
+        self._sleeper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="world-sleep")
         self._clock = clock
         self._t0 = 0.0
 
@@ -108,6 +110,7 @@ class SimulatedWorld:
             with contextlib.suppress(Exception):
                 await vehicle.close()
         await self.qtm.close()
+        self._sleeper.shutdown(wait=False)
 
     def advance(self, until_s: float) -> None:
         """Step the plant to ``until_s`` (world time), capturing and publishing frames and
@@ -133,4 +136,10 @@ class SimulatedWorld:
                 self._t0 += target - self.plant.time_s - MAX_CATCH_UP_S
                 target = self.now_s
             self.advance(target)
-            await asyncio.sleep(self.step_period_s)
+            next_frame_in = self.mocap.next_delivery_time_s - self.now_s
+            await self._sleep(max(0.0, min(self.step_period_s, next_frame_in)))
+
+    async def _sleep(self, duration_s: float) -> None:
+        """Sleep on a helper thread: asyncio's timers wake up to a millisecond late, and a
+        real QTM's frames leave on time, so ours must too."""
+        await asyncio.get_running_loop().run_in_executor(self._sleeper, time.sleep, duration_s)

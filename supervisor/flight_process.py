@@ -30,6 +30,7 @@ from supervisor.flight_core import TickResult
 from supervisor.flight_log import FlightLogWriter
 from supervisor.modes import TRANSITIONS, Mode
 from supervisor.operator_requests import handle_request
+from supervisor.phase_lock import MocapPhaseLock
 from supervisor.request_server import serve_requests
 from supervisor.scheduler import DeadlineTicker, TickTiming, TimingStats
 from supervisor.telemetry import MocapView, build_telemetry
@@ -80,6 +81,7 @@ class FlightProcess:
         self.estimate: Estimate | None = None
         self.last_tick: TickResult | None = None
         self.latency_ms: deque[float] = deque(maxlen=3000)
+        self.phase_lock = MocapPhaseLock(config.mpc.dt_s) if config.mocap.phase_lock else None
         self._log: FlightLogWriter | None = None
         self._stopping = asyncio.Event()
         self._on_ground = asyncio.Event()
@@ -136,6 +138,8 @@ class FlightProcess:
         try:
             async for timing in ticker:
                 self._tick(timing)
+                if self.phase_lock is not None:
+                    ticker.shift(self.phase_lock.correction(ticker.next_deadline_s))
         finally:
             ticker.close()
 
@@ -144,18 +148,21 @@ class FlightProcess:
         frames = self.mocap.drain()
         for frame in frames:
             self.fusion.update(frame)
+        if self.phase_lock is not None:
+            self.phase_lock.observe(frame.receive_time_s for frame in frames)
         self._count_frames(len(frames), started)
         self.estimate = estimate_state(self.fusion.states(started), self.names)
         before = self.core.modes.mode
         connected = (self.links[0].connected, self.links[1].connected)
         result = self.core.tick(started, self.estimate, connected, timing.lateness_s)
-        latency_ms = math.nan
+        latency_ms = wait_ms = math.nan
         if self.streaming:
             for link, command in zip(self.links, result.commands, strict=True):
                 link.send_setpoint(command)
             newest = frames[-1] if frames else None
             if newest is not None and math.isfinite(newest.receive_time_s):
                 latency_ms = (self.clock() - newest.receive_time_s) * 1e3
+                wait_ms = (started - newest.receive_time_s) * 1e3
                 self.latency_ms.append(latency_ms)
         self._forward_mocap()
         compute_s = self.clock() - started
@@ -168,7 +175,10 @@ class FlightProcess:
         if self._log is not None:
             record = result.record
             record.extra.update(
-                compute_total_ms=compute_s * 1e3, latency_ms=latency_ms, skipped=timing.skipped
+                compute_total_ms=compute_s * 1e3,
+                latency_ms=latency_ms,
+                mocap_wait_ms=wait_ms,
+                skipped=timing.skipped,
             )
             self._log.append(record)
         self._react(before, result.mode)

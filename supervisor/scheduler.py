@@ -122,6 +122,18 @@ class DeadlineTicker:
         self._index += 1
         return timing
 
+    @property
+    def next_deadline_s(self) -> float:
+        """The deadline of the next tick (before skips); NaN before the first tick."""
+        if self._t0 is None:
+            return math.nan
+        return self._t0 + self._index * self.period_s
+
+    def shift(self, delta_s: float) -> None:
+        """Move every following deadline by ``delta_s`` (the phase lock trims t0 with it)."""
+        if self._t0 is not None and math.isfinite(delta_s):
+            self._t0 += delta_s
+
     def close(self) -> None:
         """Stop the wake-up thread."""
         if self._wake is not None:
