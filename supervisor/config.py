@@ -228,7 +228,7 @@ class MocapSection(_Section):
     attitude_noise_deg: PositiveFloat = 0.1
     max_age_s: PositiveFloat = 0.05
     # Move the 20 ms deadlines to just after mocap frames arrive (supervisor/phase_lock.py):
-    # the newest frame then waits ~0.5 ms for its tick instead of up to a frame period.
+    # the newest frame then waits about a millisecond for its tick, not up to a frame period.
     phase_lock: bool = True
 
     @model_validator(mode="after")
