@@ -17,7 +17,8 @@ Most ticks of a hovering or tracking flight have no active bound, and then the Q
 solution is that of the same QP without boxes — one Riccati recursion instead of an
 interior-point iteration sequence. So each solve first solves the box-free QP and keeps it
 when it satisfies every box (exactly the KKT conditions with zero multipliers); otherwise
-the boxed QP is solved.
+the boxed QP is solved. While an input bound stays active (saturation lasts a few ticks)
+the box-free attempt is skipped.
 """
 
 from __future__ import annotations
@@ -287,6 +288,7 @@ class HpipmBackend:
         """Time spent in ``d_ocp_qp_ipm_solve`` by the last ``solve`` [s]."""
         self.last_was_box_free = False
         """Whether the last solve's box-free solution met every box (no IPM run)."""
+        self._try_box_free = True
 
     @property
     def block_lengths(self) -> tuple[int, ...]:
@@ -294,7 +296,8 @@ class HpipmBackend:
         return self._lengths
 
     def solve(self, qp: OcpQp) -> QpSolution:
-        """Condense, solve box-free, and if a box is violated solve boxed; never raises."""
+        """Condense, solve box-free (unless an input bound was active in the last boxed
+        solve), and if a box is violated solve boxed; never raises."""
         start = time.perf_counter()
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
         if not all(np.all(np.isfinite(a)) for a in data):
@@ -307,12 +310,15 @@ class HpipmBackend:
         self._b0[:] = first.A @ qp.x0
         self._r0[:] = first.S @ qp.x0
         solve_started = time.perf_counter()
-        self._free.set_dynamics_and_cost(
-            self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
-        )
-        status, iterations = self._free.solve(self._ptr_U, self._ptr_X)
-        u, x = self._expand(qp.x0)
-        self.last_was_box_free = status == 0 and self._within_boxes(qp, u, x)
+        status, iterations = 0, 0
+        self.last_was_box_free = False
+        if self._try_box_free:
+            self._free.set_dynamics_and_cost(
+                self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
+            )
+            status, iterations = self._free.solve(self._ptr_U, self._ptr_X)
+            u, x = self._expand(qp.x0)
+            self.last_was_box_free = status == 0 and self._within_boxes(qp, u, x)
         if not self.last_was_box_free:
             self._load_boxes(qp)
             self._boxed.set_dynamics_and_cost(
@@ -322,6 +328,8 @@ class HpipmBackend:
             status, boxed_iterations = self._boxed.solve(self._ptr_U, self._ptr_X)
             iterations += boxed_iterations
             u, x = self._expand(qp.x0)
+            # Saturation lasts a few ticks: while an input bound is active, skip the attempt.
+            self._try_box_free = not self._input_bound_active(qp, u)
         self.last_solve_s = time.perf_counter() - solve_started
         result = _STATUS.get(status, QpStatus.NUMERICAL_ERROR)
         if result is QpStatus.SOLVED and not (np.all(np.isfinite(u)) and np.all(np.isfinite(x))):
@@ -343,6 +351,11 @@ class HpipmBackend:
             n = self._terminal_idx.size
             self._lbx[nb, :n] = qp.x_terminal_lb[self._terminal_idx]
             self._ubx[nb, :n] = qp.x_terminal_ub[self._terminal_idx]
+
+    @staticmethod
+    def _input_bound_active(qp: OcpQp, u: FloatArray) -> bool:
+        tolerance = 1e-5 * (qp.u_ub - qp.u_lb)
+        return bool(np.any(u <= qp.u_lb + tolerance) or np.any(u >= qp.u_ub - tolerance))
 
     @staticmethod
     def _within_boxes(qp: OcpQp, u: FloatArray, x: FloatArray) -> bool:

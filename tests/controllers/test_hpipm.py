@@ -121,3 +121,16 @@ def test_every_block_length_gives_the_same_solution_and_trajectory(
         np.testing.assert_allclose(
             solution.x[k + 1], qp.A @ solution.x[k] + qp.B @ solution.u[k], atol=1e-9
         )
+
+
+def test_while_a_bound_is_active_the_box_free_attempt_waits_for_an_unsaturated_tick(
+    lab_params: BarSystemParams,
+) -> None:
+    saturated, calm = lab_qp(lab_params, 1.0, 5), lab_qp(lab_params, 0.01, 5)
+    backend = HpipmBackend(saturated)
+    box_free = []
+    for qp in (saturated, calm, calm):
+        solution = backend.solve(qp)
+        box_free.append(backend.last_was_box_free)
+        np.testing.assert_allclose(solution.u, CondensedDaqpBackend(qp).solve(qp).u, atol=2e-4)
+    assert box_free == [False, False, True]
