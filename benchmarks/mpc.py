@@ -90,7 +90,7 @@ def decentralized_run(
         eq = bar_equilibrium(params, reference)
         psi_b, psi_uav = measured_yaws(state)
         lin = bar_equilibrium(params, reference.with_yaws(psi_b, psi_uav))
-        result = agent.solve(agent_state(state, params, 1), eq, lin)
+        result = agent.solve(agent_state(state, params, 1), eq, agent.linearize(lin))
         if isinstance(result, str):
             return np.full(4, np.nan)
         u: np.ndarray = result[0][0]

@@ -7,6 +7,15 @@ tick, as in the paper) and discretized (A = I + A_c h, B = B_c h); the QP (MPC) 
 
 A solve that fails, finishes late, or a state with NaN/inf gives the previous plan shifted
 by one step, with a status that says so; ``step`` never raises.
+
+``prepare`` splits a tick the way real-time MPC does: after a tick has sent its input, it
+linearizes for the next one at the yaws just measured and lets the QP back-end build what
+depends on that model alone (condensing, the box-free solution map). The next ``step``
+uses that model when its own measured yaws and its reference's θ_l lie within
+``prepared_yaw_tolerance_rad`` of those (and the reference's velocity and turn rates
+within the same number, in m/s and rad/s) — A and B do not depend on where the formation
+is — so between a mocap frame and the input sent to the vehicles only the state-dependent
+part of the tick remains. Otherwise it linearizes anew.
 """
 
 from __future__ import annotations
@@ -213,6 +222,47 @@ def measured_yaws(state: FloatArray) -> tuple[float, tuple[float, float]]:
     return float(state[8]), (float(state[20]), float(state[32]))
 
 
+@dataclass(frozen=True)
+class _PreparedModel:
+    """A linearization made ahead of its tick: the reference turned to the yaws it used,
+    and (A, B) for each QP of the controller."""
+
+    reference: Reference
+    models: tuple[tuple[FloatArray, FloatArray], ...]
+
+    def fits(self, reference: Reference, tolerance: float) -> bool:
+        """Whether it may stand for the linearization at ``reference`` (turned to the
+        measured yaws): yaws and θ_l within ``tolerance`` [rad], and the reference's
+        velocity [m/s] and turn rates [rad/s] within the same number."""
+        mine = self.reference
+        angles = zip(
+            (mine.bar_yaw_rad, *mine.uav_yaw_rad, mine.theta_l_rad),
+            (reference.bar_yaw_rad, *reference.uav_yaw_rad, reference.theta_l_rad),
+            strict=True,
+        )
+        if any(abs(math.remainder(a - b, 2.0 * math.pi)) > tolerance for a, b in angles):
+            return False
+        rates = zip(
+            (*mine.velocity_mps, *mine.yaw_rates_radps),
+            (*reference.velocity_mps, *reference.yaw_rates_radps),
+            strict=True,
+        )
+        return all(abs(a - b) <= tolerance for a, b in rates)
+
+
+def _take_prepared(
+    prepared: _PreparedModel | None, turned: Reference, settings: MpcSettings
+) -> tuple[tuple[FloatArray, FloatArray], ...] | None:
+    if prepared is not None and prepared.fits(turned, settings.prepared_yaw_tolerance_rad):
+        return prepared.models
+    return None
+
+
+def _prepare_backend(mpc: LinearMpc, A: FloatArray, B: FloatArray) -> None:
+    nx, nu = B.shape
+    mpc.backend.prepare(mpc.qp(A, B, np.zeros(nx), -np.ones(nu), np.ones(nu), np.zeros(nx)))
+
+
 class CentralizedMpc:
     """The 36-state MPC of Section IV (Table I)."""
 
@@ -227,6 +277,9 @@ class CentralizedMpc:
         self._mpc = LinearMpc(BAR_STATES, BAR_INPUTS, settings, a_pattern, b_pattern, backend)
         self._u_lb, self._u_ub = _input_bounds(settings, 2)
         self._plans = _PlanKeeper()
+        self._prepared: _PreparedModel | None = None
+        self.last_step_was_prepared = False
+        """Whether the last ``step`` used the model of a ``prepare``."""
 
     @property
     def backend_name(self) -> str:
@@ -241,9 +294,26 @@ class CentralizedMpc:
     ) -> tuple[FloatArray, FloatArray]:
         """(A, B) of the discrete model at the reference equilibrium turned to the measured yaws."""
         psi_b, psi_uav = measured_yaws(state)
-        lin = bar_equilibrium(self.params, reference.with_yaws(psi_b, psi_uav))
+        return self._linearize(reference.with_yaws(psi_b, psi_uav))
+
+    def _linearize(self, turned: Reference) -> tuple[FloatArray, FloatArray]:
+        lin = bar_equilibrium(self.params, turned)
         A_c, B_c = self._jacobians(lin.x, lin.u)
         return discretize(A_c, B_c, self.settings.dt_s)
+
+    def prepare(self, state: FloatArray, reference: Reference) -> None:
+        """Linearize for the next tick at ``state``'s yaws and prepare the back-end for
+        that model (see the module's docstring); never raises."""
+        self._prepared = None
+        if self.settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
+            return
+        turned = reference.with_yaws(*measured_yaws(state))
+        try:
+            A, B = self._linearize(turned)
+            _prepare_backend(self._mpc, A, B)
+        except Exception:  # the next step linearizes itself, and reports what fails
+            return
+        self._prepared = _PreparedModel(turned, ((A, B),))
 
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
         """One tick: u* for the 36-state ``state`` (paper order) tracking ``reference``."""
@@ -259,8 +329,12 @@ class CentralizedMpc:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_BAD_STATE, hold, "state is not finite"
             )
+        prepared, self._prepared = self._prepared, None
         try:
-            A, B = self.linearization(state, reference)
+            turned = reference.with_yaws(*measured_yaws(state))
+            models = _take_prepared(prepared, turned, self.settings)
+            self.last_step_was_prepared = models is not None
+            A, B = models[0] if models is not None else self._linearize(turned)
             dx0 = wrap_angles(state - eq.x, BAR_YAW_INDICES)
             qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x)
             solution = self._mpc.backend.solve(qp)
@@ -341,16 +415,21 @@ class _Agent:
         )
         self.u_lb, self.u_ub = _input_bounds(settings, 1)
 
+    def linearize(self, lin: Equilibrium) -> tuple[FloatArray, FloatArray]:
+        """(A, B) of the discrete 18-state model at the equilibrium ``lin``."""
+        i = self.i
+        A_c, B_c = self._jacobians(
+            lin.payload_state(i), lin.payload_input(i), lin.payload_force_n[i - 1]
+        )
+        return discretize(A_c, B_c, self.settings.dt_s)
+
     def solve(
-        self, x_i: FloatArray, eq: Equilibrium, lin: Equilibrium
+        self, x_i: FloatArray, eq: Equilibrium, model: tuple[FloatArray, FloatArray]
     ) -> tuple[FloatArray, FloatArray, float, int] | str:
         """(u_pred, x_pred, solve time, iterations) in absolute terms, or the failure text."""
         i = self.i
         x_eq, u_eq = eq.payload_state(i), eq.payload_input(i)
-        A_c, B_c = self._jacobians(
-            lin.payload_state(i), lin.payload_input(i), lin.payload_force_n[i - 1]
-        )
-        A, B = discretize(A_c, B_c, self.settings.dt_s)
+        A, B = model
         dx0 = wrap_angles(x_i - x_eq, PAYLOAD_YAW_INDICES)
         solution = self.mpc.backend.solve(
             self.mpc.qp(A, B, dx0, self.u_lb - u_eq, self.u_ub - u_eq, x_eq)
@@ -372,6 +451,9 @@ class DecentralizedMpc:
         self.agents = (_Agent(params, settings, 1, backend), _Agent(params, settings, 2, backend))
         self._plans = _PlanKeeper()
         self.agent_solve_times_s = (0.0, 0.0)
+        self._prepared: _PreparedModel | None = None
+        self.last_step_was_prepared = False
+        """Whether the last ``step`` used the models of a ``prepare``."""
 
     @property
     def backend_name(self) -> str:
@@ -380,6 +462,22 @@ class DecentralizedMpc:
     def reset(self) -> None:
         """Forget the previous plan (e.g. after a controller switch)."""
         self._plans.previous = None
+
+    def prepare(self, state: FloatArray, reference: Reference) -> None:
+        """Linearize both agents for the next tick at ``state``'s yaws and prepare their
+        back-ends (see the module's docstring); never raises."""
+        self._prepared = None
+        if self.settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
+            return
+        turned = reference.with_yaws(*measured_yaws(state))
+        try:
+            lin = bar_equilibrium(self.params, turned)
+            models = tuple(agent.linearize(lin) for agent in self.agents)
+            for agent, (A, B) in zip(self.agents, models, strict=True):
+                _prepare_backend(agent.mpc, A, B)
+        except Exception:  # the next step linearizes itself, and reports what fails
+            return
+        self._prepared = _PreparedModel(turned, models)
 
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
         """One tick for both agents; ``state`` is the 36-state (each agent takes its part)."""
@@ -398,12 +496,17 @@ class DecentralizedMpc:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_BAD_STATE, hold, "state is not finite"
             )
+        prepared, self._prepared = self._prepared, None
         try:
-            psi_b, psi_uav = measured_yaws(state)
-            lin = bar_equilibrium(self.params, reference.with_yaws(psi_b, psi_uav))
+            turned = reference.with_yaws(*measured_yaws(state))
+            models = _take_prepared(prepared, turned, self.settings)
+            self.last_step_was_prepared = models is not None
+            if models is None:
+                lin = bar_equilibrium(self.params, turned)
+                models = tuple(agent.linearize(lin) for agent in self.agents)
             results = [
-                agent.solve(agent_state(state, self.params, agent.i), eq, lin)
-                for agent in self.agents
+                agent.solve(agent_state(state, self.params, agent.i), eq, model)
+                for agent, model in zip(self.agents, models, strict=True)
             ]
         except Exception as error:
             return self._plans.fallback(now_s, PlanStatus.SHIFTED_ERROR, hold, repr(error))

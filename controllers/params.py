@@ -92,3 +92,6 @@ class MpcSettings:
     terminal_bounds: tuple[StateBound, ...] = ()
     qp_backend: str = "hpipm"
     late_after_s: float = 0.015
+    prepared_yaw_tolerance_rad: float = 0.0
+    """How far the measured yaws may be from those a ``prepare`` linearized at for its
+    linearization to be used [rad]; 0 keeps only an exact match."""

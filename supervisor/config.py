@@ -186,6 +186,7 @@ class MpcSection(_Section):
     torque_max_nm: PositiveFloat = 1.0
     qp_backend: str = "hpipm"
     late_after_s: PositiveFloat = 0.015
+    prepared_yaw_tolerance_rad: Annotated[float, Field(ge=0.0, le=0.1)] = 0.0
     centralized: CentralizedWeights
     decentralized: DecentralizedWeights
 
@@ -209,6 +210,7 @@ class MpcSection(_Section):
             terminal_bounds=_bounds(section.terminal_bounds),
             qp_backend=self.qp_backend,
             late_after_s=self.late_after_s,
+            prepared_yaw_tolerance_rad=self.prepared_yaw_tolerance_rad,
         )
 
 

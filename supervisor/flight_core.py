@@ -129,6 +129,7 @@ class FlightCore:
         self._blend_from: FloatArray | None = None
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
+        self._mpc_reference: Reference | None = None
         self._last_tick_s: float | None = None
         self._dt_s = 0.0
         self._low_since_s: float | None = None
@@ -213,6 +214,7 @@ class FlightCore:
         self._dt_s = 0.0 if self._last_tick_s is None else max(0.0, now_s - self._last_tick_s)
         self._last_tick_s = now_s
         self._last_estimate = estimate
+        self._mpc_reference = None
         events: list[str] = []
         mode = self.modes.mode
         plan: Plan | None = None
@@ -385,7 +387,15 @@ class FlightCore:
         self, now_s: float, x: FloatArray, reference: Reference
     ) -> tuple[tuple[UavCommand, UavCommand], Plan]:
         plan = self.controllers[self.controller].step(x, reference, now_s)
+        self._mpc_reference = reference
         return self._mpc_commands(plan), plan
+
+    def prepare_next(self) -> None:
+        """Between ticks, once the commands are out: let the MPC that flew this tick
+        linearize for the next one (controllers/mpc.py, ``prepare``)."""
+        if self._mpc_reference is not None and self._last_estimate is not None:
+            controller = self.controllers[self.controller]
+            controller.prepare(self._last_estimate.x, self._mpc_reference)
 
     def _takeoff(
         self, now_s: float, estimate: Estimate, events: list[str]

@@ -276,6 +276,7 @@ def run_scenario(
                 log.append(result.record)
             script.messages.extend(e for e in result.events if e.startswith("abort"))
             script.advance(loop.core, loop.now_s)
+            loop.core.prepare_next()  # as the service does between ticks
             truth.update(loop.plant, loop.core.modes.mode.airborne)
             if script.done:
                 break

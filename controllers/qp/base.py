@@ -74,6 +74,11 @@ class QpBackend(Protocol):
 
     name: str
 
+    def prepare(self, qp: OcpQp) -> None:
+        """Precompute what depends on ``qp``'s model (A, B, weights) alone, before its state
+        is known; a ``solve`` with the same model then does less. May do nothing."""
+        ...
+
     def solve(self, qp: OcpQp) -> QpSolution:
         """Solve one tick's QP. Never raises for a bad QP: the status says what happened."""
         ...

@@ -106,6 +106,9 @@ class CondensedDaqpBackend:
             return np.zeros((0, N * nu)), np.zeros(0), np.zeros(0)
         return np.vstack(rows), np.concatenate(lower), np.concatenate(upper)
 
+    def prepare(self, qp: OcpQp) -> None:
+        """Nothing to precompute: this back-end builds its data from the whole QP."""
+
     def solve(self, qp: OcpQp) -> QpSolution:
         """Condense, solve warm-started from the last active set, expand the states."""
         nx, nu, N = self._dims

@@ -14,11 +14,13 @@ the last node those of the terminal box (±inf entries are left out: HPIPM's IPM
 huge bounds). The interior-point solver runs in ``SPEED`` mode, warm-started.
 
 Most ticks of a hovering or tracking flight have no active bound, and then the QP's
-solution is that of the same QP without boxes — one Riccati recursion instead of an
-interior-point iteration sequence. So each solve first solves the box-free QP and keeps it
+solution is that of the same QP without boxes: a linear map of Δx₀ that depends on the
+model alone (riccati.py; numpy's BLAS builds it faster than this generic BLASFEO build
+runs HPIPM's own recursion). So each solve first applies that map and keeps the result
 when it satisfies every box (exactly the KKT conditions with zero multipliers); otherwise
-the boxed QP is solved. While an input bound stays active (saturation lasts a few ticks)
-the box-free attempt is skipped.
+HPIPM solves the boxed QP. While an input bound stays active (saturation lasts a few
+ticks) the box-free attempt is skipped. ``prepare`` builds the condensed data and the map
+for a model ahead of its solve (a real-time loop does it before the state arrives).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import numpy as np
 
 from controllers.qp.base import FloatArray, OcpQp, QpSolution, QpStatus
 from controllers.qp.partial_condensing import CondensedBlock, block_lengths, condense
+from controllers.qp.riccati import UnboxedSolutionMap, unboxed_solution_map
 
 DEFAULT_BLOCK_STAGES = 5  # `uavbar-supervisor bench` compares block lengths
 _SPEED = 1  # enum hpipm_mode: SPEED_ABS, SPEED, BALANCE, ROBUST
@@ -107,10 +110,7 @@ class _BlockBuffers:
 
 
 class _HpipmProblem:
-    """One HPIPM OCP-QP (dimensions, data, solution, solver) over the blocks of a horizon.
-
-    ``boxed=False`` leaves every bound out: HPIPM then solves it with one Riccati recursion.
-    """
+    """One HPIPM OCP-QP (dimensions, data, solution, solver) over the blocks of a horizon."""
 
     def __init__(
         self,
@@ -119,13 +119,11 @@ class _HpipmProblem:
         nu: int,
         state_idx: np.ndarray,
         terminal_idx: np.ndarray,
-        boxed: bool,
         tolerance: float,
         max_iterations: int,
     ) -> None:
         lib = _load()
         self._lib = lib
-        self.boxed = boxed
         nb = len(lengths)
         self._nb = nb
         self._keep: list[Any] = []  # memory the C side points into
@@ -135,8 +133,6 @@ class _HpipmProblem:
             self._keep.append(memory)
             return memory
 
-        if not boxed:
-            state_idx = terminal_idx = np.zeros(0, dtype=np.int32)
         self._has_state_boxes = bool(state_idx.size or terminal_idx.size)
         self._dim = block(lib.d_ocp_qp_dim_strsize())
         lib.d_ocp_qp_dim_create(c_int(nb), self._dim, block(lib.d_ocp_qp_dim_memsize(nb)))
@@ -145,7 +141,7 @@ class _HpipmProblem:
             (lib.d_ocp_qp_dim_set_nx, [0] + [nx] * nb),
             (lib.d_ocp_qp_dim_set_nu, stage_nu),
             (lib.d_ocp_qp_dim_set_nbx, [0] + [state_idx.size] * (nb - 1) + [terminal_idx.size]),
-            (lib.d_ocp_qp_dim_set_nbu, stage_nu if boxed else [0] * (nb + 1)),
+            (lib.d_ocp_qp_dim_set_nbu, stage_nu),
             (lib.d_ocp_qp_dim_set_ng, [0] * (nb + 1)),
             (lib.d_ocp_qp_dim_set_ns, [0] * (nb + 1)),
         ):
@@ -162,11 +158,8 @@ class _HpipmProblem:
         for k in range(nb + 1):
             lib.d_ocp_qp_set_q(self.stages[k], _pointer(zeros), self._qp)
             lib.d_ocp_qp_set_r(self.stages[k], _pointer(zeros), self._qp)
-            if boxed:
-                lib.d_ocp_qp_set_idxbu(self.stages[k], idxbu.ctypes.data_as(int_pointer), self._qp)
-                lib.d_ocp_qp_set_idxbx(
-                    self.stages[k], idxbx[k].ctypes.data_as(int_pointer), self._qp
-                )
+            lib.d_ocp_qp_set_idxbu(self.stages[k], idxbu.ctypes.data_as(int_pointer), self._qp)
+            lib.d_ocp_qp_set_idxbx(self.stages[k], idxbx[k].ctypes.data_as(int_pointer), self._qp)
             if 0 < k < nb:
                 lib.d_ocp_qp_set_b(self.stages[k], _pointer(zeros), self._qp)
 
@@ -259,8 +252,12 @@ class HpipmBackend:
         self._lengths = block_lengths(N, block_stages)
         nb = len(self._lengths)
         shape = (self._lengths, nx, nu, self._state_idx, self._terminal_idx)
-        self._free = _HpipmProblem(*shape, False, tolerance, max_iterations)
-        self._boxed = _HpipmProblem(*shape, True, tolerance, max_iterations)
+        self._boxed = _HpipmProblem(*shape, tolerance, max_iterations)
+        self._prepared_model: tuple[FloatArray, ...] = ()
+        self._blocks: dict[int, CondensedBlock] = {}
+        self._terminal_diag = template.q_terminal_diag
+        self._map_ready = False
+        self._solution_map = UnboxedSolutionMap(np.zeros((0, nx)), np.zeros((0, nx)), (), 0)
 
         self._buffers = {m: _BlockBuffers(nx, m * nu) for m in set(self._lengths)}
         self._block_pointers = [self._buffers[m].pointers for m in self._lengths]
@@ -285,9 +282,11 @@ class HpipmBackend:
         self._ptr_U = [_pointer(row) for row in self._U]
         self._ptr_X = [_pointer(row) for row in self._X]
         self.last_solve_s = 0.0
-        """Time spent in ``d_ocp_qp_ipm_solve`` by the last ``solve`` [s]."""
+        """Time spent solving by the last ``solve``, after its data was prepared [s]."""
         self.last_was_box_free = False
         """Whether the last solve's box-free solution met every box (no IPM run)."""
+        self.last_was_prepared = False
+        """Whether the last solve found its model already prepared."""
         self._try_box_free = True
 
     @property
@@ -295,38 +294,65 @@ class HpipmBackend:
         """Stages per block of the QP HPIPM solves."""
         return self._lengths
 
+    def prepare(self, qp: OcpQp) -> None:
+        """Condense ``qp``'s model and build its box-free solution map now; a later
+        ``solve`` of a QP with the same A, B and weights reuses them. Raises
+        ``LinAlgError`` when a condensed Hessian block is not positive definite."""
+        self._condense(qp)
+        self._build_solution_map()
+
+    def _condense(self, qp: OcpQp) -> None:
+        self._prepared_model = ()
+        self._blocks = {
+            m: condense(qp.A, qp.B, qp.q_diag, qp.r_diag, m) for m in set(self._lengths)
+        }
+        self._terminal_diag = qp.q_terminal_diag
+        self._map_ready = False
+        self._prepared_model = tuple(np.array(a) for a in self._model(qp))
+
+    def _build_solution_map(self) -> None:
+        blocks = [self._blocks[m] for m in self._lengths]
+        self._solution_map = unboxed_solution_map(blocks, self._terminal_diag)
+        self._map_ready = True
+
     def solve(self, qp: OcpQp) -> QpSolution:
-        """Condense, solve box-free (unless an input bound was active in the last boxed
-        solve), and if a box is violated solve boxed; never raises."""
+        """Apply the box-free map (unless an input bound was active in the last boxed
+        solve), and if a box is violated solve boxed with HPIPM; never raises."""
         start = time.perf_counter()
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
         if not all(np.all(np.isfinite(a)) for a in data):
             return self._failure(QpStatus.NUMERICAL_ERROR, start)
         if self._boxes_empty(qp):
             return self._failure(QpStatus.INFEASIBLE, start)
-        for m, buffers in self._buffers.items():
-            buffers.load(condense(qp.A, qp.B, qp.q_diag, qp.r_diag, m))
-        first = self._buffers[self._lengths[0]]
-        self._b0[:] = first.A @ qp.x0
-        self._r0[:] = first.S @ qp.x0
+        self.last_was_prepared = len(self._prepared_model) == 5 and all(
+            np.array_equal(a, b) for a, b in zip(self._model(qp), self._prepared_model, strict=True)
+        )
+        if not self.last_was_prepared:
+            self._condense(qp)
         solve_started = time.perf_counter()
         status, iterations = 0, 0
         self.last_was_box_free = False
         if self._try_box_free:
-            self._free.set_dynamics_and_cost(
-                self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
-            )
-            status, iterations = self._free.solve(self._ptr_U, self._ptr_X)
-            u, x = self._expand(qp.x0)
-            self.last_was_box_free = status == 0 and self._within_boxes(qp, u, x)
+            if not self._map_ready:
+                try:
+                    self._build_solution_map()
+                except np.linalg.LinAlgError:  # a Hessian block not positive definite
+                    self._prepared_model = ()
+                    return self._failure(QpStatus.NUMERICAL_ERROR, start)
+            u, x = self._solution_map.solve(qp.x0)
+            self.last_was_box_free = self._within_boxes(qp, u, x)
         if not self.last_was_box_free:
+            for m, buffers in self._buffers.items():
+                buffers.load(self._blocks[m])
+            first = self._buffers[self._lengths[0]]
+            self._b0[:] = first.A @ qp.x0
+            self._r0[:] = first.S @ qp.x0
             self._load_boxes(qp)
             self._boxed.set_dynamics_and_cost(
                 self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
             )
             self._boxed.set_boxes(self._ptr_lbu, self._ptr_ubu, self._ptr_lbx, self._ptr_ubx)
-            status, boxed_iterations = self._boxed.solve(self._ptr_U, self._ptr_X)
-            iterations += boxed_iterations
+            status, iterations = self._boxed.solve(self._ptr_U, self._ptr_X)
             u, x = self._expand(qp.x0)
             # Saturation lasts a few ticks: while an input bound is active, skip the attempt.
             self._try_box_free = not self._input_bound_active(qp, u)
@@ -335,6 +361,11 @@ class HpipmBackend:
         if result is QpStatus.SOLVED and not (np.all(np.isfinite(u)) and np.all(np.isfinite(x))):
             result = QpStatus.NUMERICAL_ERROR
         return QpSolution(u, x, result, iterations, time.perf_counter() - start)
+
+    @staticmethod
+    def _model(qp: OcpQp) -> tuple[FloatArray, ...]:
+        """What fixes the condensed data and the box-free map."""
+        return (qp.A, qp.B, qp.q_diag, qp.r_diag, qp.q_terminal_diag)
 
     def _load_boxes(self, qp: OcpQp) -> None:
         nb = len(self._lengths)

@@ -174,6 +174,9 @@ class OsqpBackend:
     def _upper(self, qp: OcpQp) -> FloatArray:
         return self._bounds(qp, lower=False)
 
+    def prepare(self, qp: OcpQp) -> None:
+        """Nothing to precompute: this back-end builds its data from the whole QP."""
+
     def solve(self, qp: OcpQp) -> QpSolution:
         """Update A, B, x0 and bounds (and weights if changed), solve warm-started."""
         nx, nu, N = self._dims

@@ -260,3 +260,52 @@ def test_a_turning_reference_is_kinematically_consistent(lab_params: BarSystemPa
         q, r = x[offset + 10 : offset + 12]
         psi_dot = (q * math.sin(phi) + r * math.cos(phi)) / math.cos(theta)  # eq. (3)
         assert derivative[offset + 8] == pytest.approx(psi_dot, abs=1e-5)
+
+
+@pytest.mark.parametrize("controller", ["centralized", "decentralized"])
+def test_a_prepared_model_is_used_when_the_yaws_stay_within_the_tolerance(
+    controller: str, lab_params: BarSystemParams
+) -> None:
+    options = settings(controller, prepared_yaw_tolerance_rad=0.01)
+    mpc_class = CentralizedMpc if controller == "centralized" else DecentralizedMpc
+    prepared, fresh = mpc_class(lab_params, options), mpc_class(lab_params, options)
+    reference = Reference((0.0, 0.0, 1.0), 0.3, (0.3, 0.5), math.radians(20))
+    state = bar_equilibrium(lab_params, reference).x.copy()
+    state[0:3] += (0.05, -0.03, 0.02)
+    elsewhere = dataclasses.replace(reference, bar_position_m=(0.4, 0.1, 1.2))
+    prepared.prepare(state, elsewhere)  # A and B do not depend on where the bar is
+    state[[8, 20, 32]] += 0.005  # the next tick's yaws moved, within the tolerance
+    plan = prepared.step(state, reference, 0.02)
+    assert prepared.last_step_was_prepared
+    exact = fresh.step(state, reference, 0.02)
+    assert not fresh.last_step_was_prepared
+    # Linearized 0.3° away: the same input to well within a thousandth of the range.
+    assert np.max(np.abs(plan.u - exact.u) / actuator_range(2)) < 1e-3
+    prepared.prepare(state, reference)
+    state[20] += 0.02  # beyond it: linearized anew, exactly as without preparation
+    again, exact = prepared.step(state, reference, 0.04), fresh.step(state, reference, 0.04)
+    assert not prepared.last_step_was_prepared
+    np.testing.assert_allclose(again.u, exact.u, atol=1e-9)
+
+
+def test_a_zero_tolerance_prepares_nothing(lab_params: BarSystemParams) -> None:
+    mpc = CentralizedMpc(lab_params, settings("centralized", prepared_yaw_tolerance_rad=0.0))
+    reference = Reference((0.0, 0.0, 1.0), 0.3, (0.3, 0.5))
+    state = bar_equilibrium(lab_params, reference).x
+    mpc.prepare(state, reference)
+    mpc.step(state, reference, 0.0)
+    assert not mpc.last_step_was_prepared
+
+
+def test_the_linearization_does_not_depend_on_where_the_formation_is(
+    lab_params: BarSystemParams,
+) -> None:
+    mpc = CentralizedMpc(lab_params, settings("centralized"))
+    here = Reference((0.0, 0.0, 1.0), 0.7, (0.2, -0.4), math.radians(15))
+    there = dataclasses.replace(here, bar_position_m=(1.3, -0.8, 2.1))
+    for a, b in zip(
+        mpc.linearization(bar_equilibrium(lab_params, here).x, here),
+        mpc.linearization(bar_equilibrium(lab_params, there).x, there),
+        strict=True,
+    ):
+        np.testing.assert_allclose(a, b, atol=1e-12)
