@@ -138,6 +138,10 @@ class MocapSource(Protocol):
         """Counters and connection state."""
         ...
 
+    def on_frame(self, listener: Callable[[], None] | None) -> None:
+        """Call ``listener`` (on the event loop) whenever a frame is accepted; None: stop."""
+        ...
+
 
 class FrameReceiver:
     """Sans-IO UDP side of the client: datagram bytes and receive time in, frames out.
@@ -351,6 +355,7 @@ class QtmClient:
         self._task: asyncio.Task[None] | None = None
         self._connected = asyncio.Event()
         self._frame_arrived = asyncio.Event()
+        self._frame_listener: Callable[[], None] | None = None
         self._sessions = 0
         self._connect_failures = 0
         self._protocol_version: ProtocolVersion | None = None
@@ -387,6 +392,11 @@ class QtmClient:
             last_error=self._last_error,
             **self.receiver.counts,
         )
+
+    def on_frame(self, listener: Callable[[], None] | None) -> None:
+        """Call ``listener`` whenever a frame is accepted, right from the datagram callback
+        (keep it short); None removes it."""
+        self._frame_listener = listener
 
     # --- Lifecycle -------------------------------------------------------------------------
 
@@ -535,6 +545,8 @@ class QtmClient:
         self._last_datagram_s = asyncio.get_running_loop().time()
         if self.receiver.receive_datagram(data, self._clock()) is not None:
             self._frame_arrived.set()
+            if self._frame_listener is not None:
+                self._frame_listener()
         if self.receiver.consecutive_mismatches >= 10:
             self._last_error = "body count differs from the 6D parameters"
 

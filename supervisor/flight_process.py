@@ -135,12 +135,16 @@ class FlightProcess:
     # ---- the control loop -------------------------------------------------------------------
     async def _control_loop(self) -> None:
         ticker = DeadlineTicker(self.config.mpc.dt_s, clock=self.clock)
+        if self.phase_lock is not None:
+            self.mocap.on_frame(ticker.trigger)  # an on-time frame starts its tick at once
         try:
             async for timing in ticker:
                 self._tick(timing)
                 if self.phase_lock is not None:
                     ticker.shift(self.phase_lock.correction(ticker.next_deadline_s))
+                    ticker.early_window_s = self.phase_lock.trigger_window_s
         finally:
+            self.mocap.on_frame(None)
             ticker.close()
 
     def _tick(self, timing: TickTiming) -> None:
@@ -149,7 +153,7 @@ class FlightProcess:
         for frame in frames:
             self.fusion.update(frame)
         if self.phase_lock is not None:
-            self.phase_lock.observe(frame.receive_time_s for frame in frames)
+            self.phase_lock.observe((f.frame_number, f.receive_time_s) for f in frames)
         self._count_frames(len(frames), started)
         self.estimate = estimate_state(self.fusion.states(started), self.names)
         before = self.core.modes.mode
@@ -182,6 +186,7 @@ class FlightProcess:
             )
             self._log.append(record)
         self._react(before, result.mode)
+        self.core.prepare_next()  # the next tick's model, while no frame waits
 
     def _count_frames(self, new_frames: int, now_s: float) -> None:
         frames, since, rate = self._mocap_rate

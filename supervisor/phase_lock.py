@@ -3,12 +3,18 @@
 A tick uses the newest mocap frame; if the deadlines fall at a random phase of the frame
 stream, that frame has waited anywhere up to a frame period (10 ms at 100 Hz) before its
 tick starts. When the frame period divides the tick period, every deadline can instead
-fall just after an arrival. ``MocapPhaseLock`` estimates the arrival phase from the last
-second of receive times (a circular mean, so jitter averages out, with its spread) and
-tells the ticker how far to move its deadlines: to ``margin + 3σ`` after the mean arrival,
-by at most ``max_step_s`` per tick so a disturbed estimate never jerks the loop. The
-deadlines stay absolute (t0 + k·h, with t0 trimmed), and without a usable stream — too few
-frames, or a frame rate that does not divide the tick rate — nothing moves.
+fall just after an arrival. ``MocapPhaseLock`` fits the last second of receive times
+against QTM's frame numbers (a straight line: the numbers count camera frames, so dropped
+frames and jitter do not bias the period or the phase; the residuals give the jitter σ)
+and tells the ticker how far to move its deadlines: to ``margin + 3σ`` after the expected
+arrival, by at most ``max_step_s`` per tick so a disturbed estimate never jerks the loop.
+The deadlines stay absolute (t0 + k·h, with t0 trimmed), and without a usable stream — too
+few frames, or a frame rate that does not divide the tick rate — nothing moves.
+
+The deadline is then only the latest start: while locked, the ticker lets a frame that
+arrives within half a frame period of its expected arrival start the tick at once
+(``trigger_window_s``), so an on-time frame does not wait out the jitter margin. The margin
+is capped at half a frame period, which bounds the wait for a late frame.
 """
 
 from __future__ import annotations
@@ -36,35 +42,57 @@ class MocapPhaseLock:
         self.tick_period_s = tick_period_s
         self.margin_s = margin_s
         self.max_step_s = max_step_s
-        self._arrivals: deque[float] = deque(maxlen=window)
+        self._arrivals: deque[tuple[int, float]] = deque(maxlen=window)
         self.frame_period_s = math.nan
         """The frame period of the last estimate [s] (NaN before one)."""
         self.jitter_s = math.nan
-        """The arrivals' spread (circular standard deviation) of the last estimate [s]."""
+        """The receive times' spread about the fitted line (standard deviation) [s]."""
+        self.offset_s = math.nan
+        """How long after the expected arrival the deadlines are put [s] (NaN before one)."""
+        self.locked = False
+        """Whether the last ``correction`` found a stream to lock to."""
 
-    def observe(self, receive_times_s: Iterable[float]) -> None:
-        """Record the receive times of the frames a tick drained (non-finite ones ignored)."""
-        self._arrivals.extend(t for t in receive_times_s if math.isfinite(t))
+    @property
+    def trigger_window_s(self) -> float:
+        """How long before its deadline a frame may start a tick [s]: from half a frame
+        period before the expected arrival on; 0 while unlocked."""
+        if not self.locked:
+            return 0.0
+        return self.offset_s + 0.5 * self.frame_period_s
+
+    def observe(self, frames: Iterable[tuple[int, float]]) -> None:
+        """Record (frame number, receive time) of the frames a tick drained, oldest first;
+        non-finite times are ignored, and a frame number that does not increase (QTM started
+        counting anew) starts a new record."""
+        for number, receive_time_s in frames:
+            if not math.isfinite(receive_time_s):
+                continue
+            if self._arrivals and number <= self._arrivals[-1][0]:
+                self._arrivals.clear()
+            self._arrivals.append((number, receive_time_s))
 
     def correction(self, next_deadline_s: float) -> float:
         """How far to move the deadlines from ``next_deadline_s`` on [s]; 0 when unlocked."""
+        self.locked = False
         if len(self._arrivals) < MIN_FRAMES:
             return 0.0
-        arrivals = np.fromiter(self._arrivals, float)
-        intervals = np.diff(arrivals)
-        period = float(np.median(intervals[intervals > 0.0])) if np.any(intervals > 0) else 0.0
-        if period <= 0.0:
+        numbers = np.array([n for n, _ in self._arrivals], dtype=float)
+        times = np.array([t for _, t in self._arrivals])
+        numbers -= numbers[-1]  # the fit's intercept is then the newest frame's arrival
+        centred = numbers - numbers.mean()
+        per_number = float(centred @ (times - times.mean()) / (centred @ centred))
+        if not per_number > 0.0:
             return 0.0
+        period = per_number * float(np.median(np.diff(numbers)))  # frames as delivered
         ratio = self.tick_period_s / period
         if ratio < 0.5 or abs(ratio - round(ratio)) > RATE_TOLERANCE * ratio:
             return 0.0
-        angles = 2.0 * math.pi * ((arrivals - next_deadline_s) % period) / period
-        mean_sin, mean_cos = float(np.mean(np.sin(angles))), float(np.mean(np.cos(angles)))
-        resultant = math.hypot(mean_sin, mean_cos)
-        if resultant < 1e-6:  # arrivals spread evenly: no phase to lock to
-            return 0.0
+        newest_arrival = times.mean() - per_number * numbers.mean()
+        residuals = times - newest_arrival - per_number * numbers
         self.frame_period_s = period
-        self.jitter_s = period / (2.0 * math.pi) * math.sqrt(-2.0 * math.log(min(resultant, 1.0)))
-        arrival_offset = math.atan2(mean_sin, mean_cos) / (2.0 * math.pi) * period
-        wanted = math.remainder(arrival_offset + self.margin_s + 3.0 * self.jitter_s, period)
+        self.jitter_s = float(np.std(residuals))
+        self.offset_s = min(self.margin_s + 3.0 * self.jitter_s, 0.5 * period)
+        self.locked = True
+        arrival_offset = math.remainder(newest_arrival - next_deadline_s, period)
+        wanted = math.remainder(arrival_offset + self.offset_s, period)
         return max(-self.max_step_s, min(self.max_step_s, wanted))

@@ -5,6 +5,11 @@ to whole milliseconds), too coarse for a 20 ms loop that wants sub-millisecond l
 ``DeadlineTicker`` therefore sleeps in a small helper thread (``time.sleep`` wakes within
 tens of microseconds) and wakes the event loop with ``call_soon_threadsafe``. A tick that
 finds itself a whole period late skips the missed deadlines (counted), never bunches up.
+
+A deadline is the latest a tick starts. ``trigger`` (the arrival of a mocap frame) starts
+the waiting tick at once when it comes within ``early_window_s`` before the deadline, so
+the frame is used the moment it is there instead of waiting for the clock; a frame that is
+late does not hold the tick back beyond its deadline.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ class TickTiming:
 
     @property
     def lateness_s(self) -> float:
+        """How late the tick started; negative when a trigger started it early."""
         return self.started_s - self.deadline_s
 
 
@@ -100,6 +106,9 @@ class DeadlineTicker:
         self._t0 = start_s
         self._index = 0
         self._wake: _WakeThread | None = None
+        self._waiting: tuple[float, asyncio.Future[None]] | None = None
+        self.early_window_s = 0.0
+        """How long before its deadline ``trigger`` may start a tick [s]; 0: never early."""
 
     def __aiter__(self) -> DeadlineTicker:
         return self
@@ -117,7 +126,12 @@ class DeadlineTicker:
             self._index += skipped
             deadline = self._t0 + self._index * self.period_s
         if now < deadline:
-            await self._wake.wait_until(deadline)
+            wake = self._wake.wait_until(deadline)
+            self._waiting = (deadline, wake)
+            try:
+                await wake
+            finally:
+                self._waiting = None
         timing = TickTiming(self._index, deadline, self._clock(), skipped)
         self._index += 1
         return timing
@@ -128,6 +142,16 @@ class DeadlineTicker:
         if self._t0 is None:
             return math.nan
         return self._t0 + self._index * self.period_s
+
+    def trigger(self) -> None:
+        """Start the waiting tick now if its deadline is at most ``early_window_s`` away (and
+        never more than half a period: ticks stay at least that far apart). Call it from the
+        event loop's thread."""
+        if self._waiting is None:
+            return
+        deadline, wake = self._waiting
+        if self._clock() >= deadline - min(self.early_window_s, 0.5 * self.period_s):
+            _resolve(wake)
 
     def shift(self, delta_s: float) -> None:
         """Move every following deadline by ``delta_s`` (the phase lock trims t0 with it)."""

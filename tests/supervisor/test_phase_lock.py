@@ -24,7 +24,7 @@ def fly_ticks(
     deadline, seen, ages, steps = 0.0, 0, [], []
     for _ in range(ticks):
         arrived = int(np.searchsorted(arrivals, deadline, side="right"))
-        lock.observe(arrivals[seen:arrived])
+        lock.observe((k, float(arrivals[k])) for k in range(seen, arrived))
         if arrived:
             ages.append(deadline - arrivals[arrived - 1])
         seen = arrived
@@ -55,10 +55,30 @@ def test_a_frame_rate_that_does_not_divide_the_tick_rate_moves_nothing() -> None
 
 def test_too_few_or_unusable_frames_move_nothing() -> None:
     lock = MocapPhaseLock(TICK_S)
-    lock.observe([0.001, 0.011, math.nan, math.inf])
+    lock.observe([(1, 0.001), (2, 0.011), (3, math.nan), (4, math.inf)])
     assert lock.correction(0.02) == 0.0
-    lock.observe([0.5] * 30)  # a burst with no spacing: no period to estimate
-    assert lock.correction(0.52) == 0.0
+    lock.observe((n, 0.5) for n in range(5, 35))  # a burst with no spacing: no period
+    assert lock.correction(0.52) == 0.0 and not lock.locked
+
+
+def test_a_restarted_frame_count_starts_a_new_record() -> None:
+    lock = MocapPhaseLock(TICK_S)
+    lock.observe((n, 0.01 * n) for n in range(100, 130))
+    lock.correction(0.3)
+    assert lock.locked
+    lock.observe((n, 0.3 + 0.01 * n) for n in range(5))  # QTM restarted: too few so far
+    assert lock.correction(0.32) == 0.0 and not lock.locked
+
+
+def test_dropped_frames_and_heavy_jitter_keep_the_period_and_phase() -> None:
+    rng = np.random.default_rng(2)
+    numbers = np.array([n for n in range(200) if rng.random() > 0.2])  # a fifth dropped
+    arrivals = 0.0037 + 0.01 * numbers + rng.gamma(2.0, 1e-3, numbers.size)  # late tails
+    lock = MocapPhaseLock(TICK_S)
+    lock.observe(zip(numbers.tolist(), arrivals.tolist(), strict=True))
+    lock.correction(2.0)
+    assert lock.locked and lock.frame_period_s == pytest.approx(0.01, rel=0.02)
+    assert lock.jitter_s == pytest.approx(np.sqrt(2.0) * 1e-3, rel=0.3)
 
 
 def test_the_ticker_moves_its_following_deadlines() -> None:
@@ -69,3 +89,25 @@ def test_the_ticker_moves_its_following_deadlines() -> None:
     assert ticker.next_deadline_s == pytest.approx(10.003)
     ticker.shift(math.nan)
     assert ticker.next_deadline_s == pytest.approx(10.003)
+
+
+def test_the_trigger_window_opens_half_a_frame_period_before_the_expected_arrival() -> None:
+    lock, _, _ = fly_ticks(0.01, 0.0037, 50e-6, 200)
+    assert lock.locked
+    assert lock.offset_s == pytest.approx(lock.margin_s + 3.0 * lock.jitter_s)
+    assert lock.trigger_window_s == pytest.approx(lock.offset_s + 0.5 * lock.frame_period_s)
+
+
+def test_heavy_jitter_caps_the_margin_at_half_a_frame_period() -> None:
+    lock, _, _ = fly_ticks(0.01, 0.0037, 2.5e-3, 200)
+    assert lock.locked and lock.offset_s == pytest.approx(0.5 * lock.frame_period_s)
+
+
+def test_an_unlocked_stream_opens_no_window() -> None:
+    sixty_hz, _, _ = fly_ticks(1.0 / 60.0, 0.003, 50e-6, 100)
+    assert not sixty_hz.locked and sixty_hz.trigger_window_s == 0.0
+    lock = MocapPhaseLock(TICK_S)
+    assert lock.trigger_window_s == 0.0
+    lock.observe([(1, 0.001), (2, 0.011)])
+    lock.correction(0.02)
+    assert not lock.locked and lock.trigger_window_s == 0.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 
@@ -70,3 +71,37 @@ def test_empty_statistics_are_nan_not_errors() -> None:
 def test_period_must_be_positive() -> None:
     with pytest.raises(ValueError, match="period_s"):
         DeadlineTicker(0.0)
+
+
+async def test_a_trigger_inside_the_window_starts_the_tick_at_once() -> None:
+    ticker = DeadlineTicker(0.05)
+    try:
+        first = await anext(ticker)
+        ticker.early_window_s = 0.02
+        loop = asyncio.get_running_loop()
+        loop.call_later(0.01, ticker.trigger)  # 40 ms before the deadline: outside, ignored
+        loop.call_later(0.035, ticker.trigger)  # 15 ms before it: inside
+        second = await anext(ticker)
+    finally:
+        ticker.close()
+    assert second.deadline_s == pytest.approx(first.deadline_s + 0.05, abs=1e-12)
+    assert -0.018 < second.lateness_s < -0.005  # started early, by the trigger
+
+
+async def test_the_window_never_reaches_back_more_than_half_a_period() -> None:
+    ticker = DeadlineTicker(0.04)
+    try:
+        await anext(ticker)
+        ticker.early_window_s = 1.0
+        asyncio.get_running_loop().call_later(0.01, ticker.trigger)  # 30 ms early: ignored
+        second = await anext(ticker)
+    finally:
+        ticker.close()
+    assert second.lateness_s >= 0.0
+
+
+def test_a_trigger_with_no_tick_waiting_does_nothing() -> None:
+    ticker = DeadlineTicker(0.02)
+    ticker.early_window_s = 0.01
+    ticker.trigger()
+    assert math.isnan(ticker.next_deadline_s)
