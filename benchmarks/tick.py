@@ -148,6 +148,11 @@ def summarize(log_path: str, requests: int, duration_s: float) -> dict[str, Any]
         "mocap_wait_ms_p50": float(np.nanpercentile(wait, 50)),
         "mocap_wait_ms_p99": float(np.nanpercentile(wait, 99)),
         "compute_ms_max": float(np.nanmax(compute)),
+        # Inside the tick: the tick core (mode logic, MPC, safety), and its QP solve.
+        "core_ms_p50": float(np.nanpercentile(log.compute_ms, 50)),
+        "core_ms_p99": float(np.nanpercentile(log.compute_ms, 99)),
+        "solve_ms_p50": float(np.nanpercentile(log.solve_ms, 50)),
+        "solve_ms_p99": float(np.nanpercentile(log.solve_ms, 99)),
     }
 
 

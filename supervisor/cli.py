@@ -20,6 +20,7 @@ from benchmarks.mpc import run as run_mpc_benchmark
 from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
 from supervisor.config import Config, ConfigError, load_config
 from supervisor.console import SimulationProgress, format_summary
+from supervisor.cpu import single_threaded_blas
 from supervisor.equilibrium_summary import equilibrium_summary
 from supervisor.flight_core import CONTROLLERS
 from supervisor.flight_log import finite_or_none, read_flight_log
@@ -90,6 +91,7 @@ def _simulate(config: Config, args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed {args.seed}: must be >= 0")
+    single_threaded_blas()
     with tempfile.TemporaryDirectory() as scratch:
         destination = args.log or Path(scratch) / "flight.jsonl"
         with SimulationProgress(scenario_duration_s(scenario), enabled=not args.json) as progress:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import os
 import signal
 import socket
 from pathlib import Path
@@ -16,6 +15,7 @@ from mocap.client import QtmClient
 from supervisor.assembly import link_configs_from_config
 from supervisor.channel import Channel
 from supervisor.config import Config
+from supervisor.cpu import raise_priority, single_threaded_blas
 from supervisor.flight_process import FlightProcess
 from supervisor.mavlink_link import MavlinkLink
 
@@ -51,29 +51,11 @@ async def fly(
             await link.close()
 
 
-REALTIME_PRIORITY = 10
-
-
-def raise_priority() -> str:
-    """Run the control loop ahead of everything else where the OS allows it: SCHED_FIFO
-    (as root; the loop sleeps most of each period, so it cannot starve the machine), else
-    a lower niceness, else as is. Returns what it got, for the operator."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
-        return f"real-time priority (SCHED_FIFO {REALTIME_PRIORITY})"
-    except (PermissionError, AttributeError, OSError):
-        pass
-    try:
-        os.nice(-5)
-        return "niceness -5"
-    except (PermissionError, OSError):
-        return "normal priority (no permission for more)"
-
-
 def run_flight_process(
     config: Config, commands: socket.socket, urgent: socket.socket, world: dict[str, Any] | None
 ) -> None:
     """Child-process entry of ``serve``."""
+    single_threaded_blas()
     print(f"flight process: {raise_priority()}", flush=True)
 
     async def main() -> None:

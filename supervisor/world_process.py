@@ -21,6 +21,7 @@ from supervisor.assembly import (
     px4_params_from_config,
 )
 from supervisor.config import Config
+from supervisor.cpu import single_threaded_blas
 
 
 def build_world(
@@ -78,6 +79,7 @@ async def run_world(
 def run_world_process(config: Config, ready: Connection) -> None:
     """Child-process entry of ``serve``: free ports, report them on ``ready``, run until
     SIGTERM or until the parent closes its end of ``ready``."""
+    single_threaded_blas()
 
     async def main() -> None:
         stop = asyncio.Event()

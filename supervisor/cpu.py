@@ -1,0 +1,36 @@
+"""How the processes that fly use the CPU: real-time priority for the control loop, and
+BLAS on one thread.
+
+A tick's matrices are small; a second BLAS thread only adds a hand-over per call, and that
+helper thread is an ordinary thread that the API's load can keep waiting (qp-solvers.md
+measures ~10× slower p50 on two cores with BLAS threads left on).
+"""
+
+from __future__ import annotations
+
+import os
+
+from threadpoolctl import threadpool_limits
+
+REALTIME_PRIORITY = 10
+
+
+def raise_priority() -> str:
+    """Run the calling process ahead of everything else where the OS allows it:
+    SCHED_FIFO (as root; the control loop sleeps most of each period, so it cannot starve
+    the machine), else a lower niceness, else as is. Returns what it got, for the operator."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+        return f"real-time priority (SCHED_FIFO {REALTIME_PRIORITY})"
+    except (PermissionError, AttributeError, OSError):
+        pass
+    try:
+        os.nice(-5)
+        return "niceness -5"
+    except (PermissionError, OSError):
+        return "normal priority (no permission for more)"
+
+
+def single_threaded_blas() -> None:
+    """Limit every BLAS/OpenMP pool loaded in this process to one thread, for good."""
+    threadpool_limits(limits=1)
