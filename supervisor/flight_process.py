@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from mocap.client import MocapSource
+from mocap.qtm_protocol import MocapFrame
 from supervisor.assembly import body_names_from_config, flight_core_from_config, fusion_from_config
 from supervisor.channel import Channel, ChannelClosedError
 from supervisor.config import Config
@@ -87,6 +88,8 @@ class FlightProcess:
         self._on_ground = asyncio.Event()
         self._sequences: set[asyncio.Task[None]] = set()
         self._mocap_rate = (0, clock(), 0.0)  # frames, since, rate
+        self._frames_since_tick = 0
+        self._newest_frame: MocapFrame | None = None
 
     # ---- lifecycle ------------------------------------------------------------------------
     async def run(self, commands: Channel, urgent: Channel) -> None:
@@ -135,8 +138,13 @@ class FlightProcess:
     # ---- the control loop -------------------------------------------------------------------
     async def _control_loop(self) -> None:
         ticker = DeadlineTicker(self.config.mpc.dt_s, clock=self.clock)
-        if self.phase_lock is not None:
-            self.mocap.on_frame(ticker.trigger)  # an on-time frame starts its tick at once
+
+        def on_frame() -> None:
+            self._fuse(self.mocap.drain())  # on arrival: off the path of the tick it waits for
+            if self.phase_lock is not None:
+                ticker.trigger()  # an on-time frame starts its tick at once
+
+        self.mocap.on_frame(on_frame)
         try:
             async for timing in ticker:
                 self._tick(timing)
@@ -147,14 +155,22 @@ class FlightProcess:
             self.mocap.on_frame(None)
             ticker.close()
 
-    def _tick(self, timing: TickTiming) -> None:
-        started = self.clock()
-        frames = self.mocap.drain()
+    def _fuse(self, frames: list[MocapFrame]) -> None:
+        """Fuse frames as they come; the tick reads the newest since the last tick."""
         for frame in frames:
             self.fusion.update(frame)
-        if self.phase_lock is not None:
-            self.phase_lock.observe((f.frame_number, f.receive_time_s) for f in frames)
-        self._count_frames(len(frames), started)
+        if frames:
+            self._frames_since_tick += len(frames)
+            self._newest_frame = frames[-1]
+            if self.phase_lock is not None:
+                self.phase_lock.observe((f.frame_number, f.receive_time_s) for f in frames)
+
+    def _tick(self, timing: TickTiming) -> None:
+        started = self.clock()
+        self._fuse(self.mocap.drain())
+        newest = self._newest_frame if self._frames_since_tick else None
+        self._count_frames(self._frames_since_tick, started)
+        self._frames_since_tick = 0
         self.estimate = estimate_state(self.fusion.states(started), self.names)
         before = self.core.modes.mode
         connected = (self.links[0].connected, self.links[1].connected)
@@ -163,7 +179,6 @@ class FlightProcess:
         if self.streaming:
             for link, command in zip(self.links, result.commands, strict=True):
                 link.send_setpoint(command)
-            newest = frames[-1] if frames else None
             if newest is not None and math.isfinite(newest.receive_time_s):
                 latency_ms = (self.clock() - newest.receive_time_s) * 1e3
                 wait_ms = (started - newest.receive_time_s) * 1e3
