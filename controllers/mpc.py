@@ -222,6 +222,22 @@ def measured_yaws(state: FloatArray) -> tuple[float, tuple[float, float]]:
     return float(state[8]), (float(state[20]), float(state[32]))
 
 
+def yaws_ahead(state: FloatArray, dt_s: float) -> tuple[float, tuple[float, float]]:
+    """(ψ_b, (ψ_1, ψ_2)) of a 36-state ``dt_s`` later at its current yaw rates, from the
+    rates it holds: the bar's ω in the inertial frame, each UAV's in its body frame (the
+    third rows of H^E of (6) and H of (4), Z-Y-X Euler angles)."""
+    theta_b, psi_b = state[7], state[8]
+    bar_rate = math.tan(theta_b) * (math.cos(psi_b) * state[9] + math.sin(psi_b) * state[10])
+    bar_rate += state[11]
+    uav_yaws = []
+    for first in (18, 30):  # Θ_i = (φ, θ, ψ), then ω_i = (p, q, r)
+        phi, theta, psi = state[first : first + 3]
+        q_rate, r_rate = state[first + 4], state[first + 5]
+        rate = (math.sin(phi) * q_rate + math.cos(phi) * r_rate) / math.cos(theta)
+        uav_yaws.append(float(psi + dt_s * rate))
+    return float(psi_b + dt_s * bar_rate), (uav_yaws[0], uav_yaws[1])
+
+
 @dataclass(frozen=True)
 class _PreparedModel:
     """A linearization made ahead of its tick: the reference turned to the yaws it used,
@@ -302,12 +318,12 @@ class CentralizedMpc:
         return discretize(A_c, B_c, self.settings.dt_s)
 
     def prepare(self, state: FloatArray, reference: Reference) -> None:
-        """Linearize for the next tick at ``state``'s yaws and prepare the back-end for
-        that model (see the module's docstring); never raises."""
+        """Linearize for the next tick at ``state``'s yaws one step ahead and prepare the
+        back-end for that model (see the module's docstring); never raises."""
         self._prepared = None
         if self.settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
             return
-        turned = reference.with_yaws(*measured_yaws(state))
+        turned = reference.with_yaws(*yaws_ahead(state, self.settings.dt_s))
         try:
             A, B = self._linearize(turned)
             _prepare_backend(self._mpc, A, B)
@@ -464,12 +480,12 @@ class DecentralizedMpc:
         self._plans.previous = None
 
     def prepare(self, state: FloatArray, reference: Reference) -> None:
-        """Linearize both agents for the next tick at ``state``'s yaws and prepare their
-        back-ends (see the module's docstring); never raises."""
+        """Linearize both agents for the next tick at ``state``'s yaws one step ahead and
+        prepare their back-ends (see the module's docstring); never raises."""
         self._prepared = None
         if self.settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
             return
-        turned = reference.with_yaws(*measured_yaws(state))
+        turned = reference.with_yaws(*yaws_ahead(state, self.settings.dt_s))
         try:
             lin = bar_equilibrium(self.params, turned)
             models = tuple(agent.linearize(lin) for agent in self.agents)

@@ -41,7 +41,6 @@ from supervisor.setpoints import (
 
 FloatArray = NDArray[np.float64]
 CONTROLLERS = ("centralized", "decentralized")
-YAW_INDICES = (8, 20, 32)  # ψ_b, ψ_1, ψ_2 in the 36-state
 
 
 @dataclass(frozen=True)
@@ -131,7 +130,6 @@ class FlightCore:
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
         self._mpc_reference: Reference | None = None
-        self._yaws_before: FloatArray | None = None
         self._last_tick_s: float | None = None
         self._dt_s = 0.0
         self._low_since_s: float | None = None
@@ -394,18 +392,10 @@ class FlightCore:
 
     def prepare_next(self) -> None:
         """Between ticks, once the commands are out: let the MPC that flew this tick
-        linearize for the next one (controllers/mpc.py, ``prepare``), at the yaws
-        extrapolated one tick ahead from this tick's and the last one's."""
-        yaws_before, self._yaws_before = self._yaws_before, None
-        if self._mpc_reference is None or self._last_estimate is None:
-            return
-        x = self._last_estimate.x
-        self._yaws_before = x[list(YAW_INDICES)]
-        ahead = x.copy()
-        if yaws_before is not None:
-            for index, before in zip(YAW_INDICES, yaws_before, strict=True):
-                ahead[index] += math.remainder(x[index] - before, 2.0 * math.pi)
-        self.controllers[self.controller].prepare(ahead, self._mpc_reference)
+        linearize for the next one (controllers/mpc.py, ``prepare``)."""
+        if self._mpc_reference is not None and self._last_estimate is not None:
+            controller = self.controllers[self.controller]
+            controller.prepare(self._last_estimate.x, self._mpc_reference)
 
     def _takeoff(
         self, now_s: float, estimate: Estimate, events: list[str]

@@ -10,7 +10,13 @@ import pytest
 
 from controllers.equilibria import Reference, bar_equilibrium
 from controllers.model import BarSystemModel
-from controllers.mpc import CentralizedMpc, DecentralizedMpc, PlanStatus, agent_state
+from controllers.mpc import (
+    CentralizedMpc,
+    DecentralizedMpc,
+    PlanStatus,
+    agent_state,
+    yaws_ahead,
+)
 from controllers.params import BarSystemParams, MpcSettings
 from supervisor.config import load_config
 from tests.conftest import CONFIGS
@@ -309,3 +315,16 @@ def test_the_linearization_does_not_depend_on_where_the_formation_is(
         strict=True,
     ):
         np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_the_yaws_ahead_follow_the_models_euler_rates(lab_params: BarSystemParams) -> None:
+    rng = np.random.default_rng(3)
+    reference = Reference((0.0, 0.0, 1.0), 0.4, (0.4, -0.6), math.radians(20))
+    eq = bar_equilibrium(lab_params, reference)
+    state = eq.x + 0.1 * rng.normal(size=36)  # tilted and turning, every body
+    rates = np.asarray(BarSystemModel(lab_params).dynamics(state, eq.u)).ravel()[[8, 20, 32]]
+    dt = 0.02
+    bar, (uav_1, uav_2) = yaws_ahead(state, dt)
+    ahead = np.array([bar, uav_1, uav_2])
+    np.testing.assert_allclose((ahead - state[[8, 20, 32]]) / dt, rates, atol=1e-9)
+    assert np.all(np.abs(rates) > 1e-3)  # the rates are not trivially zero
