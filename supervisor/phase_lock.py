@@ -2,19 +2,21 @@
 
 A tick uses the newest mocap frame; if the deadlines fall at a random phase of the frame
 stream, that frame has waited anywhere up to a frame period (10 ms at 100 Hz) before its
-tick starts. When the frame period divides the tick period, every deadline can instead
-fall just after an arrival. ``MocapPhaseLock`` fits the last second of receive times
-against QTM's frame numbers (a straight line: the numbers count camera frames, so dropped
-frames and jitter do not bias the period or the phase; the residuals give the jitter σ)
-and tells the ticker how far to move its deadlines: to ``margin + 3σ`` after the expected
-arrival, by at most ``max_step_s`` per tick so a disturbed estimate never jerks the loop.
-The deadlines stay absolute (t0 + k·h, with t0 trimmed), and without a usable stream — too
-few frames, or a frame rate that does not divide the tick rate — nothing moves.
+tick starts. When the frame period divides the tick period, every tick can instead start
+as its frame arrives. ``MocapPhaseLock`` fits the last second of receive times against
+QTM's frame numbers (a straight line: the numbers count camera frames, so dropped frames
+and jitter do not bias the period or the phase) and tells the ticker how far to move its
+deadlines — to half a frame period after the expected arrival — by at most
+``max_step_s`` per tick, so a disturbed estimate never jerks the loop. The deadlines stay
+absolute (t0 + k·h, with t0 trimmed), and without a usable stream — too few frames, or a
+frame rate that does not divide the tick rate — nothing moves.
 
-The deadline is then only the latest start: while locked, the ticker lets a frame that
-arrives within half a frame period of its expected arrival start the tick at once
-(``trigger_window_s``), so an on-time frame does not wait out the jitter margin. The margin
-is capped at half a frame period, which bounds the wait for a late frame.
+A deadline is then only the latest start: while locked, the ticker lets a frame arriving
+within half a frame period of its expected time start the tick at once
+(``trigger_window_s``). An on-time frame waits for nothing; a late one is waited for up to
+half a frame period, since a tick a few milliseconds late with the fresh frame controls
+better than one on time with a frame a period older; a frame later still (or lost) leaves
+the tick to its deadline and the newest frame it has.
 """
 
 from __future__ import annotations
@@ -35,30 +37,22 @@ class MocapPhaseLock:
     def __init__(
         self,
         tick_period_s: float,
-        margin_s: float = 0.3e-3,
         max_step_s: float = 0.5e-3,
         window: int = 100,
     ) -> None:
         self.tick_period_s = tick_period_s
-        self.margin_s = margin_s
         self.max_step_s = max_step_s
         self._arrivals: deque[tuple[int, float]] = deque(maxlen=window)
         self.frame_period_s = math.nan
         """The frame period of the last estimate [s] (NaN before one)."""
-        self.jitter_s = math.nan
-        """The receive times' spread about the fitted line (standard deviation) [s]."""
-        self.offset_s = math.nan
-        """How long after the expected arrival the deadlines are put [s] (NaN before one)."""
         self.locked = False
         """Whether the last ``correction`` found a stream to lock to."""
 
     @property
     def trigger_window_s(self) -> float:
         """How long before its deadline a frame may start a tick [s]: from half a frame
-        period before the expected arrival on; 0 while unlocked."""
-        if not self.locked:
-            return 0.0
-        return self.offset_s + 0.5 * self.frame_period_s
+        period before the expected arrival on (a frame period); 0 while unlocked."""
+        return self.frame_period_s if self.locked else 0.0
 
     def observe(self, frames: Iterable[tuple[int, float]]) -> None:
         """Record (frame number, receive time) of the frames a tick drained, oldest first;
@@ -88,11 +82,8 @@ class MocapPhaseLock:
         if ratio < 0.5 or abs(ratio - round(ratio)) > RATE_TOLERANCE * ratio:
             return 0.0
         newest_arrival = times.mean() - per_number * numbers.mean()
-        residuals = times - newest_arrival - per_number * numbers
         self.frame_period_s = period
-        self.jitter_s = float(np.std(residuals))
-        self.offset_s = min(self.margin_s + 3.0 * self.jitter_s, 0.5 * period)
         self.locked = True
         arrival_offset = math.remainder(newest_arrival - next_deadline_s, period)
-        wanted = math.remainder(arrival_offset + self.offset_s, period)
+        wanted = math.remainder(arrival_offset + 0.5 * period, period)
         return max(-self.max_step_s, min(self.max_step_s, wanted))
