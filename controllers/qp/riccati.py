@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.lapack import dpotrf, dpotrs
 
 from controllers.qp.base import FloatArray
 from controllers.qp.partial_condensing import CondensedBlock
@@ -50,6 +50,19 @@ class UnboxedSolutionMap:
         return inputs.reshape(self.horizon, -1), np.vstack(states)
 
 
+def _positive_definite_solve(H: FloatArray, G: FloatArray) -> FloatArray:
+    """H⁻¹ G by Cholesky, straight through LAPACK (scipy's checked wrappers cost more than
+    the factorization at these sizes). Raises ``LinAlgError`` if H is not positive definite."""
+    factor, info = dpotrf(H, lower=False, clean=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"Hessian block not positive definite (dpotrf info {info})")
+    solution, info = dpotrs(factor, G, lower=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dpotrs info {info}")
+    result: FloatArray = solution
+    return result
+
+
 def unboxed_solution_map(
     blocks: Sequence[CondensedBlock], q_terminal_diag: FloatArray
 ) -> UnboxedSolutionMap:
@@ -63,7 +76,7 @@ def unboxed_solution_map(
         BA_P_BA = BA.T @ (P @ BA)
         H = block.R + BA_P_BA[:nu, :nu]
         G = block.S + BA_P_BA[:nu, nu:]
-        K = -cho_solve(cho_factor(H, check_finite=False), G, check_finite=False)
+        K = -_positive_definite_solve(H, G)
         P = block.Q + BA_P_BA[nu:, nu:] + G.T @ K
         P = 0.5 * (P + P.T)  # rounding must not let the cost-to-go drift from symmetric
         gains.append(K)
