@@ -153,6 +153,8 @@ def summarize(log_path: str, requests: int, duration_s: float) -> dict[str, Any]
         "core_ms_p99": float(np.nanpercentile(log.compute_ms, 99)),
         "solve_ms_p50": float(np.nanpercentile(log.solve_ms, 50)),
         "solve_ms_p99": float(np.nanpercentile(log.solve_ms, 99)),
+        # The share of MPC ticks that used the model prepared after the tick before.
+        "mpc_prepared_share": float(np.nanmean(column("mpc_prepared"))),
     }
 
 

@@ -130,6 +130,8 @@ class FlightCore:
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
         self._mpc_reference: Reference | None = None
+        self.mpc_was_prepared: bool | None = None
+        """Whether this tick's MPC used the model prepared after the last (None: no MPC)."""
         self._last_tick_s: float | None = None
         self._dt_s = 0.0
         self._low_since_s: float | None = None
@@ -215,6 +217,7 @@ class FlightCore:
         self._last_tick_s = now_s
         self._last_estimate = estimate
         self._mpc_reference = None
+        self.mpc_was_prepared = None
         events: list[str] = []
         mode = self.modes.mode
         plan: Plan | None = None
@@ -386,8 +389,10 @@ class FlightCore:
     def _mpc(
         self, now_s: float, x: FloatArray, reference: Reference
     ) -> tuple[tuple[UavCommand, UavCommand], Plan]:
-        plan = self.controllers[self.controller].step(x, reference, now_s)
+        controller = self.controllers[self.controller]
+        plan = controller.step(x, reference, now_s)
         self._mpc_reference = reference
+        self.mpc_was_prepared = controller.last_step_was_prepared
         return self._mpc_commands(plan), plan
 
     def prepare_next(self) -> None:
