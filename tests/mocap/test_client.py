@@ -136,6 +136,30 @@ async def test_receive_time_comes_from_the_injected_clock() -> None:
         assert mocap.latest() is not None
 
 
+async def test_the_frame_listener_hears_every_accepted_frame_as_it_arrives() -> None:
+    async with (
+        QtmServer(NAMES, source, port=0, rate_hz=200.0) as server,
+        QtmClient(LOCALHOST, server.port) as client,
+    ):
+        heard: list[int] = []
+        drained: list[MocapFrame] = []
+
+        def listener() -> None:  # drains at once: each call finds exactly its frame
+            frames = client.drain()
+            heard.append(len(frames))
+            drained.extend(frames)
+
+        client.on_frame(listener)
+        async with asyncio.timeout(5.0):
+            while len(drained) < 20:
+                await asyncio.sleep(0.01)
+        client.on_frame(None)
+        calls = len(heard)
+        await asyncio.sleep(0.05)  # frames keep coming; the removed listener hears none
+    assert heard == [1] * calls and calls >= 20
+    assert [f.frame_number for f in drained] == sorted({f.frame_number for f in drained})
+
+
 async def test_crafted_datagrams_are_counted() -> None:
     poses = source(0.3)
 
