@@ -9,8 +9,9 @@ A solve that fails, finishes late, or a state with NaN/inf gives the previous pl
 by one step, with a status that says so; ``step`` never raises.
 
 ``prepare`` splits a tick the way real-time MPC does: after a tick has sent its input, it
-linearizes for the next one at the yaws just measured and lets the QP back-end build what
-depends on that model alone (condensing, the box-free solution map). The next ``step``
+linearizes for the next one at the yaws one step ahead (the measured yaws moved on by
+their estimated rates) and lets the QP back-end build what depends on that model alone
+(condensing, the box-free solution map). The next ``step``
 uses that model when its own measured yaws and its reference's θ_l lie within
 ``prepared_yaw_tolerance_rad`` of those (and the reference's velocity and turn rates
 within the same number, in m/s and rad/s) — A and B do not depend on where the formation

@@ -55,7 +55,7 @@ class MocapPhaseLock:
         return self.frame_period_s if self.locked else 0.0
 
     def observe(self, frames: Iterable[tuple[int, float]]) -> None:
-        """Record (frame number, receive time) of the frames a tick drained, oldest first;
+        """Record (frame number, receive time) of newly received frames, oldest first;
         non-finite times are ignored, and a frame number that does not increase (QTM started
         counting anew) starts a new record."""
         for number, receive_time_s in frames:

@@ -15,12 +15,13 @@ huge bounds). The interior-point solver runs in ``SPEED`` mode, warm-started.
 
 Most ticks of a hovering or tracking flight have no active bound, and then the QP's
 solution is that of the same QP without boxes: a linear map of Δx₀ that depends on the
-model alone (riccati.py; numpy's BLAS builds it faster than this generic BLASFEO build
-runs HPIPM's own recursion). So each solve first applies that map and keeps the result
-when it satisfies every box (exactly the KKT conditions with zero multipliers); otherwise
-HPIPM solves the boxed QP. While an input bound stays active (saturation lasts a few
-ticks) the box-free attempt is skipped. ``prepare`` builds the condensed data and the map
-for a model ahead of its solve (a real-time loop does it before the state arrives).
+model alone (riccati.py; building it costs here about what HPIPM's own box-free recursion
+did, and unlike that it can be built before the state is known). So each solve first
+applies that map and keeps the result when it satisfies every box (exactly the KKT
+conditions with zero multipliers); otherwise HPIPM solves the boxed QP. While an input
+bound stays active (saturation lasts a few ticks) the box-free attempt is skipped.
+``prepare`` builds the condensed data and the map for a model ahead of its solve (a
+real-time loop does it before the state arrives).
 """
 
 from __future__ import annotations
