@@ -143,16 +143,18 @@ async def test_the_frame_listener_hears_every_accepted_frame_as_it_arrives() -> 
     ):
         heard: list[int] = []
         drained: list[MocapFrame] = []
+        enough = asyncio.Event()
 
         def listener() -> None:  # drains at once: each call finds exactly its frame
             frames = client.drain()
             heard.append(len(frames))
             drained.extend(frames)
+            if len(drained) >= 20:
+                enough.set()
 
         client.on_frame(listener)
         async with asyncio.timeout(5.0):
-            while len(drained) < 20:
-                await asyncio.sleep(0.01)
+            await enough.wait()
         client.on_frame(None)
         calls = len(heard)
         await asyncio.sleep(0.05)  # frames keep coming; the removed listener hears none
