@@ -14,14 +14,14 @@ the last node those of the terminal box (±inf entries are left out: HPIPM's IPM
 huge bounds). The interior-point solver runs in ``SPEED`` mode, warm-started.
 
 Most ticks of a hovering or tracking flight have no active bound, and then the QP's
-solution is that of the same QP without boxes: a linear map of Δx₀ that depends on the
-model alone (riccati.py; building it costs here about what HPIPM's own box-free recursion
-did, and unlike that it can be built before the state is known). So each solve first
-applies that map and keeps the result when it satisfies every box (exactly the KKT
-conditions with zero multipliers); otherwise HPIPM solves the boxed QP. While an input
-bound stays active (saturation lasts a few ticks) the box-free attempt is skipped.
-``prepare`` builds the condensed data and the map for a model ahead of its solve (a
-real-time loop does it before the state arrives).
+solution is that of the same QP without boxes. So each solve first solves the box-free QP
+and keeps it when it satisfies every box (exactly the KKT conditions with zero
+multipliers); otherwise HPIPM solves the boxed QP. While an input bound stays active
+(saturation lasts a few ticks) the box-free attempt is skipped. The box-free solve comes
+in two forms: HPIPM's own (one Riccati recursion in C, the fastest when the state is
+already known), and a linear map of Δx₀ that depends on the model alone (riccati.py),
+which ``prepare`` builds ahead of the solve — a real-time loop does it before the state
+arrives, and the solve is then two matrix–vector products.
 """
 
 from __future__ import annotations
@@ -111,7 +111,10 @@ class _BlockBuffers:
 
 
 class _HpipmProblem:
-    """One HPIPM OCP-QP (dimensions, data, solution, solver) over the blocks of a horizon."""
+    """One HPIPM OCP-QP (dimensions, data, solution, solver) over the blocks of a horizon.
+
+    ``boxed=False`` leaves every bound out: HPIPM then solves it with one Riccati recursion.
+    """
 
     def __init__(
         self,
@@ -120,6 +123,7 @@ class _HpipmProblem:
         nu: int,
         state_idx: np.ndarray,
         terminal_idx: np.ndarray,
+        boxed: bool,
         tolerance: float,
         max_iterations: int,
     ) -> None:
@@ -134,6 +138,8 @@ class _HpipmProblem:
             self._keep.append(memory)
             return memory
 
+        if not boxed:
+            state_idx = terminal_idx = np.zeros(0, dtype=np.int32)
         self._has_state_boxes = bool(state_idx.size or terminal_idx.size)
         self._dim = block(lib.d_ocp_qp_dim_strsize())
         lib.d_ocp_qp_dim_create(c_int(nb), self._dim, block(lib.d_ocp_qp_dim_memsize(nb)))
@@ -142,7 +148,7 @@ class _HpipmProblem:
             (lib.d_ocp_qp_dim_set_nx, [0] + [nx] * nb),
             (lib.d_ocp_qp_dim_set_nu, stage_nu),
             (lib.d_ocp_qp_dim_set_nbx, [0] + [state_idx.size] * (nb - 1) + [terminal_idx.size]),
-            (lib.d_ocp_qp_dim_set_nbu, stage_nu),
+            (lib.d_ocp_qp_dim_set_nbu, stage_nu if boxed else [0] * (nb + 1)),
             (lib.d_ocp_qp_dim_set_ng, [0] * (nb + 1)),
             (lib.d_ocp_qp_dim_set_ns, [0] * (nb + 1)),
         ):
@@ -159,8 +165,11 @@ class _HpipmProblem:
         for k in range(nb + 1):
             lib.d_ocp_qp_set_q(self.stages[k], _pointer(zeros), self._qp)
             lib.d_ocp_qp_set_r(self.stages[k], _pointer(zeros), self._qp)
-            lib.d_ocp_qp_set_idxbu(self.stages[k], idxbu.ctypes.data_as(int_pointer), self._qp)
-            lib.d_ocp_qp_set_idxbx(self.stages[k], idxbx[k].ctypes.data_as(int_pointer), self._qp)
+            if boxed:
+                lib.d_ocp_qp_set_idxbu(self.stages[k], idxbu.ctypes.data_as(int_pointer), self._qp)
+                lib.d_ocp_qp_set_idxbx(
+                    self.stages[k], idxbx[k].ctypes.data_as(int_pointer), self._qp
+                )
             if 0 < k < nb:
                 lib.d_ocp_qp_set_b(self.stages[k], _pointer(zeros), self._qp)
 
@@ -253,7 +262,8 @@ class HpipmBackend:
         self._lengths = block_lengths(N, block_stages)
         nb = len(self._lengths)
         shape = (self._lengths, nx, nu, self._state_idx, self._terminal_idx)
-        self._boxed = _HpipmProblem(*shape, tolerance, max_iterations)
+        self._free = _HpipmProblem(*shape, False, tolerance, max_iterations)
+        self._boxed = _HpipmProblem(*shape, True, tolerance, max_iterations)
         self._prepared_model: tuple[FloatArray, ...] = ()
         self._blocks: dict[int, CondensedBlock] = {}
         self._terminal_diag = template.q_terminal_diag
@@ -317,8 +327,9 @@ class HpipmBackend:
         self._map_ready = True
 
     def solve(self, qp: OcpQp) -> QpSolution:
-        """Apply the box-free map (unless an input bound was active in the last boxed
-        solve), and if a box is violated solve boxed with HPIPM; never raises."""
+        """Solve box-free (by the prepared map, else by HPIPM; not while an input bound
+        was active in the last boxed solve), and if a box is violated solve boxed with
+        HPIPM; never raises."""
         start = time.perf_counter()
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
         if not all(np.all(np.isfinite(a)) for a in data):
@@ -333,27 +344,29 @@ class HpipmBackend:
         solve_started = time.perf_counter()
         status, iterations = 0, 0
         self.last_was_box_free = False
+        loaded = False
         if self._try_box_free:
-            if not self._map_ready:
-                try:
-                    self._build_solution_map()
-                except np.linalg.LinAlgError:  # a Hessian block not positive definite
-                    self._prepared_model = ()
-                    return self._failure(QpStatus.NUMERICAL_ERROR, start)
-            u, x = self._solution_map.solve(qp.x0)
-            self.last_was_box_free = self._within_boxes(qp, u, x)
+            if self._map_ready:
+                u, x = self._solution_map.solve(qp.x0)
+            else:
+                self._load_data(qp.x0)
+                loaded = True
+                self._free.set_dynamics_and_cost(
+                    self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
+                )
+                status, iterations = self._free.solve(self._ptr_U, self._ptr_X)
+                u, x = self._expand(qp.x0)
+            self.last_was_box_free = status == 0 and self._within_boxes(qp, u, x)
         if not self.last_was_box_free:
-            for m, buffers in self._buffers.items():
-                buffers.load(self._blocks[m])
-            first = self._buffers[self._lengths[0]]
-            self._b0[:] = first.A @ qp.x0
-            self._r0[:] = first.S @ qp.x0
+            if not loaded:
+                self._load_data(qp.x0)
             self._load_boxes(qp)
             self._boxed.set_dynamics_and_cost(
                 self._block_pointers, self._ptr_b0, self._ptr_r0, self._ptr_QN
             )
             self._boxed.set_boxes(self._ptr_lbu, self._ptr_ubu, self._ptr_lbx, self._ptr_ubx)
-            status, iterations = self._boxed.solve(self._ptr_U, self._ptr_X)
+            status, boxed_iterations = self._boxed.solve(self._ptr_U, self._ptr_X)
+            iterations += boxed_iterations
             u, x = self._expand(qp.x0)
             # Saturation lasts a few ticks: while an input bound is active, skip the attempt.
             self._try_box_free = not self._input_bound_active(qp, u)
@@ -367,6 +380,14 @@ class HpipmBackend:
     def _model(qp: OcpQp) -> tuple[FloatArray, ...]:
         """What fixes the condensed data and the box-free map."""
         return (qp.A, qp.B, qp.q_diag, qp.r_diag, qp.q_terminal_diag)
+
+    def _load_data(self, x0: FloatArray) -> None:
+        """The condensed blocks into HPIPM's buffers, and block 0's b₀ and r₀ for ``x0``."""
+        for m, buffers in self._buffers.items():
+            buffers.load(self._blocks[m])
+        first = self._buffers[self._lengths[0]]
+        self._b0[:] = first.A @ x0
+        self._r0[:] = first.S @ x0
 
     def _load_boxes(self, qp: OcpQp) -> None:
         nb = len(self._lengths)
