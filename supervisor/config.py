@@ -229,8 +229,9 @@ class MocapSection(_Section):
     position_noise_m: PositiveFloat = 0.0005
     attitude_noise_deg: PositiveFloat = 0.1
     max_age_s: PositiveFloat = 0.05
-    # Move the 20 ms deadlines to just after mocap frames arrive (supervisor/phase_lock.py):
-    # the newest frame then waits about a millisecond for its tick, not up to a frame period.
+    # Lock the 20 ms deadlines to the mocap frames and start each tick on its frame's arrival
+    # (supervisor/phase_lock.py): the frame then waits under a millisecond for its tick, not
+    # up to a frame period; false: ticks by the clock alone.
     phase_lock: bool = True
 
     @model_validator(mode="after")
