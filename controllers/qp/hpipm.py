@@ -266,9 +266,7 @@ class HpipmBackend:
         self._boxed = _HpipmProblem(*shape, True, tolerance, max_iterations)
         self._prepared_model: tuple[FloatArray, ...] = ()
         self._blocks: dict[int, CondensedBlock] = {}
-        self._terminal_diag = template.q_terminal_diag
-        self._map_ready = False
-        self._solution_map = UnboxedSolutionMap(np.zeros((0, nx)), np.zeros((0, nx)), (), 0)
+        self._solution_map: UnboxedSolutionMap | None = None  # built by ``prepare`` only
 
         self._buffers = {m: _BlockBuffers(nx, m * nu) for m in set(self._lengths)}
         self._block_pointers = [self._buffers[m].pointers for m in self._lengths]
@@ -310,21 +308,16 @@ class HpipmBackend:
         ``solve`` of a QP with the same A, B and weights reuses them. Raises
         ``LinAlgError`` when a condensed Hessian block is not positive definite."""
         self._condense(qp)
-        self._build_solution_map()
+        blocks = [self._blocks[m] for m in self._lengths]
+        self._solution_map = unboxed_solution_map(blocks, qp.q_terminal_diag)
 
     def _condense(self, qp: OcpQp) -> None:
         self._prepared_model = ()
         self._blocks = {
             m: condense(qp.A, qp.B, qp.q_diag, qp.r_diag, m) for m in set(self._lengths)
         }
-        self._terminal_diag = qp.q_terminal_diag
-        self._map_ready = False
+        self._solution_map = None
         self._prepared_model = tuple(np.array(a) for a in self._model(qp))
-
-    def _build_solution_map(self) -> None:
-        blocks = [self._blocks[m] for m in self._lengths]
-        self._solution_map = unboxed_solution_map(blocks, self._terminal_diag)
-        self._map_ready = True
 
     def solve(self, qp: OcpQp) -> QpSolution:
         """Solve box-free (by the prepared map, else by HPIPM; not while an input bound
@@ -346,7 +339,7 @@ class HpipmBackend:
         self.last_was_box_free = False
         loaded = False
         if self._try_box_free:
-            if self._map_ready:
+            if self._solution_map is not None:
                 u, x = self._solution_map.solve(qp.x0)
             else:
                 self._load_data(qp.x0)
