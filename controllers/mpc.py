@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -267,17 +268,53 @@ class _PreparedModel:
         return all(abs(a - b) <= tolerance for a, b in rates)
 
 
-def _take_prepared(
-    prepared: _PreparedModel | None, turned: Reference, settings: MpcSettings
-) -> tuple[tuple[FloatArray, FloatArray], ...] | None:
-    if prepared is not None and prepared.fits(turned, settings.prepared_yaw_tolerance_rad):
-        return prepared.models
-    return None
+Models = tuple[tuple[FloatArray, FloatArray], ...]
 
 
-def _prepare_backend(mpc: LinearMpc, A: FloatArray, B: FloatArray) -> None:
-    nx, nu = B.shape
-    mpc.backend.prepare(mpc.qp(A, B, np.zeros(nx), -np.ones(nu), np.ones(nu), np.zeros(nx)))
+class _ModelPreparation:
+    """What both controllers share of ``prepare``: ``linearize`` gives (A, B) for each of
+    ``mpcs`` at a reference turned to some yaws."""
+
+    def __init__(
+        self,
+        settings: MpcSettings,
+        linearize: Callable[[Reference], Models],
+        mpcs: tuple[LinearMpc, ...],
+    ) -> None:
+        self._settings = settings
+        self._linearize = linearize
+        self._mpcs = mpcs
+        self._prepared: _PreparedModel | None = None
+        self.last_was_used = False
+        """Whether the last ``models`` call gave the prepared models."""
+
+    def prepare(self, state: FloatArray, reference: Reference) -> None:
+        """Linearize at ``state``'s yaws one step ahead and prepare the back-ends; never
+        raises (the next step then linearizes itself, and reports what fails)."""
+        self._prepared = None
+        if self._settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
+            return
+        turned = reference.with_yaws(*yaws_ahead(state, self._settings.dt_s))
+        try:
+            models = self._linearize(turned)
+            for mpc, (A, B) in zip(self._mpcs, models, strict=True):
+                nx, nu = B.shape
+                zeros = np.zeros(nx)
+                mpc.backend.prepare(mpc.qp(A, B, zeros, -np.ones(nu), np.ones(nu), zeros))
+        except Exception:
+            return
+        self._prepared = _PreparedModel(turned, models)
+
+    def models(self, state: FloatArray, reference: Reference) -> Models:
+        """The models for a step at ``state``: the prepared ones when they fit its measured
+        yaws, else a new linearization. A preparation serves one step."""
+        prepared, self._prepared = self._prepared, None
+        turned = reference.with_yaws(*measured_yaws(state))
+        tolerance = self._settings.prepared_yaw_tolerance_rad
+        self.last_was_used = prepared is not None and prepared.fits(turned, tolerance)
+        if prepared is not None and self.last_was_used:
+            return prepared.models
+        return self._linearize(turned)
 
 
 class CentralizedMpc:
@@ -294,9 +331,9 @@ class CentralizedMpc:
         self._mpc = LinearMpc(BAR_STATES, BAR_INPUTS, settings, a_pattern, b_pattern, backend)
         self._u_lb, self._u_ub = _input_bounds(settings, 2)
         self._plans = _PlanKeeper()
-        self._prepared: _PreparedModel | None = None
-        self.last_step_was_prepared = False
-        """Whether the last ``step`` used the model of a ``prepare``."""
+        self._preparation = _ModelPreparation(
+            settings, lambda turned: (self._linearize(turned),), (self._mpc,)
+        )
 
     @property
     def backend_name(self) -> str:
@@ -321,16 +358,12 @@ class CentralizedMpc:
     def prepare(self, state: FloatArray, reference: Reference) -> None:
         """Linearize for the next tick at ``state``'s yaws one step ahead and prepare the
         back-end for that model (see the module's docstring); never raises."""
-        self._prepared = None
-        if self.settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
-            return
-        turned = reference.with_yaws(*yaws_ahead(state, self.settings.dt_s))
-        try:
-            A, B = self._linearize(turned)
-            _prepare_backend(self._mpc, A, B)
-        except Exception:  # the next step linearizes itself, and reports what fails
-            return
-        self._prepared = _PreparedModel(turned, ((A, B),))
+        self._preparation.prepare(state, reference)
+
+    @property
+    def last_step_was_prepared(self) -> bool:
+        """Whether the last ``step`` used the model of a ``prepare``."""
+        return self._preparation.last_was_used
 
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
         """One tick: u* for the 36-state ``state`` (paper order) tracking ``reference``."""
@@ -346,12 +379,8 @@ class CentralizedMpc:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_BAD_STATE, hold, "state is not finite"
             )
-        prepared, self._prepared = self._prepared, None
         try:
-            turned = reference.with_yaws(*measured_yaws(state))
-            models = _take_prepared(prepared, turned, self.settings)
-            self.last_step_was_prepared = models is not None
-            A, B = models[0] if models is not None else self._linearize(turned)
+            A, B = self._preparation.models(state, reference)[0]
             dx0 = wrap_angles(state - eq.x, BAR_YAW_INDICES)
             qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x)
             solution = self._mpc.backend.solve(qp)
@@ -468,9 +497,9 @@ class DecentralizedMpc:
         self.agents = (_Agent(params, settings, 1, backend), _Agent(params, settings, 2, backend))
         self._plans = _PlanKeeper()
         self.agent_solve_times_s = (0.0, 0.0)
-        self._prepared: _PreparedModel | None = None
-        self.last_step_was_prepared = False
-        """Whether the last ``step`` used the models of a ``prepare``."""
+        self._preparation = _ModelPreparation(
+            settings, self._linearize, tuple(agent.mpc for agent in self.agents)
+        )
 
     @property
     def backend_name(self) -> str:
@@ -480,21 +509,19 @@ class DecentralizedMpc:
         """Forget the previous plan (e.g. after a controller switch)."""
         self._plans.previous = None
 
+    def _linearize(self, turned: Reference) -> Models:
+        lin = bar_equilibrium(self.params, turned)
+        return tuple(agent.linearize(lin) for agent in self.agents)
+
     def prepare(self, state: FloatArray, reference: Reference) -> None:
         """Linearize both agents for the next tick at ``state``'s yaws one step ahead and
         prepare their back-ends (see the module's docstring); never raises."""
-        self._prepared = None
-        if self.settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
-            return
-        turned = reference.with_yaws(*yaws_ahead(state, self.settings.dt_s))
-        try:
-            lin = bar_equilibrium(self.params, turned)
-            models = tuple(agent.linearize(lin) for agent in self.agents)
-            for agent, (A, B) in zip(self.agents, models, strict=True):
-                _prepare_backend(agent.mpc, A, B)
-        except Exception:  # the next step linearizes itself, and reports what fails
-            return
-        self._prepared = _PreparedModel(turned, models)
+        self._preparation.prepare(state, reference)
+
+    @property
+    def last_step_was_prepared(self) -> bool:
+        """Whether the last ``step`` used the models of a ``prepare``."""
+        return self._preparation.last_was_used
 
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
         """One tick for both agents; ``state`` is the 36-state (each agent takes its part)."""
@@ -513,14 +540,8 @@ class DecentralizedMpc:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_BAD_STATE, hold, "state is not finite"
             )
-        prepared, self._prepared = self._prepared, None
         try:
-            turned = reference.with_yaws(*measured_yaws(state))
-            models = _take_prepared(prepared, turned, self.settings)
-            self.last_step_was_prepared = models is not None
-            if models is None:
-                lin = bar_equilibrium(self.params, turned)
-                models = tuple(agent.linearize(lin) for agent in self.agents)
+            models = self._preparation.models(state, reference)
             results = [
                 agent.solve(agent_state(state, self.params, agent.i), eq, model)
                 for agent, model in zip(self.agents, models, strict=True)
