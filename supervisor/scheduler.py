@@ -118,13 +118,13 @@ class DeadlineTicker:
             self._wake = _WakeThread(asyncio.get_running_loop(), self._clock)
         if self._t0 is None:
             self._t0 = self._clock()
-        deadline = self._t0 + self._index * self.period_s
+        deadline = self.next_deadline_s
         now = self._clock()
         skipped = 0
         if now - deadline >= self.period_s:  # a whole period (or more) late: drop them
             skipped = int((now - deadline) // self.period_s)
             self._index += skipped
-            deadline = self._t0 + self._index * self.period_s
+            deadline = self.next_deadline_s
         if now < deadline:
             wake = self._wake.wait_until(deadline)
             self._waiting = (deadline, wake)

@@ -100,8 +100,16 @@ async def test_the_window_never_reaches_back_more_than_half_a_period() -> None:
     assert second.lateness_s >= 0.0
 
 
-def test_a_trigger_with_no_tick_waiting_does_nothing() -> None:
+async def test_a_trigger_with_no_tick_waiting_starts_nothing_later() -> None:
     ticker = DeadlineTicker(0.02)
-    ticker.early_window_s = 0.01
-    ticker.trigger()
-    assert math.isnan(ticker.next_deadline_s)
+    try:
+        ticker.trigger()  # before the first tick
+        first = await anext(ticker)
+        ticker.early_window_s = 0.01
+        ticker.trigger()  # between ticks, with no tick waiting yet
+        busy(0.012)  # the next tick is now 8 ms away: inside the window
+        second = await anext(ticker)
+    finally:
+        ticker.close()
+    assert first.lateness_s >= 0.0
+    assert second.lateness_s >= 0.0  # the earlier trigger was not kept for it
