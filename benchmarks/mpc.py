@@ -157,6 +157,10 @@ def run_benchmark(
     )
     result["ticks"] = ticks
     result["saturated_ticks"] = saturated_ticks
+    if "hpipm" in backends:
+        from controllers.qp.hpipm import library_build  # loads libhpipm only when benched
+
+        result["hpipm_build"] = library_build()
     return result
 
 
@@ -174,6 +178,8 @@ def print_table(result: dict[str, object]) -> None:
                 f" {row['max_err']:10.2e} {row['speedup_vs_osqp']:7.1f}x"
             )
     print(f"default (fastest with max err ≤ 1e-4 on the centralized problem): {result['default']}")
+    if "hpipm_build" in result:
+        print(f"HPIPM's BLASFEO build: {result['hpipm_build']}")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

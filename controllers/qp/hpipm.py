@@ -1,7 +1,8 @@
 """HPIPM (the successor of the paper's HPMPC) driven directly through ctypes.
 
-The casadi wheel ships ``libhpipm.so`` and ``libblasfeo.so``; CasADi's own ``hpipm`` plugin
-costs ~6 ms per call here (qp-solvers.md), the library itself a fraction of that. HPIPM
+The libraries come from hpipm_library.py (an AVX2 build when installed, else the generic
+one inside the casadi wheel); CasADi's own ``hpipm`` plugin costs ~6 ms per call here
+(qp-solvers.md), the library itself a fraction of that. HPIPM
 builds its objects in caller-provided memory sized by ``*_memsize``, so every buffer lives
 in this object, allocated once; what never changes (bound indices, Q_N) is set once, and a
 tick hands the library pointers to numpy arrays holding the condensed data and the boxes.
@@ -28,15 +29,14 @@ from __future__ import annotations
 
 import ctypes
 import math
-import os
 import time
 from ctypes import POINTER, c_double, c_int, c_size_t, c_void_p
 from typing import Any
 
-import casadi
 import numpy as np
 
 from controllers.qp.base import FloatArray, OcpQp, QpSolution, QpStatus
+from controllers.qp.hpipm_library import library_folder
 from controllers.qp.partial_condensing import CondensedBlock, block_lengths, condense
 from controllers.qp.riccati import UnboxedSolutionMap, unboxed_solution_map
 
@@ -49,15 +49,17 @@ _STATUS = {
     3: QpStatus.NUMERICAL_ERROR,  # NaN in the computations
 }
 _library: ctypes.CDLL | None = None
+_blasfeo: ctypes.CDLL | None = None
 
 
 def _load() -> ctypes.CDLL:
-    """casadi's libhpipm (after its libblasfeo, globally: one build in the process)."""
-    global _library
+    """libhpipm (after its libblasfeo, globally: one build in the process) from
+    ``library_folder()``."""
+    global _library, _blasfeo
     if _library is None:
-        folder = os.path.dirname(casadi.__file__)
-        ctypes.CDLL(os.path.join(folder, "libblasfeo.so"), mode=ctypes.RTLD_GLOBAL)
-        lib = ctypes.CDLL(os.path.join(folder, "libhpipm.so"), mode=ctypes.RTLD_GLOBAL)
+        folder = library_folder()
+        _blasfeo = ctypes.CDLL(str(folder / "libblasfeo.so"), mode=ctypes.RTLD_GLOBAL)
+        lib = ctypes.CDLL(str(folder / "libhpipm.so"), mode=ctypes.RTLD_GLOBAL)
         for name in (
             "d_ocp_qp_dim_strsize",
             "d_ocp_qp_strsize",
@@ -76,6 +78,15 @@ def _load() -> ctypes.CDLL:
         lib.d_ocp_qp_ipm_ws_memsize.argtypes = [c_void_p, c_void_p]
         _library = lib
     return _library
+
+
+def library_build() -> str:
+    """The SIMD features the loaded BLASFEO was built for ("AVX2 FMA"), or "generic"."""
+    _load()
+    assert _blasfeo is not None
+    text = ctypes.create_string_buffer(256)
+    _blasfeo.blasfeo_processor_library_string(text)
+    return text.value.decode().strip() or "generic"
 
 
 def _pointer(array: np.ndarray) -> Any:
