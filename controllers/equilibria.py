@@ -138,13 +138,16 @@ class Equilibrium:
         return self.u[4 * (i - 1) : 4 * i].copy()
 
 
-def tilt_to_euler(thrust_direction: FloatArray, yaw_rad: float) -> tuple[float, float]:
+def tilt_to_euler(
+    thrust_direction: tuple[float, float, float], yaw_rad: float
+) -> tuple[float, float]:
     """Roll and pitch that point R(φ, θ, ψ) e_z along ``thrust_direction`` at yaw ψ.
 
     Rz(−ψ) R e_z = (sθ cφ, −sφ, cθ cφ), equation (2), solved for φ and θ.
     """
     c, s = math.cos(yaw_rad), math.sin(yaw_rad)
-    zx, zy, zz = thrust_direction / np.linalg.norm(thrust_direction)
+    norm = math.hypot(*thrust_direction)
+    zx, zy, zz = (component / norm for component in thrust_direction)
     bx, by = c * zx + s * zy, -s * zx + c * zy
     roll = math.atan2(-by, math.hypot(bx, zz))
     pitch = math.atan2(bx, zz)
@@ -183,52 +186,57 @@ def bar_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibriu
 
 @lru_cache(maxsize=8)
 def _cached_equilibrium(params: BarSystemParams, reference: Reference) -> Equilibrium:
+    # Scalar arithmetic throughout: the bench and every relinearized tick come here.
     g = params.gravity_mps2
-    d = params.arms_m
-    signs = (-1.0, 1.0)
     psi_b = reference.bar_yaw_rad
-    n_b = np.array([math.cos(psi_b), math.sin(psi_b), 0.0])
-    e_z = np.array([0.0, 0.0, 1.0])
-    p_b = np.asarray(reference.bar_position_m, dtype=float)
+    cos_b, sin_b = math.cos(psi_b), math.sin(psi_b)
+    bx, by, bz = reference.bar_position_m
+    vx, vy, vz = reference.velocity_mps
     pull = params.bar_mass_kg * g / 2.0 * math.tan(reference.theta_l_rad)
+    bar_rate, *uav_rates = reference.yaw_rates_radps
 
     x = np.zeros(BAR_STATES)
     u = np.zeros(BAR_INPUTS)
-    velocity = np.asarray(reference.velocity_mps, dtype=float)
-    bar_rate, *uav_rates = reference.yaw_rates_radps
-    x[P_B] = p_b
-    x[V_B] = velocity
+    x[P_B] = (bx, by, bz)
+    x[V_B] = (vx, vy, vz)
     x[TH_B] = (0.0, 0.0, psi_b)
     x[W_B] = (0.0, 0.0, bar_rate)  # inertial; perpendicular to the level bar
     tensions, thrusts, theta_ls, theta_fs, ends, forces = [], [], [], [], [], []
-    for k in range(2):
-        i = k + 1
-        vertical = params.payload_mass_kg(i) * g
+    for k, sign in enumerate((-1.0, 1.0)):
+        vertical = params.payload_mass_kg(k + 1) * g
         theta_l_i = math.atan2(pull, vertical)
-        n_i = signs[k] * math.sin(theta_l_i) * n_b + math.cos(theta_l_i) * e_z
-        end = p_b + signs[k] * d[k] * n_b
+        outward = sign * math.sin(theta_l_i)  # n_i = outward n_b + cos θ_l,i e_z
+        n_x, n_y, n_z = outward * cos_b, outward * sin_b, math.cos(theta_l_i)
+        arm = sign * params.arms_m[k]
+        end = (bx + arm * cos_b, by + arm * sin_b, bz)
         tension = math.hypot(pull, vertical)
-        thrust_vector = params.uavs[k].mass_kg * g * e_z + tension * n_i
-        thrust = float(np.linalg.norm(thrust_vector))
+        thrust_vector = (tension * n_x, tension * n_y, params.uavs[k].mass_kg * g + tension * n_z)
+        thrust = math.hypot(*thrust_vector)
         yaw = reference.uav_yaw_rad[k]
         roll, pitch = tilt_to_euler(thrust_vector, yaw)
 
-        p_i, v_i, th_i, w_i = uav_slices(i)
-        x[p_i] = end + params.cable_lengths_m[k] * n_i
-        x[v_i] = velocity + bar_rate * cross3(e_z, x[p_i] - p_b)
+        p_i, v_i, th_i, w_i = uav_slices(k + 1)
+        cable = params.cable_lengths_m[k]
+        px, py = end[0] + cable * n_x, end[1] + cable * n_y
+        x[p_i] = (px, py, end[2] + cable * n_z)
+        # The formation turning about the bar centre at ψ̇_b: ψ̇_b e_z × (p_i − p_b).
+        x[v_i] = (vx - bar_rate * (py - by), vy + bar_rate * (px - bx), vz)
         x[th_i] = (roll, pitch, yaw)
         # A turn about the vertical at ψ̇, in the body frame: ψ̇ Rᵀ e_z, with R of (2).
-        x[w_i] = uav_rates[k] * np.array(
-            [-math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch)]
+        cos_pitch = math.cos(pitch)
+        x[w_i] = (
+            -uav_rates[k] * math.sin(pitch),
+            uav_rates[k] * math.sin(roll) * cos_pitch,
+            uav_rates[k] * math.cos(roll) * cos_pitch,
         )
         u[4 * k] = thrust
 
         tensions.append(tension)
         thrusts.append(thrust)
         theta_ls.append(theta_l_i)
-        theta_fs.append(math.atan2(pull, float(thrust_vector[2])))
-        ends.append(end)
-        forces.append(-signs[k] * pull * n_b)
+        theta_fs.append(math.atan2(pull, thrust_vector[2]))
+        ends.append(np.array(end))
+        forces.append(np.array((-sign * pull * cos_b, -sign * pull * sin_b, 0.0)))
     for array in (*ends, *forces):
         array.setflags(write=False)
     return Equilibrium(
