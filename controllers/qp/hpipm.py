@@ -357,8 +357,8 @@ class HpipmBackend:
         self._lbx_N, self._ubx_N = np.zeros(max(nx, 1)), np.zeros(max(nx, 1))
         self._model_pointers = tuple(_pointer(a) for a in (self._A, self._B, self._b0))
         self._weight_pointers = tuple(_pointer(a) for a in (self._Q, self._R, self._QN))
-        boxes = (self._lbu, self._ubu, self._lbx, self._ubx, self._lbx_N, self._ubx_N)
-        self._box_pointers = tuple(_pointer(a) for a in boxes)
+        box_arrays = (self._lbu, self._ubu, self._lbx, self._ubx, self._lbx_N, self._ubx_N)
+        self._box_pointers = tuple(_pointer(a) for a in box_arrays)
         self.last_solve_s = 0.0
         """Time spent solving by the last ``solve``, after its data was prepared [s]."""
         self.last_was_box_free = False
