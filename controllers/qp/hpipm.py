@@ -389,7 +389,7 @@ class HpipmBackend:
         HPIPM; never raises."""
         start = time.perf_counter()
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
-        if not all(np.all(np.isfinite(a)) for a in data):
+        if not all(np.isfinite(a).all() for a in data):
             return self._failure(QpStatus.NUMERICAL_ERROR, start)
         if self._boxes_empty(qp):
             return self._failure(QpStatus.INFEASIBLE, start)

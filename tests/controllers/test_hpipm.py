@@ -134,3 +134,14 @@ def test_while_a_bound_is_active_the_box_free_attempt_waits_for_an_unsaturated_t
         box_free.append(backend.last_was_box_free)
         np.testing.assert_allclose(solution.u, CondensedDaqpBackend(qp).solve(qp).u, atol=2e-4)
     assert box_free == [False, False, True]
+
+
+def test_changed_weights_are_taken_up_by_the_next_solve(lab_params: BarSystemParams) -> None:
+    qp = lab_qp(lab_params, 0.3, 4)
+    backend = HpipmBackend(qp)
+    backend.solve(qp)
+    heavier = dataclasses.replace(qp, r_diag=10.0 * qp.r_diag, q_terminal_diag=0.5 * qp.q_diag)
+    solution = backend.solve(heavier)
+    oracle = CondensedDaqpBackend(heavier).solve(heavier)
+    np.testing.assert_allclose(solution.u, oracle.u, atol=2e-4)
+    assert np.max(np.abs(solution.u - backend.solve(qp).u)) > 1e-2  # ... and they mattered
