@@ -357,8 +357,9 @@ class HpipmBackend:
         self._lbx_N, self._ubx_N = np.zeros(max(nx, 1)), np.zeros(max(nx, 1))
         self._model_pointers = tuple(_pointer(a) for a in (self._A, self._B, self._b0))
         self._weight_pointers = tuple(_pointer(a) for a in (self._Q, self._R, self._QN))
-        box_arrays = (self._lbu, self._ubu, self._lbx, self._ubx, self._lbx_N, self._ubx_N)
-        self._box_pointers = tuple(_pointer(a) for a in box_arrays)
+        self._box_arrays = (self._lbu, self._ubu, self._lbx, self._ubx, self._lbx_N, self._ubx_N)
+        self._box_pointers = tuple(_pointer(a) for a in self._box_arrays)
+        self._boxes_set = False
         self.last_solve_s = 0.0
         """Time spent solving by the last ``solve``, after its data was prepared [s]."""
         self.last_was_box_free = False
@@ -414,8 +415,8 @@ class HpipmBackend:
                 # Saturation begins: the box-free solution, clipped into the input box, is
                 # a better start than the boxed solve of the last saturation, long ago.
                 self._boxed.seed(np.clip(u, qp.u_lb, qp.u_ub), x)
-            self._load_boxes(qp)
-            self._boxed.set_boxes(*self._box_pointers)
+            if self._load_boxes(qp):
+                self._boxed.set_boxes(*self._box_pointers)
             status, boxed_iterations, u, x = self._run(self._boxed, qp.x0)
             iterations += boxed_iterations
             # Saturation lasts a few ticks: while an input bound is active, skip the attempt.
@@ -453,7 +454,10 @@ class HpipmBackend:
             problem.set_weights(*self._weight_pointers)
         self._weights = tuple(np.array(w) for w in weights)
 
-    def _load_boxes(self, qp: OcpQp) -> None:
+    def _load_boxes(self, qp: OcpQp) -> bool:
+        """``qp``'s boxes into the buffers; whether they differ from the ones HPIPM holds
+        (the boxes move only with u_eq and x_eq, and setting them takes 2N calls)."""
+        before = [a.copy() for a in self._box_arrays]
         self._lbu[:] = qp.u_lb
         self._ubu[:] = qp.u_ub
         for idx, lower, upper, lbx, ubx in (
@@ -464,6 +468,11 @@ class HpipmBackend:
                 assert lower is not None and upper is not None
                 lbx[: idx.size] = lower[idx]
                 ubx[: idx.size] = upper[idx]
+        changed = not self._boxes_set or any(
+            not np.array_equal(a, b) for a, b in zip(before, self._box_arrays, strict=True)
+        )
+        self._boxes_set = True
+        return changed
 
     @staticmethod
     def _input_bound_active(qp: OcpQp, u: FloatArray) -> bool:

@@ -145,3 +145,15 @@ def test_changed_weights_are_taken_up_by_the_next_solve(lab_params: BarSystemPar
     oracle = CondensedDaqpBackend(heavier).solve(heavier)
     np.testing.assert_allclose(solution.u, oracle.u, atol=2e-4)
     assert np.max(np.abs(solution.u - backend.solve(qp).u)) > 1e-2  # ... and they mattered
+
+
+def test_changed_boxes_are_taken_up_by_the_next_boxed_solve(lab_params: BarSystemParams) -> None:
+    qp = lab_qp(lab_params, 1.0, 5)
+    backend = HpipmBackend(qp)
+    backend.solve(qp)
+    tighter = dataclasses.replace(qp, u_lb=0.5 * qp.u_lb, u_ub=0.5 * qp.u_ub)
+    for problem in (tighter, qp):
+        solution = backend.solve(problem)
+        assert not backend.last_was_box_free
+        oracle = CondensedDaqpBackend(problem).solve(problem)
+        assert np.max(np.abs(solution.u - oracle.u) / (qp.u_ub - qp.u_lb)) <= 1e-4
