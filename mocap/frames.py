@@ -72,35 +72,30 @@ def euler_zyx_from_rotation(R: FloatArray) -> FloatArray:
 
 def quaternion_from_rotation(R: FloatArray) -> FloatArray:
     """Unit quaternion (w, x, y, z) with w ≥ 0 of a rotation matrix."""
-    m = np.asarray(R, dtype=float)
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    # Python floats: this runs for every body of every mocap frame, and numpy's per-element
+    # indexing costs more than the arithmetic.
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(R, dtype=float).tolist()
+    trace = m00 + m11 + m22
     if trace > 0.0:
         s = 2.0 * math.sqrt(trace + 1.0)
-        q = np.array(
-            [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-        )
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = np.array(
-            [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-        )
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = np.array(
-            [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-        )
+        w, x, y, z = 0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s
+    elif m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        w, x, y, z = (m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s
+    elif m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        w, x, y, z = (m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s
     else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = np.array(
-            [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-        )
-    q /= np.linalg.norm(q)
-    return q if q[0] >= 0.0 else -q
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        w, x, y, z = (m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    sign = 1.0 if w >= 0.0 else -1.0
+    return np.array([w, x, y, z]) * (sign / norm)
 
 
 def rotation_from_quaternion(q: FloatArray) -> FloatArray:
     """Rotation matrix of a (w, x, y, z) quaternion (normalized first), shape (3, 3)."""
-    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    w, x, y, z = _unit_quaternion(q)
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
@@ -110,14 +105,25 @@ def rotation_from_quaternion(q: FloatArray) -> FloatArray:
     )
 
 
+def _unit_quaternion(q: FloatArray) -> tuple[float, float, float, float]:
+    w, x, y, z = np.asarray(q, dtype=float).tolist()
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    return w / norm, x / norm, y / norm, z / norm
+
+
 def quaternion_from_euler_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -> FloatArray:
     """(w, x, y, z) of R(φ, θ, ψ)."""
     return quaternion_from_rotation(rotation_from_euler_zyx(roll_rad, pitch_rad, yaw_rad))
 
 
 def euler_zyx_from_quaternion(q: FloatArray) -> FloatArray:
-    """(φ, θ, ψ) [rad] of a (w, x, y, z) quaternion."""
-    return euler_zyx_from_rotation(rotation_from_quaternion(q))
+    """(φ, θ, ψ) [rad] of a (w, x, y, z) quaternion: ``euler_zyx_from_rotation`` of its
+    rotation matrix, from the entries it reads."""
+    w, x, y, z = _unit_quaternion(q)
+    r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    r10, r00 = 2 * (x * y + w * z), 1 - 2 * (y * y + z * z)
+    pitch = math.asin(max(-1.0, min(1.0, -r20)))
+    return np.array([math.atan2(r21, r22), pitch, math.atan2(r10, r00)])
 
 
 def rotation_enu_flu_to_ned_frd(R_enu_flu: FloatArray) -> FloatArray:
