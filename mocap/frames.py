@@ -216,8 +216,9 @@ def qtm_euler_deg_from_rotation(R: FloatArray) -> FloatArray:
 
 def quaternion_multiply(q1: FloatArray, q2: FloatArray) -> FloatArray:
     """Hamilton product q1 ⊗ q2 of two (w, x, y, z) quaternions, shape (4,)."""
-    w1, x1, y1, z1 = np.asarray(q1, dtype=float)
-    w2, x2, y2, z2 = np.asarray(q2, dtype=float)
+    # Python floats here and below: the filters run these for every body of every frame.
+    w1, x1, y1, z1 = np.asarray(q1, dtype=float).tolist()
+    w2, x2, y2, z2 = np.asarray(q2, dtype=float).tolist()
     return np.array(
         [
             w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
@@ -230,7 +231,7 @@ def quaternion_multiply(q1: FloatArray, q2: FloatArray) -> FloatArray:
 
 def quaternion_conjugate(q: FloatArray) -> FloatArray:
     """Conjugate (the inverse of a unit quaternion), shape (4,)."""
-    w, x, y, z = np.asarray(q, dtype=float)
+    w, x, y, z = np.asarray(q, dtype=float).tolist()
     return np.array([w, -x, -y, -z])
 
 
@@ -240,15 +241,17 @@ def quaternion_from_rotation_vector(rotation_vector_rad: FloatArray) -> FloatArr
     With q_body→world, ``q ⊗ quaternion_from_rotation_vector(ω·dt)`` turns the body by a
     constant body-frame rate ω [rad/s] over dt [s] (exact, not first order).
     """
-    v = np.asarray(rotation_vector_rad, dtype=float)
-    angle = float(np.linalg.norm(v))
+    x, y, z = np.asarray(rotation_vector_rad, dtype=float).tolist()
+    angle = math.sqrt(x * x + y * y + z * z)
     if angle < 1e-12:
         # Second-order series avoids 0/0 and keeps the result unit length to machine precision.
-        q = np.array([1.0 - angle * angle / 8.0, *(0.5 * v)])
-        result: FloatArray = q / np.linalg.norm(q)
-        return result
+        w = 1.0 - angle * angle / 8.0
+        x, y, z = 0.5 * x, 0.5 * y, 0.5 * z
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        return np.array([w / norm, x / norm, y / norm, z / norm])
     half = 0.5 * angle
-    return np.array([math.cos(half), *(math.sin(half) / angle * v)])
+    scale = math.sin(half) / angle
+    return np.array([math.cos(half), scale * x, scale * y, scale * z])
 
 
 def rotation_vector_from_quaternion(q: FloatArray) -> FloatArray:
@@ -256,13 +259,9 @@ def rotation_vector_from_quaternion(q: FloatArray) -> FloatArray:
 
     q and −q give the same result (the shorter of the two rotations).
     """
-    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    w, x, y, z = _unit_quaternion(q)
     if w < 0.0:
         w, x, y, z = -w, -x, -y, -z
-    vector = np.array([x, y, z])
-    sin_half = float(np.linalg.norm(vector))
-    if sin_half < 1e-12:
-        result: FloatArray = 2.0 * vector
-        return result
-    angle = 2.0 * math.atan2(sin_half, w)
-    return np.asarray(angle / sin_half * vector, dtype=float)
+    sin_half = math.sqrt(x * x + y * y + z * z)
+    scale = 2.0 if sin_half < 1e-12 else 2.0 * math.atan2(sin_half, w) / sin_half
+    return np.array([scale * x, scale * y, scale * z])
