@@ -2,27 +2,27 @@
 
 The libraries come from hpipm_library.py (an AVX2 build when installed, else the generic
 one inside the casadi wheel); CasADi's own ``hpipm`` plugin costs ~6 ms per call here
-(qp-solvers.md), the library itself a fraction of that. HPIPM
-builds its objects in caller-provided memory sized by ``*_memsize``, so every buffer lives
-in this object, allocated once; what never changes (bound indices, Q_N) is set once, and a
-tick hands the library pointers to numpy arrays holding the condensed data and the boxes.
+(qp-solvers.md), the library itself a fraction of that. HPIPM builds its objects in
+caller-provided memory sized by ``*_memsize``, so every buffer lives in this object,
+allocated once; what changes rarely (weights, bound indices, boxes) is handed over only
+when it changes, and a tick hands the library pointers to numpy arrays holding A, B and
+b₀.
 
-Formulation (base.py's ``OcpQp``), partially condensed (partial_condensing.py) into blocks
-of stages: the initial state is eliminated — block 0 has no state (nx₀ = 0), its end state
-is B̄ U₀ + b₀ with b₀ = Ā x₀, and its cost's cross term S̄ x₀ becomes a linear term — so it
-carries only its input box. Later block starts carry the finite entries of the state box,
-the last node those of the terminal box (±inf entries are left out: HPIPM's IPM stalls on
-huge bounds). The interior-point solver runs in ``SPEED`` mode, warm-started.
+Formulation (base.py's ``OcpQp``) stage by stage, with the initial state eliminated:
+stage 0 has no state (nx₀ = 0) and reaches x₁ = B u₀ + b₀, b₀ = A x₀, so it carries only
+its input box. Stages 1 … N−1 carry the finite entries of the state box, stage N those of
+the terminal box (±inf entries are left out: HPIPM's IPM stalls on huge bounds).
 
 Most ticks of a hovering or tracking flight have no active bound, and then the QP's
 solution is that of the same QP without boxes. So each solve first solves the box-free QP
 and keeps it when it satisfies every box (exactly the KKT conditions with zero
-multipliers); otherwise HPIPM solves the boxed QP. While an input bound stays active
-(saturation lasts a few ticks) the box-free attempt is skipped. The box-free solve comes
-in two forms: HPIPM's own (one Riccati recursion in C, the fastest when the state is
-already known), and a linear map of Δx₀ that depends on the model alone (riccati.py),
-which ``prepare`` builds ahead of the solve — a real-time loop does it before the state
-arrives, and the solve is then two matrix–vector products.
+multipliers); otherwise HPIPM's interior-point solver (``SPEED`` mode, warm-started)
+solves the boxed QP, partially condensed by HPIPM into blocks of stages. While an input
+bound stays active (saturation lasts a few ticks) the box-free attempt is skipped. The
+box-free solve comes in two forms: HPIPM's own (one Riccati recursion over the stages, in
+C), and a linear map of Δx₀ that depends on the model alone (riccati.py), which
+``prepare`` builds ahead of the solve — a real-time loop does it before the state arrives,
+and the solve is then two matrix–vector products.
 """
 
 from __future__ import annotations
@@ -288,6 +288,7 @@ class _HpipmProblem:
         """Start the next solve's iterations from inputs ``u`` (N, nu) and states ``x``
         (N + 1, nx) instead of the last solution."""
         lib, sol, first = self._lib, self._solved_sol, 0
+        x = np.ascontiguousarray(x)  # its rows are handed over by pointer
         for k, m in enumerate(self._lengths):
             self._seed_u[k][: m * u.shape[1]] = u[first : first + m].ravel()
             lib.d_ocp_qp_sol_set_u(self.solved_stages[k], _pointer(self._seed_u[k]), sol)
