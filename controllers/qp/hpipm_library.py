@@ -5,8 +5,9 @@ SIMD): about 0.5 ms per interior-point iteration on the centralized problem. aca
 distribution of the same libraries for x86-64 is built for X64_INTEL_HASWELL (AVX2 + FMA
 kernels) and is about 4× faster on the same QPs. ``supervisor/hpipm_install.py`` places
 that build in the virtualenv (``make`` runs it); it is used when present and the CPU has
-AVX2 and FMA (elsewhere its kernels would fault), else casadi's build. ``UAVBAR_HPIPM_DIR`` names a
-folder holding ``libblasfeo.so`` and ``libhpipm.so`` to use instead of both.
+AVX2 and FMA (elsewhere its kernels would fault), else casadi's build.
+``UAVBAR_HPIPM_DIR`` names a folder holding ``libblasfeo.so`` and ``libhpipm.so`` to use
+instead of both.
 
 Only one build may live in a process (they export the same symbols), so the choice is
 made once, at the first load.
