@@ -68,9 +68,9 @@ def test_casadis_generic_build_passes_the_hpipm_tests_too() -> None:
         [sys.executable, "-c", check], env=env, capture_output=True, text=True, check=True
     )
     assert build.stdout.strip() == "generic"
-    pytest = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"]
+    run_pytest = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"]
     tests = subprocess.run(
-        [*pytest, "tests/controllers/test_hpipm.py"],
+        [*run_pytest, "tests/controllers/test_hpipm.py"],
         env=env,
         cwd=ROOT,
         capture_output=True,
