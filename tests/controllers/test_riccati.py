@@ -59,3 +59,13 @@ def test_a_prepared_model_is_used_only_for_the_same_model(lab_params: BarSystemP
     assert not backend.last_was_prepared
     expected = CondensedDaqpBackend(other_model).solve(other_model).u
     np.testing.assert_allclose(solution.u, expected, atol=1e-8)
+
+
+def test_a_prepared_model_that_saturates_is_solved_boxed(lab_params: BarSystemParams) -> None:
+    qp = lab_qp(lab_params, 1.0, 5)  # far enough from equilibrium that inputs saturate
+    backend = HpipmBackend(qp)
+    backend.prepare(qp)
+    solution = backend.solve(qp)
+    assert backend.last_was_prepared and not backend.last_was_box_free
+    oracle = CondensedDaqpBackend(qp).solve(qp)
+    assert np.max(np.abs(solution.u - oracle.u) / (qp.u_ub - qp.u_lb)) <= 1e-4
