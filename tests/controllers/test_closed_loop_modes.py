@@ -1,0 +1,53 @@
+"""Linear stability of the closed loops: what the 2 cm / 2° closed-loop tests rest on."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from controllers.equilibria import Reference
+from controllers.mpc import CentralizedMpc, DecentralizedMpc
+from controllers.params import BarSystemParams
+from supervisor.config import load_config
+from tests.conftest import CONFIGS
+from tests.controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
+
+CONFIG = load_config(CONFIGS / "kth_sml.toml")
+EQUILIBRIA = [
+    pytest.param(Reference((0.0, 0.0, 1.0)), id="hover"),
+    pytest.param(Reference((0.5, -0.3, 1.2), 0.8, (0.8, 1.4), math.radians(20)), id="tilted"),
+]
+
+
+def mpc(controller_cls: type, name: str) -> CentralizedMpc | DecentralizedMpc:
+    settings = dataclasses.replace(CONFIG.mpc.settings(name), late_after_s=10.0)
+    return controller_cls(CONFIG.system.to_params(), settings, "daqp")  # type: ignore[no-any-return]
+
+
+@pytest.mark.parametrize("reference", EQUILIBRIA)
+def test_the_centralized_mpc_damps_every_physical_mode(
+    reference: Reference, lab_params: BarSystemParams
+) -> None:
+    modes = physical_closed_loop_modes(mpc(CentralizedMpc, "centralized"), lab_params, reference)
+    assert len(modes) == 30  # 36 less a pair each for the two cable stretches and the bar's spin
+    assert modes[0].magnitude < 1.0
+
+
+def test_the_decentralized_mpcs_let_the_bar_yaw_swing_grow(lab_params: BarSystemParams) -> None:
+    """Why the decentralized closed loop misses 2 cm / 2° (its strict xfail in test_mpc.py):
+    each agent models its bar end as a pendulum of its own (Section V) at √(g/l) ≈ 0.5 Hz,
+    while the bar's yaw swing on two cables runs near √(3 g/l) ≈ 0.86 Hz (a uniform bar);
+    at that frequency the agents' feedback pumps energy in. The model has no damping, so the
+    swing grows by ~5 %/s; damping of about 1 % of critical (air drag, the cables) would
+    outweigh it. The paper's Fig. 8c shows the decentralized bar error oscillating."""
+    controller = mpc(DecentralizedMpc, "decentralized")
+    modes = physical_closed_loop_modes(controller, lab_params, Reference((0.0, 0.0, 1.0)))
+    fastest = modes[0]
+    assert fastest.magnitude > 1.0
+    assert 0.7 < fastest.frequency_hz < 1.0
+    yaw_share = np.linalg.norm(fastest.shape[list(BAR_YAW)])
+    assert yaw_share > 0.9  # the bar's yaw and yaw rate carry the mode
+    assert 0.0 < fastest.growth_per_s(controller.settings.dt_s) < 0.2
