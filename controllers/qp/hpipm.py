@@ -180,7 +180,16 @@ class _HpipmProblem:
         self._condensed = nb < N
         self._lengths = lengths
         self.solved_stages = [c_int(k) for k in range(nb + 1)]
-        self._seed_u = np.zeros((nb, max(lengths) * nu))
+        # A seed is handed over block by block: a block's states are its first stage's,
+        # and its inputs are its stages' in reverse order (HPIPM's condensing order).
+        firsts = np.cumsum((0, *lengths))
+        self._seed_rows = np.concatenate(
+            [np.arange(firsts[k + 1] - 1, firsts[k] - 1, -1) for k in range(nb)]
+        )
+        self._seed_u = np.zeros((N, nu))
+        self._seed_x = np.zeros((N + 1, nx))
+        self._seed_u_pointers = [_pointer(self._seed_u[first]) for first in firsts[:-1]]
+        self._seed_x_pointers = [_pointer(self._seed_x[first]) for first in firsts]
         solved_dim, self._solved_qp, self._solved_sol = self._dim, self._qp, self._sol
         if self._condensed:
             block_size = (c_int * (nb + 1))(*lengths, 0)
@@ -287,15 +296,13 @@ class _HpipmProblem:
     def seed(self, u: FloatArray, x: FloatArray) -> None:
         """Start the next solve's iterations from inputs ``u`` (N, nu) and states ``x``
         (N + 1, nx) instead of the last solution."""
-        lib, sol, first = self._lib, self._solved_sol, 0
-        x = np.ascontiguousarray(x)  # its rows are handed over by pointer
-        for k, m in enumerate(self._lengths):
-            self._seed_u[k][: m * u.shape[1]] = u[first : first + m].ravel()
-            lib.d_ocp_qp_sol_set_u(self.solved_stages[k], _pointer(self._seed_u[k]), sol)
-            if k:
-                lib.d_ocp_qp_sol_set_x(self.solved_stages[k], _pointer(x[first]), sol)
-            first += m
-        lib.d_ocp_qp_sol_set_x(self.solved_stages[-1], _pointer(x[first]), sol)
+        lib, sol, stages = self._lib, self._solved_sol, self.solved_stages
+        np.take(u, self._seed_rows, axis=0, out=self._seed_u)
+        self._seed_x[:] = x
+        for stage, pointer in zip(stages[:-1], self._seed_u_pointers, strict=True):
+            lib.d_ocp_qp_sol_set_u(stage, pointer, sol)
+        for stage, pointer in zip(stages[1:], self._seed_x_pointers[1:], strict=True):
+            lib.d_ocp_qp_sol_set_x(stage, pointer, sol)
 
     def solve(self) -> tuple[int, int]:
         """Condense, solve, expand into ``u`` and ``x`` (row k: stage k; x's row 0 is left
@@ -358,8 +365,8 @@ class HpipmBackend:
         self._lbx_N, self._ubx_N = np.zeros(max(nx, 1)), np.zeros(max(nx, 1))
         self._model_pointers = tuple(_pointer(a) for a in (self._A, self._B, self._b0))
         self._weight_pointers = tuple(_pointer(a) for a in (self._Q, self._R, self._QN))
-        self._box_arrays = (self._lbu, self._ubu, self._lbx, self._ubx, self._lbx_N, self._ubx_N)
-        self._box_pointers = tuple(_pointer(a) for a in self._box_arrays)
+        box_buffers = (self._lbu, self._ubu, self._lbx, self._ubx, self._lbx_N, self._ubx_N)
+        self._box_pointers = tuple(_pointer(a) for a in box_buffers)
         self._boxes_set = False
         self.last_was_box_free = False
         """Whether the last solve's box-free solution met every box (no IPM run)."""
@@ -457,20 +464,19 @@ class HpipmBackend:
     def _load_boxes(self, qp: OcpQp) -> bool:
         """``qp``'s boxes into the buffers; whether they differ from the ones HPIPM holds
         (the boxes move only with u_eq and x_eq, and setting them takes 2N calls)."""
-        before = [a.copy() for a in self._box_arrays]
-        self._lbu[:] = qp.u_lb
-        self._ubu[:] = qp.u_ub
+        pairs = [(self._lbu, qp.u_lb), (self._ubu, qp.u_ub)]
         for idx, lower, upper, lbx, ubx in (
             (self._state_idx, qp.x_lb, qp.x_ub, self._lbx, self._ubx),
             (self._terminal_idx, qp.x_terminal_lb, qp.x_terminal_ub, self._lbx_N, self._ubx_N),
         ):
             if idx.size:
                 assert lower is not None and upper is not None
-                lbx[: idx.size] = lower[idx]
-                ubx[: idx.size] = upper[idx]
-        changed = not self._boxes_set or any(
-            not np.array_equal(a, b) for a, b in zip(before, self._box_arrays, strict=True)
-        )
+                pairs += [(lbx[: idx.size], lower[idx]), (ubx[: idx.size], upper[idx])]
+        changed = not self._boxes_set
+        for held, given in pairs:
+            if not np.array_equal(held, given):
+                held[:] = given
+                changed = True
         self._boxes_set = True
         return changed
 

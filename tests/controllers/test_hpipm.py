@@ -13,7 +13,7 @@ from controllers.mpc import CentralizedMpc
 from controllers.params import BarSystemParams
 from controllers.qp.base import OcpQp, QpStatus
 from controllers.qp.condensed import CondensedDaqpBackend
-from controllers.qp.hpipm import HpipmBackend
+from controllers.qp.hpipm import HpipmBackend, _pointer
 from supervisor.config import load_config
 from tests.conftest import CONFIGS
 
@@ -157,3 +157,28 @@ def test_changed_boxes_are_taken_up_by_the_next_boxed_solve(lab_params: BarSyste
         assert not backend.last_was_box_free
         oracle = CondensedDaqpBackend(problem).solve(problem)
         assert np.max(np.abs(solution.u - oracle.u) / (qp.u_ub - qp.u_lb)) <= 1e-4
+
+
+def test_a_seed_reaches_the_condensed_blocks_in_hpipms_input_order(
+    lab_params: BarSystemParams,
+) -> None:
+    """HPIPM's partial condensing orders a block's inputs last stage first: seeding the
+    boxed problem with its own solution (stage by stage) must leave its blocks as solved."""
+    qp = lab_qp(lab_params, 1.0, 5)
+    backend = HpipmBackend(qp)
+    backend.solve(qp)
+    assert not backend.last_was_box_free
+    boxed = backend._boxed  # white-box: the seed's layout is internal to HPIPM
+
+    def block_inputs() -> list[np.ndarray]:
+        blocks = []
+        for stage, m in zip(boxed.solved_stages, boxed._lengths, strict=False):
+            values = np.zeros(m * qp.u_lb.size)
+            boxed._lib.d_ocp_qp_sol_get_u(stage, boxed._solved_sol, _pointer(values))
+            blocks.append(values)
+        return blocks
+
+    solved = block_inputs()
+    boxed.seed(boxed.u[:-1].copy(), boxed.x.copy())
+    for seeded, expected in zip(block_inputs(), solved, strict=True):
+        np.testing.assert_allclose(seeded, expected, atol=1e-12)
