@@ -180,8 +180,8 @@ class _HpipmProblem:
         self._condensed = nb < N
         self._lengths = lengths
         self.solved_stages = [c_int(k) for k in range(nb + 1)]
-        # A seed is handed over block by block: a block's states are its first stage's,
-        # and its inputs are its stages' in reverse order (HPIPM's condensing order).
+        # A seed is handed over block by block: a block's state is its first stage's (block
+        # 0 has none), and its inputs are its stages' in reverse order (HPIPM's order).
         firsts = np.cumsum((0, *lengths))
         self._seed_rows = np.concatenate(
             [np.arange(firsts[k + 1] - 1, firsts[k] - 1, -1) for k in range(nb)]
@@ -189,7 +189,7 @@ class _HpipmProblem:
         self._seed_u = np.zeros((N, nu))
         self._seed_x = np.zeros((N + 1, nx))
         self._seed_u_pointers = [_pointer(self._seed_u[first]) for first in firsts[:-1]]
-        self._seed_x_pointers = [_pointer(self._seed_x[first]) for first in firsts]
+        self._seed_x_pointers = [_pointer(self._seed_x[first]) for first in firsts[1:]]
         solved_dim, self._solved_qp, self._solved_sol = self._dim, self._qp, self._sol
         if self._condensed:
             block_size = (c_int * (nb + 1))(*lengths, 0)
@@ -301,7 +301,7 @@ class _HpipmProblem:
         self._seed_x[:] = x
         for stage, pointer in zip(stages[:-1], self._seed_u_pointers, strict=True):
             lib.d_ocp_qp_sol_set_u(stage, pointer, sol)
-        for stage, pointer in zip(stages[1:], self._seed_x_pointers[1:], strict=True):
+        for stage, pointer in zip(stages[1:], self._seed_x_pointers, strict=True):
             lib.d_ocp_qp_sol_set_x(stage, pointer, sol)
 
     def solve(self) -> tuple[int, int]:
