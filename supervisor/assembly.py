@@ -46,7 +46,13 @@ def flight_core_from_config(
         settings = {
             name: dataclasses.replace(s, late_after_s=math.inf) for name, s in settings.items()
         }
-    return FlightCore(config.system.to_params(), settings, arena_from_config(config), controller)
+    return FlightCore(
+        config.system.to_params(),
+        settings,
+        arena_from_config(config),
+        controller,
+        safety=config.safety.limits(),
+    )
 
 
 def fusion_from_config(config: Config) -> MocapFusion:

@@ -34,6 +34,7 @@ from controllers.params import (
     UavParams,
 )
 from controllers.qp.registry import BACKEND_NAMES
+from supervisor.safety import SafetyLimits
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -340,6 +341,17 @@ class ApiSection(_Section):
     token: Annotated[str, Field(min_length=8)] | None = None
 
 
+class SafetySection(_Section):
+    """Thresholds of the safety monitors that a setup may want to tune (docs/safety.md)."""
+
+    max_bar_yaw_error_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 20.0
+    """The bar's yaw this far from its reference while hovering or tracking under the
+    decentralized MPC: the centralized MPC takes over. 0 turns the hand-over off."""
+
+    def limits(self) -> SafetyLimits:
+        return SafetyLimits(max_bar_yaw_error_rad=math.radians(self.max_bar_yaw_error_deg))
+
+
 class LogSection(_Section):
     """Flight logs: one JSON Lines file per flight, named by its start time."""
 
@@ -357,6 +369,7 @@ class Config(_Section):
     vehicles: VehiclesSection = VehiclesSection()
     api: ApiSection = ApiSection()
     log: LogSection = LogSection()
+    safety: SafetySection = SafetySection()
     sim: SimSection = SimSection()
 
 

@@ -233,8 +233,17 @@ class FlightCore:
             commands, plan, reference = self._land(now_s, estimate, events)
 
         faults = self.safety.check(
-            now_s, estimate, self.modes.mode, plan.status if plan else None, links_connected
+            now_s,
+            estimate,
+            self.modes.mode,
+            plan.status if plan else None,
+            links_connected,
+            reference.bar_yaw_rad if reference is not None else None,
         )
+        swings = [f.message for f in faults if f.response is Response.CENTRALIZE]
+        if swings and self.controller == "decentralized":
+            self.set_controller("centralized", now_s)
+            events.append(f"swing: {swings[0]}; switched to the centralized MPC")
         serious = any(f.response in (Response.ABORT, Response.LAND_OTHER) for f in faults)
         if serious and self.modes.mode.airborne and self.modes.mode is not Mode.ABORT:
             self.modes.handle("fault", now_s)

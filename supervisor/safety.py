@@ -25,6 +25,7 @@ class Response(Enum):
     COAST = "coast"  # keep flying on the prediction / shifted plan, report
     ABORT = "abort"  # coordinated landing
     LAND_OTHER = "land_other"  # one vehicle lost: the other sets the bar down
+    CENTRALIZE = "centralize"  # the decentralized MPC hands the bar to the centralized one
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,7 @@ class SafetyLimits:
     max_consecutive_fallbacks: int = 10
     slack_margin_m: float = 0.05
     slack_time_s: float = 0.5
+    max_bar_yaw_error_rad: float = math.radians(20.0)  # 0: no hand-over
 
 
 class SafetyMonitor:
@@ -66,8 +68,10 @@ class SafetyMonitor:
         mode: Mode,
         plan_status: PlanStatus | None,
         links_connected: tuple[bool, bool],
+        bar_yaw_reference_rad: float | None = None,
     ) -> list[Fault]:
-        """All faults seen on this tick (empty when everything is fine)."""
+        """All faults seen on this tick (empty when everything is fine); the bar's yaw is
+        checked against ``bar_yaw_reference_rad`` when the tick had a reference."""
         if not mode.airborne:
             self._fallbacks = 0
             self._slack_since_s = None
@@ -94,6 +98,8 @@ class SafetyMonitor:
             self._geofence(x, faults)
             self._tilt(x, faults)
             self._slack(now_s, x, mode, faults)
+            if bar_yaw_reference_rad is not None:
+                self._swing(x, mode, bar_yaw_reference_rad, faults)
         if plan_status is not None:
             self._fallbacks = self._fallbacks + 1 if plan_status.is_fallback else 0
             if self._fallbacks >= lim.max_consecutive_fallbacks:
@@ -137,3 +143,19 @@ class SafetyMonitor:
         self._slack_since_s = now_s if self._slack_since_s is None else self._slack_since_s
         if now_s - self._slack_since_s >= self.limits.slack_time_s:
             faults.append(Fault("slack", "a cable has been slack for too long", Response.ABORT))
+
+    def _swing(self, x: np.ndarray, mode: Mode, reference_rad: float, faults: list[Fault]) -> None:
+        """The bar turned far from its reference while the MPC holds or tracks it: the
+        decentralized MPC lets the bar's yaw swing grow (docs/safety.md)."""
+        limit = self.limits.max_bar_yaw_error_rad
+        if limit <= 0.0 or mode not in (Mode.HOVER, Mode.TRACKING):
+            return
+        error = math.remainder(float(x[8]) - reference_rad, math.tau)
+        if abs(error) > limit:
+            faults.append(
+                Fault(
+                    "swing",
+                    f"bar yaw {math.degrees(error):+.0f}° off its reference",
+                    Response.CENTRALIZE,
+                )
+            )

@@ -274,7 +274,7 @@ def run_scenario(
             loop.apply(result)
             if log is not None:
                 log.append(result.record)
-            script.messages.extend(e for e in result.events if e.startswith("abort"))
+            script.messages.extend(e for e in result.events if e.startswith(("abort", "swing")))
             script.advance(loop.core, loop.now_s)
             loop.core.prepare_next()  # as the service does between ticks
             truth.update(loop.plant, loop.core.modes.mode.airborne)

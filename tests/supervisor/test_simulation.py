@@ -98,12 +98,14 @@ def test_a_short_move_is_flown_smoothly(sim_config: Config, short_scenario: Path
 def test_paper_scenario_centralized_tracks_the_bar_better(
     sim_config: Config, tmp_path: Path
 ) -> None:
-    """Section VII's sequence with both controllers: the Table III comparison."""
+    """Section VII's sequence with both controllers: the Table III comparison (each
+    controller alone: no hand-over on a swing)."""
     scenario = load_scenario("paper")
+    alone = load_config(CONFIGS / "sim.toml", ["safety.max_bar_yaw_error_deg=0"])
     x_error_std = {}
     truths = {}
     for name in ("centralized", "decentralized"):
-        result = run_scenario(sim_config, scenario, name, log_path=tmp_path / f"{name}.jsonl")
+        result = run_scenario(alone, scenario, name, log_path=tmp_path / f"{name}.jsonl")
         assert result.completed, (name, result.messages)
         assert result.log_path is not None
         summary = summarize(read_flight_log(result.log_path))
@@ -115,6 +117,31 @@ def test_paper_scenario_centralized_tracks_the_bar_better(
     # blind to the bar's coupled swing, may let one go slack for a moment (Table III).
     assert truths["centralized"].slack_events == 0
     assert truths["centralized"].min_tension_airborne_n > 1.0
+
+
+def test_a_swinging_decentralized_bar_is_handed_to_the_centralized_mpc(
+    sim_config: Config, tmp_path: Path
+) -> None:
+    """The same sequence under the decentralized MPC with the swing monitor on (the
+    default): its bar-yaw swing grows (test_closed_loop_modes.py) until it passes 20°, the
+    centralized MPC takes over and settles the bar, and no cable goes slack."""
+    result = run_scenario(
+        sim_config, load_scenario("paper"), "decentralized", log_path=tmp_path / "f.jsonl"
+    )
+    assert result.completed, result.messages
+    swings = [m for m in result.messages if m.startswith("swing")]
+    assert len(swings) == 1 and swings[0].endswith("switched to the centralized MPC")
+    assert result.log_path is not None
+    log = read_flight_log(result.log_path)
+    assert [c for c, _ in itertools.groupby(log.controllers)] == ["decentralized", "centralized"]
+    handed_over = log.t_s[log.controllers.index("centralized")]
+    flying = np.array([m in ("hover", "tracking") for m in log.modes])
+    yaw_error = np.degrees(
+        np.abs(np.remainder(log.state[:, 8] - log.state_ref[:, 8] + np.pi, 2 * np.pi) - np.pi)
+    )
+    settled = flying & (log.t_s > handed_over + 5.0)
+    assert settled.any() and np.max(yaw_error[settled]) < 12.0
+    assert result.truth.slack_events == 0
 
 
 def test_simulate_prints_the_documented_json(

@@ -1,0 +1,89 @@
+"""The swing monitor and the hand-over from the decentralized to the centralized MPC."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controllers.equilibria import Reference, bar_equilibrium
+from supervisor.assembly import arena_from_config, flight_core_from_config
+from supervisor.config import ConfigError, load_config
+from supervisor.estimation import Estimate
+from supervisor.modes import Mode
+from supervisor.safety import Response, SafetyLimits, SafetyMonitor
+from tests.conftest import CONFIGS
+
+CONFIG = load_config(CONFIGS / "sim.toml")
+PARAMS = CONFIG.system.to_params()
+
+
+def hovering_state(bar_yaw_rad: float) -> np.ndarray:
+    """The hover equilibrium with the bar (and its UAVs) turned to ``bar_yaw_rad``."""
+    return bar_equilibrium(PARAMS, Reference((0.0, 0.0, 1.0), bar_yaw_rad)).x
+
+
+def swing_faults(
+    bar_yaw_deg: float, reference_deg: float, mode: Mode = Mode.HOVER, limit_deg: float = 20.0
+) -> list[str]:
+    monitor = SafetyMonitor(
+        PARAMS,
+        arena_from_config(CONFIG),
+        SafetyLimits(max_bar_yaw_error_rad=math.radians(limit_deg)),
+    )
+    estimate = Estimate(hovering_state(math.radians(bar_yaw_deg)), 0.01, ())
+    faults = monitor.check(0.0, estimate, mode, None, (True, True), math.radians(reference_deg))
+    assert all(f.response is Response.CENTRALIZE for f in faults if f.monitor == "swing")
+    return [f.message for f in faults if f.monitor == "swing"]
+
+
+@pytest.mark.parametrize(
+    "bar_yaw_deg, reference_deg, expected",
+    [
+        (25.0, 0.0, ["bar yaw +25° off its reference"]),
+        (-21.0, 0.0, ["bar yaw -21° off its reference"]),
+        (15.0, 0.0, []),
+        (-179.0, 179.0, []),  # 2° apart across ±180°
+        (160.0, -170.0, ["bar yaw -30° off its reference"]),  # 30° apart across ±180°
+    ],
+)
+def test_the_bar_turned_away_from_its_reference_is_a_swing(
+    bar_yaw_deg: float, reference_deg: float, expected: list[str]
+) -> None:
+    assert swing_faults(bar_yaw_deg, reference_deg) == expected
+
+
+def test_the_swing_monitor_watches_hover_and_tracking_only_and_can_be_off() -> None:
+    assert swing_faults(40.0, 0.0, Mode.TRACKING)
+    for mode in (Mode.TAKEOFF, Mode.LANDING, Mode.ABORT):
+        assert swing_faults(40.0, 0.0, mode) == []
+    assert swing_faults(40.0, 0.0, limit_deg=0.0) == []
+
+
+def test_a_swing_hands_the_decentralized_bar_to_the_centralized_mpc() -> None:
+    core = flight_core_from_config(CONFIG, "decentralized", simulated_time=True)
+    still = Estimate(hovering_state(0.0), 0.01, ())
+    core.start_in_hover(still, 0.0, (0.05, 0.1, 0.1))
+    assert "swing" not in " ".join(core.tick(0.02, still).events)
+    assert core.controller == "decentralized"
+    swung = Estimate(hovering_state(math.radians(30.0)), 0.01, ())
+    result = core.tick(0.04, swung)
+    assert core.controller == "centralized"
+    assert [e for e in result.events if e.startswith("swing")] == [
+        "swing: bar yaw +30° off its reference; switched to the centralized MPC"
+    ]
+    assert result.mode is Mode.HOVER  # it keeps flying: no abort
+    # The centralized MPC meets the same swing with the fault reported, nothing switched.
+    again = core.tick(0.06, swung)
+    assert [f.monitor for f in again.faults] == ["swing"] and core.controller == "centralized"
+    assert not [e for e in again.events if e.startswith("swing")]
+
+
+def test_the_hand_over_angle_is_a_setting() -> None:
+    assert CONFIG.safety.limits().max_bar_yaw_error_rad == pytest.approx(math.radians(20.0))
+    off = load_config(CONFIGS / "sim.toml", ["safety.max_bar_yaw_error_deg=0"])
+    assert off.safety.limits().max_bar_yaw_error_rad == 0.0
+    for bad in ("-5", "180", "nan"):
+        with pytest.raises(ConfigError, match=r"safety\.max_bar_yaw_error_deg"):
+            load_config(CONFIGS / "sim.toml", [f"safety.max_bar_yaw_error_deg={bad}"])
