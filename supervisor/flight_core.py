@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,6 +42,7 @@ from supervisor.setpoints import (
 
 FloatArray = NDArray[np.float64]
 CONTROLLERS = ("centralized", "decentralized")
+NOTICES_KEPT = 20
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,9 @@ class FlightCore:
         self.modes = FlightModes()
         self.queue = SetpointQueue()
         self.safety = SafetyMonitor(params, arena, safety or SafetyLimits())
+        self.notices: deque[tuple[float, str]] = deque(maxlen=NOTICES_KEPT)
+        """The latest decisions the safety monitors forced (time, what and why), oldest
+        first: what an operator must be told even if no screen was watching."""
         self.phase = "ground"
         self._limits = mpc_settings["centralized"].limits
         self._shaper: ReferenceShaper | None = None
@@ -249,6 +254,7 @@ class FlightCore:
             self.modes.handle("fault", now_s)
             self._entered(Mode.ABORT, now_s)
             events.append("abort: " + "; ".join(f.message for f in faults))
+        self.notices.extend((now_s, e) for e in events if e.startswith(("abort:", "swing:")))
         # A vehicle whose link is lost is left to its own failsafe: it gets no commands.
         commands = (
             commands[0] if links_connected[0] else UavCommand.off(),

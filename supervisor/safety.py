@@ -155,7 +155,7 @@ class SafetyMonitor:
             faults.append(
                 Fault(
                     "swing",
-                    f"bar yaw {math.degrees(error):+.0f}° off its reference",
+                    f"bar yaw {math.degrees(error):+.1f}° off its reference",
                     Response.CENTRALIZE,
                 )
             )

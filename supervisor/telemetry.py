@@ -130,5 +130,6 @@ def build_telemetry(
             "thrust_n": [c.thrust_n for c in last_tick.commands] if last_tick else None,
         },
         "faults": [f.message for f in last_tick.faults] if last_tick is not None else [],
+        "notices": [{"age_s": now_s - t_s, "message": message} for t_s, message in core.notices],
         "tick": tick_summary,
     }

@@ -80,6 +80,10 @@ def format_status(status: dict[str, Any]) -> str:
         f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
         f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
     )
+    lines += [
+        f"notice ({notice['age_s']:.0f} s ago): {notice['message']}"
+        for notice in status.get("notices", [])[-3:]
+    ]
     return "\n".join(lines)
 
 

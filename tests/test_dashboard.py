@@ -67,7 +67,10 @@ async def take_off(page: Page) -> None:
 async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
     browser: Browser, tmp_path: Path
 ) -> None:
-    async with running_service(TOKEN, tmp_path) as service:
+    # A swing hand-over angle below a hover's own wobble, so that the page has a safety
+    # notice to show: the decentralized MPC is handed back to the centralized one at once.
+    hand_over_at_once = ["safety.max_bar_yaw_error_deg=0.2"]
+    async with running_service(TOKEN, tmp_path, hand_over_at_once) as service:
         page = await open_dashboard(browser, service, "not-the-token")
         await page.get_by_test_id("arm").click()
         await expect(page.get_by_test_id("flight-reason")).to_contain_text("401")
@@ -81,6 +84,11 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
         await expect(page.get_by_test_id("mode")).to_have_text("armed", timeout=10_000)
         await page.get_by_test_id("takeoff").click()
         await expect(page.get_by_test_id("mode")).to_have_text("hover", timeout=60_000)
+        await page.get_by_test_id("controller-decentralized").click()
+        notices = page.get_by_test_id("notices")
+        await expect(notices).to_contain_text("switched to the centralized MPC", timeout=20_000)
+        await expect(notices).to_contain_text(re.compile(r"\d+ s ago — swing: bar yaw"))
+        await expect(page.get_by_test_id("controller")).to_have_text("centralized")
         await page.wait_for_timeout(3000)  # a few seconds of live plots for the picture
         SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
         await page.screenshot(path=str(SCREENSHOT))

@@ -154,6 +154,17 @@ function lamp(id, level) {
   document.getElementById(id).className = `lamp ${level}`;
 }
 
+const ago = (seconds) => (seconds < 90 ? `${Math.round(seconds)} s ago` : `${Math.round(seconds / 60)} min ago`);
+
+function renderNotices(notices) {
+  const items = notices.slice(-3).reverse().map((notice) => {
+    const item = document.createElement("li");
+    item.textContent = `${ago(notice.age_s)} — ${notice.message}`;
+    return item;
+  });
+  document.getElementById("notices").replaceChildren(...items);
+}
+
 function render(t) {
   document.getElementById("mode").textContent = t.mode;
   document.getElementById("phase").textContent = t.phase;
@@ -161,6 +172,7 @@ function render(t) {
   for (const button of document.querySelectorAll("[data-controller]")) {
     button.classList.toggle("selected", button.dataset.controller === t.controller);
   }
+  renderNotices(t.notices || []);
   lamp("lamp-mocap", t.mocap.healthy ? "good" : t.mocap.connected ? "warn" : "bad");
   t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, uav.connected ? "good" : "bad"));
   const tick = t.tick || {};

@@ -10,6 +10,7 @@ import pytest
 
 from supervisor.cli import main
 from supervisor.modes import Mode
+from supervisor.terminal_client import format_status
 from tests.api.conftest import TOKEN, ApiUnderTest
 
 
@@ -60,3 +61,14 @@ async def test_an_unreachable_service_exits_3(capsys: pytest.CaptureFixture[str]
     status = await asyncio.to_thread(main, ["status", "--url", "http://127.0.0.1:9"])
     assert status == 3
     assert "cannot reach" in capsys.readouterr().err
+
+
+def test_status_shows_the_latest_safety_notices() -> None:
+    notices = [{"age_s": 70.0 - k, "message": f"swing: {k}"} for k in range(5)]
+    lines = format_status({"mode": "hover", "notices": notices}).splitlines()
+    assert lines[-3:] == [
+        "notice (68 s ago): swing: 2",
+        "notice (67 s ago): swing: 3",
+        "notice (66 s ago): swing: 4",
+    ]
+    assert not [line for line in format_status({"mode": "hover"}).splitlines() if "notice" in line]

@@ -41,11 +41,11 @@ def swing_faults(
 @pytest.mark.parametrize(
     "bar_yaw_deg, reference_deg, expected",
     [
-        (25.0, 0.0, ["bar yaw +25° off its reference"]),
-        (-21.0, 0.0, ["bar yaw -21° off its reference"]),
+        (25.0, 0.0, ["bar yaw +25.0° off its reference"]),
+        (-21.0, 0.0, ["bar yaw -21.0° off its reference"]),
         (15.0, 0.0, []),
         (-179.0, 179.0, []),  # 2° apart across ±180°
-        (160.0, -170.0, ["bar yaw -30° off its reference"]),  # 30° apart across ±180°
+        (160.0, -170.0, ["bar yaw -30.0° off its reference"]),  # 30° apart across ±180°
     ],
 )
 def test_the_bar_turned_away_from_its_reference_is_a_swing(
@@ -71,9 +71,10 @@ def test_a_swing_hands_the_decentralized_bar_to_the_centralized_mpc() -> None:
     result = core.tick(0.04, swung)
     assert core.controller == "centralized"
     assert [e for e in result.events if e.startswith("swing")] == [
-        "swing: bar yaw +30° off its reference; switched to the centralized MPC"
+        "swing: bar yaw +30.0° off its reference; switched to the centralized MPC"
     ]
     assert result.mode is Mode.HOVER  # it keeps flying: no abort
+    assert list(core.notices) == [(0.04, result.events[-1])]
     # The centralized MPC meets the same swing with the fault reported, nothing switched.
     again = core.tick(0.06, swung)
     assert [f.monitor for f in again.faults] == ["swing"] and core.controller == "centralized"
@@ -87,3 +88,14 @@ def test_the_hand_over_angle_is_a_setting() -> None:
     for bad in ("-5", "180", "nan"):
         with pytest.raises(ConfigError, match=r"safety\.max_bar_yaw_error_deg"):
             load_config(CONFIGS / "sim.toml", [f"safety.max_bar_yaw_error_deg={bad}"])
+
+
+def test_a_forced_abort_is_kept_as_a_notice() -> None:
+    core = flight_core_from_config(CONFIG, "centralized", simulated_time=True)
+    core.start_in_hover(Estimate(hovering_state(0.0), 0.01, ()), 0.0, (0.05, 0.1, 0.1))
+    outside = hovering_state(0.0)
+    outside[0:3] += (50.0, 0.0, 0.0)  # the bar far outside the arena
+    result = core.tick(0.02, Estimate(outside, 0.01, ()))
+    assert result.mode is Mode.ABORT
+    [(when, notice)] = core.notices
+    assert when == 0.02 and notice.startswith("abort: ") and "bar left the arena" in notice
