@@ -1,4 +1,5 @@
-"""The swing monitor and the hand-over from the decentralized to the centralized MPC."""
+"""The swing monitor, its hand-over from the decentralized to the centralized MPC, and the
+notices that forced decisions leave."""
 
 from __future__ import annotations
 
