@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import numpy as np
 import pytest
 
+from benchmarks import modes as modes_benchmark
 from controllers.equilibria import Reference
+from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
 from controllers.params import BarSystemParams
 from supervisor.config import load_config
 from tests.conftest import CONFIGS
-from tests.controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
 
 CONFIG = load_config(CONFIGS / "kth_sml.toml")
 EQUILIBRIA = [
@@ -51,3 +53,18 @@ def test_the_decentralized_mpcs_let_the_bar_yaw_swing_grow(lab_params: BarSystem
     yaw_share = np.linalg.norm(fastest.shape[list(BAR_YAW)])
     assert yaw_share > 0.9  # the bar's yaw and yaw rate carry the mode
     assert 0.0 < fastest.growth_per_s(controller.settings.dt_s) < 0.2
+
+
+def test_the_modes_benchmark_prints_the_slowest_modes_first(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert modes_benchmark.main(["--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result) == {"centralized", "decentralized"}
+    for table in result.values():
+        assert set(table) == set(modes_benchmark.EQUILIBRIA)
+        for rows in table.values():
+            magnitudes = [row["magnitude"] for row in rows]
+            assert len(rows) == modes_benchmark.SHOWN and magnitudes == sorted(magnitudes)[::-1]
+    assert all(row["magnitude"] < 1.0 for rows in result["centralized"].values() for row in rows)
+    assert result["decentralized"]["hover"][0]["growth_per_s"] > 0.0

@@ -1,4 +1,6 @@
-"""Modes of a controller's linear closed loop at an equilibrium of the bar system.
+"""Modes of a controller's linear closed loop at an equilibrium of the bar system: which
+motions the MPC damps, and how fast, at a given reference (``benchmarks/modes.py`` prints
+them; ``tests/controllers/test_closed_loop_modes.py`` checks them).
 
 The plant is the 36-state model's Jacobian at the equilibrium, discretized exactly (zero-order
 hold over one tick, not the controllers' first-order A = I + A_c h); the controller enters
@@ -28,7 +30,7 @@ BAR_YAW = (8, 11)  # ψ_b and ω_b,z
 
 
 @dataclass(frozen=True)
-class Mode:
+class ClosedLoopMode:
     magnitude: float
     """|λ| of the discrete closed loop; above 1 the mode grows."""
     frequency_hz: float
@@ -36,10 +38,12 @@ class Mode:
     """The eigenvector, scaled to unit length."""
 
     def growth_per_s(self, dt_s: float) -> float:
+        """The mode's exponential growth rate (negative: decay) [1/s]."""
         return math.log(self.magnitude) / dt_s
 
 
 def zero_order_hold(A_c: np.ndarray, B_c: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """The exact discretization of ẋ = A_c x + B_c u with u held over ``h``."""
     n, m = B_c.shape
     augmented = np.zeros((n + m, n + m))
     augmented[:n, :n], augmented[:n, n:] = A_c * h, B_c * h
@@ -83,7 +87,7 @@ def physical_closed_loop_modes(
     controller: CentralizedMpc | DecentralizedMpc,
     params: BarSystemParams,
     reference: Reference,
-) -> list[Mode]:
+) -> list[ClosedLoopMode]:
     """The physical modes of ``controller`` closing the loop at ``reference``'s
     equilibrium, fastest-growing first."""
     eq = bar_equilibrium(params, reference)
@@ -98,5 +102,6 @@ def physical_closed_loop_modes(
         shape = vector / np.linalg.norm(vector)
         keeps_cables = np.abs(stretch @ shape).max() < 1e-6
         if keeps_cables and np.linalg.norm(shape[others]) > 1e-6:
-            modes.append(Mode(abs(value), abs(np.angle(value)) / (2 * math.pi * dt), shape))
+            frequency_hz = abs(np.angle(value)) / (2 * math.pi * dt)
+            modes.append(ClosedLoopMode(abs(value), frequency_hz, shape))
     return sorted(modes, key=lambda mode: -mode.magnitude)

@@ -1,0 +1,93 @@
+"""The closed loops' slowest modes: how fast each MPC damps the bar system's motions.
+
+At a few equilibria of the lab's setup (hover; turned, moving cables at θ_l = 20°; the
+paper's θ_l = 45° pose), the plant's Jacobian discretized exactly and each controller's gain
+probed from its own ``step`` (controllers/linear_modes.py) give the closed loop's modes;
+the three slowest physical ones are printed per controller, with the share of the bar's
+yaw in each. A magnitude above 1 grows.
+
+Run: ``python -m benchmarks.modes [--config PATH] [--json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from controllers.equilibria import Reference
+from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
+from controllers.mpc import CentralizedMpc, DecentralizedMpc
+
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "kth_sml.toml"
+EQUILIBRIA = {
+    "hover": Reference((0.0, 0.0, 1.0)),
+    "theta_l 20°, turned": Reference((0.5, -0.3, 1.2), 0.8, (0.8, 1.4), math.radians(20)),
+    "theta_l 45°": Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), math.pi / 4),
+}
+SHOWN = 3
+
+
+def slowest_modes(config_path: Path) -> dict[str, dict[str, list[dict[str, float]]]]:
+    """{controller: {equilibrium: [mode, ...]}} with the slowest physical modes first
+    (each conjugate pair once)."""
+    from supervisor.config import load_config  # benchmarks may use the service's loader
+
+    config = load_config(config_path)
+    params = config.system.to_params()
+    result: dict[str, dict[str, list[dict[str, float]]]] = {}
+    for name, cls in (("centralized", CentralizedMpc), ("decentralized", DecentralizedMpc)):
+        settings = dataclasses.replace(config.mpc.settings(name), late_after_s=math.inf)
+        result[name] = {}
+        for label, reference in EQUILIBRIA.items():
+            controller = cls(params, settings, "daqp")
+            modes = physical_closed_loop_modes(controller, params, reference)
+            rows: list[dict[str, float]] = []
+            for mode in modes:
+                row = {
+                    "magnitude": mode.magnitude,
+                    "frequency_hz": mode.frequency_hz,
+                    "growth_per_s": mode.growth_per_s(settings.dt_s),
+                    "bar_yaw_share": float(np.linalg.norm(mode.shape[list(BAR_YAW)])),
+                }
+                pair = rows and math.isclose(row["magnitude"], rows[-1]["magnitude"], rel_tol=1e-9)
+                if not (pair and row["frequency_hz"] > 0):
+                    rows.append(row)
+                if len(rows) == SHOWN:
+                    break
+            result[name][label] = rows
+    return result
+
+
+def print_table(result: dict[str, dict[str, list[dict[str, float]]]]) -> None:
+    for name, table in result.items():
+        print(f"{name}: slowest physical modes (|λ| per 20 ms tick, frequency, growth, yaw share)")
+        for label, rows in table.items():
+            cells = "  ".join(
+                f"{r['magnitude']:.5f} {r['frequency_hz']:4.2f} Hz"
+                f" {100 * r['growth_per_s']:+5.1f} %/s yaw {r['bar_yaw_share']:.2f}"
+                for r in rows
+            )
+            print(f"  {label:22s} {cells}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="setup file")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args(argv)
+    result = slowest_modes(args.config)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print_table(result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
