@@ -1,10 +1,10 @@
 """The closed loops' slowest modes: how fast each MPC damps the bar system's motions.
 
-At a few equilibria of the lab's setup (hover; turned, moving cables at θ_l = 20°; the
-paper's θ_l = 45° pose), the plant's Jacobian discretized exactly and each controller's gain
-probed from its own ``step`` (controllers/linear_modes.py) give the closed loop's modes;
-the three slowest physical ones are printed per controller, with the share of the bar's
-yaw in each. A magnitude above 1 grows.
+At a few equilibria of the lab's setup (hover; bar and UAVs turned with the cables tilted
+by θ_l = 20°; the paper's θ_l = 45° pose), the plant's Jacobian discretized exactly and
+each controller's gain probed from its own ``step`` (controllers/linear_modes.py) give the
+closed loop's modes; the three slowest physical ones are printed per controller, with the
+share of the bar's yaw in each. A magnitude above 1 grows.
 
 Run: ``python -m benchmarks.modes [--config PATH] [--json]``.
 """
@@ -55,8 +55,12 @@ def slowest_modes(config_path: Path) -> dict[str, dict[str, list[dict[str, float
                     "growth_per_s": mode.growth_per_s(settings.dt_s),
                     "bar_yaw_share": float(np.linalg.norm(mode.shape[list(BAR_YAW)])),
                 }
-                pair = rows and math.isclose(row["magnitude"], rows[-1]["magnitude"], rel_tol=1e-9)
-                if not (pair and row["frequency_hz"] > 0):
+                conjugate = (
+                    bool(rows)
+                    and row["frequency_hz"] > 0
+                    and math.isclose(row["magnitude"], rows[-1]["magnitude"], rel_tol=1e-9)
+                )
+                if not conjugate:
                     rows.append(row)
                 if len(rows) == SHOWN:
                     break
