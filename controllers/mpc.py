@@ -46,7 +46,7 @@ from controllers.model import (
     payload_model_for,
     uav_slices,
 )
-from controllers.params import BarSystemParams, MpcSettings, StateBound
+from controllers.params import BarSystemParams, MpcSettings, ReferenceLead, StateBound
 from controllers.qp.base import OcpQp, QpBackend, QpStatus
 from controllers.qp.registry import make_backend
 from controllers.vectors import cross3
@@ -444,6 +444,28 @@ def bar_from_ends(
     return centre, math.atan2(end_2[1] - end_1[1], end_2[0] - end_1[0])
 
 
+# The yaw lead fades out towards θ_l = 45°: the bar's yaw swing quickens with θ_l (0.86 Hz
+# hovering, 1.43 Hz at 45°), a fixed lead then overshoots in phase, and from about 45° on
+# the agents damp that swing on their own (benchmarks/modes.py).
+YAW_LEAD_FADE_RAD = math.pi / 4
+
+
+def led_reference(reference: Reference, state: FloatArray, lead: ReferenceLead) -> Reference:
+    """``reference`` moved along the bar's measured motion (``ReferenceLead``): position by
+    ``lead.position_s`` × (v_b − v_ref), yaw by the faded ``lead.yaw_s`` × (ω_b,z − ψ̇_ref)."""
+    if (lead.position_s == 0.0 and lead.yaw_s == 0.0) or not _finite(state):
+        return reference
+    velocity_error = state[V_B] - np.asarray(reference.velocity_mps)
+    position = np.asarray(reference.bar_position_m) + lead.position_s * velocity_error
+    fade = max(0.0, 1.0 - reference.theta_l_rad / YAW_LEAD_FADE_RAD)
+    yaw_rate_error = float(state[W_B][2]) - reference.yaw_rates_radps[0]
+    return replace(
+        reference,
+        bar_position_m=(float(position[0]), float(position[1]), float(position[2])),
+        bar_yaw_rad=reference.bar_yaw_rad + fade * lead.yaw_s * yaw_rate_error,
+    )
+
+
 class _Agent:
     """UAV i's own MPC on its 18-state UAV–payload model (Table II)."""
 
@@ -524,8 +546,10 @@ class DecentralizedMpc:
         return self._preparation.last_was_used
 
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
-        """One tick for both agents; ``state`` is the 36-state (each agent takes its part)."""
+        """One tick for both agents; ``state`` is the 36-state (each agent takes its part).
+        The agents regulate to ``reference`` moved by the settings' ``reference_lead``."""
         started = time.perf_counter()
+        reference = led_reference(reference, state, self.settings.reference_lead)
         try:
             eq = bar_equilibrium(self.params, reference)
         except ValueError as error:

@@ -80,6 +80,18 @@ class StateBound:
 
 
 @dataclass(frozen=True)
+class ReferenceLead:
+    """Beyond the paper, for the decentralized MPC only: the setpoint both agents regulate
+    to is moved along the bar's measured motion, its position by ``position_s`` times the
+    bar's velocity error and its yaw by ``yaw_s`` times the bar's yaw-rate error. Each
+    agent's model, cost and constraints stay those of Section V; what the agents share is
+    the bar's velocity and yaw rate. Zero (the default) is Section V as published."""
+
+    position_s: float = 0.0
+    yaw_s: float = 0.0
+
+
+@dataclass(frozen=True)
 class MpcSettings:
     """Everything an MPC needs besides the model: (MPC)'s N, h, weights, U, X, X_N, and
     the time budget after which a finished solve is treated as late."""
@@ -95,3 +107,6 @@ class MpcSettings:
     prepared_yaw_tolerance_rad: float = 0.0
     """How far the measured yaws may be from those a ``prepare`` linearized at for its
     linearization to be used [rad]; 0 keeps only an exact match."""
+    reference_lead: ReferenceLead = ReferenceLead()
+    """The decentralized MPC's setpoint lead (``ReferenceLead``); unused by the
+    centralized MPC."""

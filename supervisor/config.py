@@ -30,6 +30,7 @@ from controllers.params import (
     InputLimits,
     MpcSettings,
     MpcWeights,
+    ReferenceLead,
     StateBound,
     UavParams,
 )
@@ -156,6 +157,11 @@ class DecentralizedWeights(_Section):
     terminal_scale: PositiveFloat
     state_bounds: list[StateBoundEntry] = []
     terminal_bounds: list[StateBoundEntry] = []
+    reference_lead_s: Annotated[
+        list[Annotated[float, Field(ge=0.0, le=2.0)]], Field(min_length=2, max_length=2)
+    ] = [0.0, 0.0]
+    """Beyond the paper: [position, yaw] lead of the agents' setpoint along the bar's
+    measured velocity and yaw rate (``ReferenceLead``); [0, 0] is Section V."""
 
     @model_validator(mode="after")
     def _indices(self) -> DecentralizedWeights:
@@ -212,6 +218,9 @@ class MpcSection(_Section):
             qp_backend=self.qp_backend,
             late_after_s=self.late_after_s,
             prepared_yaw_tolerance_rad=self.prepared_yaw_tolerance_rad,
+            reference_lead=ReferenceLead(*self.decentralized.reference_lead_s)
+            if controller == "decentralized"
+            else ReferenceLead(),
         )
 
 

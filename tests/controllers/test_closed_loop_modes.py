@@ -13,7 +13,7 @@ from benchmarks import modes as modes_benchmark
 from controllers.equilibria import Reference
 from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
-from controllers.params import BarSystemParams
+from controllers.params import BarSystemParams, ReferenceLead
 from supervisor.config import load_config
 from tests.conftest import CONFIGS
 
@@ -24,8 +24,12 @@ EQUILIBRIA = [
 ]
 
 
-def mpc(controller_cls: type, name: str) -> CentralizedMpc | DecentralizedMpc:
-    settings = dataclasses.replace(CONFIG.mpc.settings(name), late_after_s=10.0)
+def mpc(
+    controller_cls: type, name: str, lead: ReferenceLead | None = None
+) -> CentralizedMpc | DecentralizedMpc:
+    settings = dataclasses.replace(
+        CONFIG.mpc.settings(name), late_after_s=10.0, reference_lead=lead or ReferenceLead()
+    )
     return controller_cls(CONFIG.system.to_params(), settings, "daqp")  # type: ignore[no-any-return]
 
 
@@ -55,16 +59,37 @@ def test_the_decentralized_mpcs_let_the_bar_yaw_swing_grow(lab_params: BarSystem
     assert 0.0 < fastest.growth_per_s(controller.settings.dt_s) < 0.2
 
 
+@pytest.mark.parametrize(
+    "reference",
+    [
+        *EQUILIBRIA,
+        pytest.param(Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), math.radians(30)), id="30°"),
+        pytest.param(Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), math.radians(45)), id="45°"),
+        pytest.param(Reference((0.0, 0.0, 1.0), -1.0, (-1.0, -1.0), math.radians(60)), id="60°"),
+    ],
+)
+def test_with_the_reference_lead_the_decentralized_mpcs_damp_every_physical_mode(
+    reference: Reference, lab_params: BarSystemParams
+) -> None:
+    """The lead beyond the paper (0.6 s on position, 0.2 s on yaw, fading out by θ_l = 45°)
+    damps the swings the agents alone let grow, and spoils no equilibrium where they damp
+    them (benchmarks/modes.py prints the figures)."""
+    controller = mpc(DecentralizedMpc, "decentralized", ReferenceLead(0.6, 0.2))
+    modes = physical_closed_loop_modes(controller, lab_params, reference)
+    assert len(modes) == 30 and modes[0].magnitude < 1.0
+
+
 def test_the_modes_benchmark_prints_the_slowest_modes_first(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     assert modes_benchmark.main(["--json"]) == 0
     result = json.loads(capsys.readouterr().out)
-    assert set(result) == {"centralized", "decentralized"}
+    assert set(result) == {"centralized", "decentralized", "decentralized with reference lead"}
     for table in result.values():
         assert set(table) == set(modes_benchmark.EQUILIBRIA)
         for rows in table.values():
             magnitudes = [row["magnitude"] for row in rows]
             assert len(rows) == modes_benchmark.SHOWN and magnitudes == sorted(magnitudes)[::-1]
-    assert all(row["magnitude"] < 1.0 for rows in result["centralized"].values() for row in rows)
+    for damped in ("centralized", "decentralized with reference lead"):
+        assert all(row["magnitude"] < 1.0 for rows in result[damped].values() for row in rows)
     assert result["decentralized"]["hover"][0]["growth_per_s"] > 0.0
