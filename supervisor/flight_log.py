@@ -144,9 +144,19 @@ class FlightLog:
 
     @property
     def controller(self) -> str:
-        """The controller that ran most ticks."""
-        return (
-            max(set(self.controllers), key=self.controllers.count) if self.controllers else "none"
+        """The controller that flew, or the controllers in turn with when each took over,
+        counted from the log's first tick ("decentralized, centralized after 45.1 s"), when
+        it was switched in flight."""
+        if not self.controllers:
+            return "none"
+        turns = [0] + [
+            k
+            for k in range(1, len(self.controllers))
+            if self.controllers[k] != self.controllers[k - 1]
+        ]
+        return ", ".join(
+            self.controllers[k] + (f" after {self.t_s[k] - self.t_s[0]:.1f} s" if k else "")
+            for k in turns
         )
 
 

@@ -135,6 +135,8 @@ def test_a_swinging_decentralized_bar_is_handed_to_the_centralized_mpc(
     log = read_flight_log(result.log_path)
     assert [c for c, _ in itertools.groupby(log.controllers)] == ["decentralized", "centralized"]
     handed_over = log.t_s[log.controllers.index("centralized")]
+    after = handed_over - log.t_s[0]
+    assert log.controller == f"decentralized, centralized after {after:.1f} s"  # report's label
     flying = np.array([m in ("hover", "tracking") for m in log.modes])
     yaw_error = np.degrees(
         np.abs(np.remainder(log.state[:, 8] - log.state_ref[:, 8] + np.pi, 2 * np.pi) - np.pi)
