@@ -358,6 +358,7 @@ class SafetySection(_Section):
     decentralized MPC: the centralized MPC takes over. 0 turns the hand-over off."""
 
     def limits(self) -> SafetyLimits:
+        """The monitors' thresholds for this setup (the others at their defaults)."""
         return SafetyLimits(max_bar_yaw_error_rad=math.radians(self.max_bar_yaw_error_deg))
 
 
