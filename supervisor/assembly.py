@@ -26,6 +26,7 @@ from supervisor.config import Config
 from supervisor.estimation import BodyNames
 from supervisor.flight_core import CONTROLLERS, FlightCore
 from supervisor.mavlink_link import LinkConfig
+from supervisor.safety import SafetyLimits
 from supervisor.setpoints import Arena
 
 
@@ -33,6 +34,11 @@ def arena_from_config(config: Config) -> Arena:
     """The geofence of the configured arena."""
     lo, hi = config.arena.min_m, config.arena.max_m
     return Arena((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
+
+
+def safety_limits_from_config(config: Config) -> SafetyLimits:
+    """The monitors' thresholds for this setup (the ones it does not set at their defaults)."""
+    return SafetyLimits(max_bar_yaw_error_rad=math.radians(config.safety.max_bar_yaw_error_deg))
 
 
 def flight_core_from_config(
@@ -51,7 +57,7 @@ def flight_core_from_config(
         settings,
         arena_from_config(config),
         controller,
-        safety=config.safety.limits(),
+        safety=safety_limits_from_config(config),
     )
 
 

@@ -35,7 +35,6 @@ from controllers.params import (
     UavParams,
 )
 from controllers.qp.registry import BACKEND_NAMES
-from supervisor.safety import SafetyLimits
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -356,10 +355,6 @@ class SafetySection(_Section):
     max_bar_yaw_error_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 20.0
     """The bar's yaw this far from its reference while hovering or tracking under the
     decentralized MPC: the centralized MPC takes over. 0 turns the hand-over off."""
-
-    def limits(self) -> SafetyLimits:
-        """The monitors' thresholds for this setup (the others at their defaults)."""
-        return SafetyLimits(max_bar_yaw_error_rad=math.radians(self.max_bar_yaw_error_deg))
 
 
 class LogSection(_Section):

@@ -9,7 +9,11 @@ import numpy as np
 import pytest
 
 from controllers.equilibria import Reference, bar_equilibrium
-from supervisor.assembly import arena_from_config, flight_core_from_config
+from supervisor.assembly import (
+    arena_from_config,
+    flight_core_from_config,
+    safety_limits_from_config,
+)
 from supervisor.config import ConfigError, load_config
 from supervisor.estimation import Estimate
 from supervisor.modes import Mode
@@ -83,9 +87,10 @@ def test_a_swing_hands_the_decentralized_bar_to_the_centralized_mpc() -> None:
 
 
 def test_the_hand_over_angle_is_a_setting() -> None:
-    assert CONFIG.safety.limits().max_bar_yaw_error_rad == pytest.approx(math.radians(20.0))
+    default = safety_limits_from_config(CONFIG).max_bar_yaw_error_rad
+    assert default == pytest.approx(math.radians(20.0))
     off = load_config(CONFIGS / "sim.toml", ["safety.max_bar_yaw_error_deg=0"])
-    assert off.safety.limits().max_bar_yaw_error_rad == 0.0
+    assert safety_limits_from_config(off).max_bar_yaw_error_rad == 0.0
     for bad in ("-5", "180", "nan"):
         with pytest.raises(ConfigError, match=r"safety\.max_bar_yaw_error_deg"):
             load_config(CONFIGS / "sim.toml", [f"safety.max_bar_yaw_error_deg={bad}"])
