@@ -453,12 +453,14 @@ YAW_LEAD_FADE_RAD = math.pi / 4
 def led_reference(reference: Reference, state: FloatArray, lead: ReferenceLead) -> Reference:
     """``reference`` moved along the bar's measured motion (``ReferenceLead``): position by
     ``lead.position_s`` × (v_b − v_ref), yaw by the faded ``lead.yaw_s`` × (ω_b,z − ψ̇_ref)."""
-    if (lead.position_s == 0.0 and lead.yaw_s == 0.0) or not _finite(state):
+    if lead.position_s == 0.0 and lead.yaw_s == 0.0:
         return reference
     velocity_error = state[V_B] - np.asarray(reference.velocity_mps)
+    yaw_rate_error = float(state[W_B][2]) - reference.yaw_rates_radps[0]
+    if not (_finite(velocity_error) and math.isfinite(yaw_rate_error)):
+        return reference  # the step reports the bad state
     position = np.asarray(reference.bar_position_m) + lead.position_s * velocity_error
     fade = max(0.0, 1.0 - reference.theta_l_rad / YAW_LEAD_FADE_RAD)
-    yaw_rate_error = float(state[W_B][2]) - reference.yaw_rates_radps[0]
     return replace(
         reference,
         bar_position_m=(float(position[0]), float(position[1]), float(position[2])),

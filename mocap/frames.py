@@ -64,10 +64,15 @@ def rotation_from_euler_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float) -
 
 def euler_zyx_from_rotation(R: FloatArray) -> FloatArray:
     """(φ, θ, ψ) [rad] of a rotation matrix, inverting (2); θ in [−π/2, π/2]."""
-    pitch = math.asin(max(-1.0, min(1.0, -float(R[2, 0]))))
-    roll = math.atan2(float(R[2, 1]), float(R[2, 2]))
-    yaw = math.atan2(float(R[1, 0]), float(R[0, 0]))
-    return np.array([roll, pitch, yaw])
+    return _euler_zyx(
+        float(R[0, 0]), float(R[1, 0]), float(R[2, 0]), float(R[2, 1]), float(R[2, 2])
+    )
+
+
+def _euler_zyx(r00: float, r10: float, r20: float, r21: float, r22: float) -> FloatArray:
+    """(φ, θ, ψ) from the five entries of R that fix them."""
+    pitch = math.asin(max(-1.0, min(1.0, -r20)))
+    return np.array([math.atan2(r21, r22), pitch, math.atan2(r10, r00)])
 
 
 def quaternion_from_rotation(R: FloatArray) -> FloatArray:
@@ -118,12 +123,15 @@ def quaternion_from_euler_zyx(roll_rad: float, pitch_rad: float, yaw_rad: float)
 
 def euler_zyx_from_quaternion(q: FloatArray) -> FloatArray:
     """(φ, θ, ψ) [rad] of a (w, x, y, z) quaternion: ``euler_zyx_from_rotation`` of its
-    rotation matrix, from the entries it reads."""
+    rotation matrix, from only the entries that one reads."""
     w, x, y, z = _unit_quaternion(q)
-    r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
-    r10, r00 = 2 * (x * y + w * z), 1 - 2 * (y * y + z * z)
-    pitch = math.asin(max(-1.0, min(1.0, -r20)))
-    return np.array([math.atan2(r21, r22), pitch, math.atan2(r10, r00)])
+    return _euler_zyx(
+        1 - 2 * (y * y + z * z),
+        2 * (x * y + w * z),
+        2 * (x * z - w * y),
+        2 * (y * z + w * x),
+        1 - 2 * (x * x + y * y),
+    )
 
 
 def rotation_enu_flu_to_ned_frd(R_enu_flu: FloatArray) -> FloatArray:
