@@ -24,7 +24,7 @@ import numpy as np
 from controllers.equilibria import Reference
 from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
-from controllers.params import ReferenceLead
+from controllers.params import RECOMMENDED_LEAD, ReferenceLead
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "kth_sml.toml"
 EQUILIBRIA = {
@@ -33,7 +33,6 @@ EQUILIBRIA = {
     "theta_l 45°": Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), math.pi / 4),
 }
 SHOWN = 3
-RECOMMENDED_LEAD = ReferenceLead(position_s=0.6, yaw_s=0.2)  # configs/kth_sml.toml's comment
 
 
 def slowest_modes(config_path: Path) -> dict[str, dict[str, list[dict[str, float]]]]:

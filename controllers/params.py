@@ -91,6 +91,10 @@ class ReferenceLead:
     yaw_s: float = 0.0
 
 
+RECOMMENDED_LEAD = ReferenceLead(position_s=0.6, yaw_s=0.2)
+"""The lead the analysis and the simulations support (README; configs/kth_sml.toml)."""
+
+
 @dataclass(frozen=True)
 class MpcSettings:
     """Everything an MPC needs besides the model: (MPC)'s N, h, weights, U, X, X_N, and

@@ -13,7 +13,7 @@ from benchmarks import modes as modes_benchmark
 from controllers.equilibria import Reference
 from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
-from controllers.params import BarSystemParams, ReferenceLead
+from controllers.params import RECOMMENDED_LEAD, BarSystemParams, ReferenceLead
 from supervisor.config import load_config
 from tests.conftest import CONFIGS
 
@@ -74,7 +74,7 @@ def test_with_the_reference_lead_the_decentralized_mpcs_damp_every_physical_mode
     """The lead beyond the paper (0.6 s on position, 0.2 s on yaw, fading out by θ_l = 45°)
     damps the swings the agents alone let grow, and spoils no equilibrium where they damp
     them (benchmarks/modes.py prints the figures)."""
-    controller = mpc(DecentralizedMpc, "decentralized", ReferenceLead(0.6, 0.2))
+    controller = mpc(DecentralizedMpc, "decentralized", RECOMMENDED_LEAD)
     modes = physical_closed_loop_modes(controller, lab_params, reference)
     assert len(modes) == 30 and modes[0].magnitude < 1.0
 

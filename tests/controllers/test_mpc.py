@@ -19,7 +19,7 @@ from controllers.mpc import (
     led_reference,
     yaws_ahead,
 )
-from controllers.params import BarSystemParams, MpcSettings, ReferenceLead
+from controllers.params import RECOMMENDED_LEAD, BarSystemParams, MpcSettings, ReferenceLead
 from supervisor.config import load_config
 from tests.conftest import CONFIGS
 from tests.controllers.closed_loop import Run, fly
@@ -191,7 +191,7 @@ def first_time_inside_for_good(
     return math.inf if last == len(run.times_s) - 1 else float(run.times_s[last + 1])
 
 
-LEAD = ReferenceLead(position_s=0.6, yaw_s=0.2)
+LEAD = RECOMMENDED_LEAD
 CLOSED_LOOP_CASES = [
     pytest.param(CentralizedMpc, ReferenceLead(), id="centralized"),
     pytest.param(DecentralizedMpc, LEAD, id="decentralized-with-reference-lead"),

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from controllers.params import RECOMMENDED_LEAD
 from supervisor.cli import main
 from supervisor.config import Config, load_config
 from supervisor.flight_log import read_flight_log
@@ -152,7 +153,8 @@ def test_with_the_reference_lead_the_decentralized_bar_needs_no_hand_over(
     """The same sequence under the decentralized MPC with the lead beyond the paper
     (configs/kth_sml.toml's comment): no swing reaches the hand-over angle, and the bar's
     x-error spread stays well below Section V alone's (108 mm, README)."""
-    led = load_config(CONFIGS / "sim.toml", ["mpc.decentralized.reference_lead_s=[0.6, 0.2]"])
+    lead = f"[{RECOMMENDED_LEAD.position_s}, {RECOMMENDED_LEAD.yaw_s}]"
+    led = load_config(CONFIGS / "sim.toml", [f"mpc.decentralized.reference_lead_s={lead}"])
     result = run_scenario(
         led, load_scenario("paper"), "decentralized", log_path=tmp_path / "f.jsonl"
     )
