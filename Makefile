@@ -12,7 +12,7 @@ $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
-	-$(BIN)/python -m supervisor.hpipm_install  # AVX2 HPIPM; on failure casadi's own
+	-$(BIN)/python -m supervisor.cli.hpipm_install  # AVX2 HPIPM; on failure casadi's own
 	touch $@
 
 serve: $(BIN)/.installed

@@ -31,10 +31,10 @@ from fastapi.staticfiles import StaticFiles
 from api.models import KillRequest, ModeRequest, SetpointBody
 from controllers.equilibria import EquilibriumError
 from controllers.params import BarSystemParams
-from supervisor.equilibrium_summary import equilibrium_summary
-from supervisor.flight_client import FlightClient, Reply
-from supervisor.flight_log import finite_or_none
-from supervisor.setpoints import Arena, SetpointError, validate_setpoint
+from supervisor.flight.equilibrium_summary import equilibrium_summary
+from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoint
+from supervisor.ipc.client import FlightClient, Reply
+from supervisor.logs.flight_log import finite_or_none
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 HTTP_STATUS = {"ok": 200, "refused": 409, "invalid": 422, "unavailable": 503}

@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.setpoints import Setpoint
+from supervisor.flight.setpoints import Setpoint
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 

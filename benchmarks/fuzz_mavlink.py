@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from sim.ports import AirframeState
 from sim.px4_endpoint import Px4Endpoint
-from supervisor.mavlink_link import LinkConfig, MavlinkLink
+from supervisor.mavlink.link import LinkConfig, MavlinkLink
 
 MUTATIONS = (
     "none",

@@ -17,6 +17,7 @@ import dataclasses
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,7 @@ SHOWN = 3
 def slowest_modes(config_path: Path) -> dict[str, dict[str, list[dict[str, float]]]]:
     """{controller: {equilibrium: [mode, ...]}} with the slowest physical modes first
     (each conjugate pair once)."""
-    from supervisor.config import load_config  # benchmarks may use the service's loader
+    from supervisor.app.config import load_config  # benchmarks may use the service's loader
 
     config = load_config(config_path)
     params = config.system.to_params()
@@ -56,7 +57,7 @@ def slowest_modes(config_path: Path) -> dict[str, dict[str, list[dict[str, float
         )
         result[name] = {}
         for label, reference in EQUILIBRIA.items():
-            controller = cls(params, settings, "daqp")
+            controller = cls(params, settings, "daqp", clock=time.perf_counter)
             modes = physical_closed_loop_modes(controller, params, reference)
             rows: list[dict[str, float]] = []
             for mode in modes:

@@ -40,7 +40,7 @@ Sequence = list[tuple[np.ndarray, Reference]]
 
 def record_sequence(params: BarSystemParams, settings: MpcSettings, ticks: int) -> Sequence:
     """States and references of a closed loop on the nonlinear model (RK4, 4 substeps)."""
-    controller = CentralizedMpc(params, settings, REFERENCE_BACKEND)
+    controller = CentralizedMpc(params, settings, REFERENCE_BACKEND, clock=time.perf_counter)
     f = BarSystemModel(params).dynamics
     x = bar_equilibrium(params, Reference((0.4, -0.2, 1.2), math.radians(30), (0.5, -0.5))).x
     h = settings.dt_s / 4
@@ -75,7 +75,7 @@ def _time_ticks(tick: Callable[[int], np.ndarray], ticks: int) -> tuple[np.ndarr
 def centralized_run(
     params: BarSystemParams, settings: MpcSettings, backend: str, seq: Sequence
 ) -> tuple[np.ndarray, np.ndarray]:
-    controller = CentralizedMpc(params, settings, backend)
+    controller = CentralizedMpc(params, settings, backend, clock=time.perf_counter)
     return _time_ticks(lambda k: controller.step(seq[k][0], seq[k][1], 0.02 * k).u, len(seq))
 
 
@@ -83,7 +83,7 @@ def decentralized_run(
     params: BarSystemParams, settings: MpcSettings, backend: str, seq: Sequence
 ) -> tuple[np.ndarray, np.ndarray]:
     """UAV 1's agent alone: its full tick from the 36-state to its u*."""
-    agent = DecentralizedMpc(params, settings, backend).agents[0]
+    agent = DecentralizedMpc(params, settings, backend, clock=time.perf_counter).agents[0]
 
     def tick(k: int) -> np.ndarray:
         state, reference = seq[k]
@@ -117,7 +117,7 @@ def run_benchmark(
     config_path: Path, ticks: int, backends: tuple[str, ...] = BACKEND_NAMES, progress: bool = True
 ) -> dict[str, object]:
     """The benchmark's result object (see the module docstring)."""
-    from supervisor.config import load_config  # benchmarks may use the service's config loader
+    from supervisor.app.config import load_config  # benchmarks may use the service's config loader
 
     config = load_config(config_path)
     params = config.system.to_params()

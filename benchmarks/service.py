@@ -71,7 +71,7 @@ async def running_service(
     token: str, log_folder: Path, overrides: Sequence[str] = ()
 ) -> AsyncIterator[RunningService]:
     """Start ``serve`` (embedded simulator, API on a free port), stop it with SIGINT."""
-    arguments = ["-m", "supervisor.cli", "serve", "--set", "api.port=0"]
+    arguments = ["-m", "supervisor.cli.main", "serve", "--set", "api.port=0"]
     arguments += ["--set", f'log.folder="{log_folder}"']
     for override in overrides:
         arguments += ["--set", override]

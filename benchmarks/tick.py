@@ -31,7 +31,7 @@ import numpy as np
 import websockets
 
 from benchmarks.service import RunningService, running_service
-from supervisor.flight_log import read_flight_log
+from supervisor.logs.flight_log import read_flight_log
 
 TOKEN = "benchmark-token"
 PAPER_SETPOINTS: list[dict[str, Any]] = [

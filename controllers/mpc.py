@@ -22,7 +22,6 @@ part of the tick remains. Otherwise it linearizes anew.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import Enum
@@ -46,7 +45,7 @@ from controllers.model import (
     payload_model_for,
     uav_slices,
 )
-from controllers.params import BarSystemParams, MpcSettings, ReferenceLead, StateBound
+from controllers.params import BarSystemParams, Clock, MpcSettings, ReferenceLead, StateBound
 from controllers.qp.base import OcpQp, QpBackend, QpStatus
 from controllers.qp.registry import make_backend
 from controllers.vectors import cross3
@@ -318,13 +317,19 @@ class _ModelPreparation:
 
 
 class CentralizedMpc:
-    """The 36-state MPC of Section IV (Table I)."""
+    """The 36-state MPC of Section IV (Table I); ``clock`` times each step (see ``Clock``)."""
 
     def __init__(
-        self, params: BarSystemParams, settings: MpcSettings, backend: str | None = None
+        self,
+        params: BarSystemParams,
+        settings: MpcSettings,
+        backend: str | None = None,
+        *,
+        clock: Clock,
     ) -> None:
         self.params = params
         self.settings = settings
+        self._clock = clock
         jacobians = bar_jacobians(BarSystemModel(params))
         a_pattern, b_pattern = _patterns(jacobians)
         self._jacobians = NumericFunction(jacobians)
@@ -367,7 +372,7 @@ class CentralizedMpc:
 
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
         """One tick: u* for the 36-state ``state`` (paper order) tracking ``reference``."""
-        started = time.perf_counter()
+        started = self._clock()
         try:
             eq = bar_equilibrium(self.params, reference)
         except ValueError as error:
@@ -390,7 +395,7 @@ class CentralizedMpc:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_FAILED, hold, solution.status.value
             )
-        elapsed = time.perf_counter() - started
+        elapsed = self._clock() - started
         if elapsed > self.settings.late_after_s:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_LATE, hold, f"tick took {elapsed * 1e3:.1f} ms"
@@ -495,8 +500,8 @@ class _Agent:
 
     def solve(
         self, x_i: FloatArray, eq: Equilibrium, model: tuple[FloatArray, FloatArray]
-    ) -> tuple[FloatArray, FloatArray, float, int] | str:
-        """(u_pred, x_pred, solve time, iterations) in absolute terms, or the failure text."""
+    ) -> tuple[FloatArray, FloatArray, int] | str:
+        """(u_pred, x_pred, iterations) in absolute terms, or the failure text."""
         i = self.i
         x_eq, u_eq = eq.payload_state(i), eq.payload_input(i)
         A, B = model
@@ -507,20 +512,26 @@ class _Agent:
         if solution.status is not QpStatus.SOLVED:
             return f"UAV {i}: {solution.status.value}"
         u_pred = np.clip(solution.u + u_eq, self.u_lb, self.u_ub)
-        return u_pred, solution.x + x_eq, solution.solve_time_s, solution.iterations
+        return u_pred, solution.x + x_eq, solution.iterations
 
 
 class DecentralizedMpc:
-    """Two independent 18-state MPCs of Section V; each sees only its UAV and its bar end."""
+    """Two independent 18-state MPCs of Section V; each sees only its UAV and its bar end.
+    ``clock`` times each step (see ``Clock``)."""
 
     def __init__(
-        self, params: BarSystemParams, settings: MpcSettings, backend: str | None = None
+        self,
+        params: BarSystemParams,
+        settings: MpcSettings,
+        backend: str | None = None,
+        *,
+        clock: Clock,
     ) -> None:
         self.params = params
         self.settings = settings
+        self._clock = clock
         self.agents = (_Agent(params, settings, 1, backend), _Agent(params, settings, 2, backend))
         self._plans = _PlanKeeper()
-        self.agent_solve_times_s = (0.0, 0.0)
         self._preparation = _ModelPreparation(
             settings, self._linearize, tuple(agent.mpc for agent in self.agents)
         )
@@ -550,7 +561,7 @@ class DecentralizedMpc:
     def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
         """One tick for both agents; ``state`` is the 36-state (each agent takes its part).
         The agents regulate to ``reference`` moved by the settings' ``reference_lead``."""
-        started = time.perf_counter()
+        started = self._clock()
         reference = led_reference(reference, state, self.settings.reference_lead)
         try:
             eq = bar_equilibrium(self.params, reference)
@@ -578,12 +589,11 @@ class DecentralizedMpc:
         if failures:
             return self._plans.fallback(now_s, PlanStatus.SHIFTED_FAILED, hold, "; ".join(failures))
         solved = [r for r in results if not isinstance(r, str)]
-        elapsed = time.perf_counter() - started
+        elapsed = self._clock() - started
         if elapsed > self.settings.late_after_s:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_LATE, hold, f"tick took {elapsed * 1e3:.1f} ms"
             )
-        self.agent_solve_times_s = (solved[0][2], solved[1][2])
         u_pred = np.hstack([solved[0][0], solved[1][0]])
         x_pred = np.hstack([solved[0][1], solved[1][1]])
         plan = Plan(
@@ -593,6 +603,6 @@ class DecentralizedMpc:
             PlanStatus.OPTIMAL,
             now_s,
             elapsed,
-            solved[0][3] + solved[1][3],
+            solved[0][2] + solved[1][2],
         )
         return self._plans.accept(plan)

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+
+# Seconds from an arbitrary origin, read to time a computation. Injected, never read from
+# the system here: the service passes the wall clock, the fast simulator the thread's CPU
+# time (a solve is late by what it computes, not by what the machine's other load adds).
+Clock = Callable[[], float]
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,7 @@ Two layers, as in aioquic:
 * ``FrameReceiver`` — sans-IO. Takes UDP datagrams and the receive time, decodes them
   (``mocap.qtm_protocol``), counts frame-number gaps, out-of-order and duplicate datagrams,
   malformed packets and stream restarts, converts accepted frames to SI units through
-  ``mocap.frames`` (``frame_from_packet``) and keeps them in a bounded store.
+  ``geometry.frames`` (``frame_from_packet``) and keeps them in a bounded store.
 * ``QtmClient`` — the thin asyncio shell, an async context manager. Per session it connects
   to the little-endian port, reads the greeting, negotiates the protocol version (asks 1.25,
   falls back one minor version at a time down to 1.8, below which 6D is sent as doubles,

@@ -20,7 +20,7 @@ Model (per axis, identical for the three axes so one 2×2 covariance serves all 
 Samples older than (or as old as) the last one are ignored; untracked samples update nothing
 but clear the ``tracked`` flag; after a dropout longer than ``reset_after_s`` the filter
 restarts from the next sample instead of trusting a stale velocity. Every quaternion,
-rotation and Euler conversion goes through ``mocap.frames``.
+rotation and Euler conversion goes through ``geometry.frames``.
 """
 
 from __future__ import annotations
@@ -32,8 +32,8 @@ from typing import Literal
 
 import numpy as np
 
-from mocap import frames
-from mocap.frames import FloatArray
+from geometry import frames
+from geometry.frames import FloatArray
 from mocap.qtm_protocol import BodyPose, MocapFrame
 
 

@@ -18,7 +18,7 @@ Layers, bottom up:
   (body names, §1.4 "Body names"), parsed with the standard library;
 * poses — ``BodyPose`` and ``MocapFrame``: a 6D record in SI units and the paper's
   conventions (metres in the arena frame, (w, x, y, z) quaternion, Z-Y-X Euler angles), and
-  back. Every unit and rotation conversion goes through ``mocap.frames``.
+  back. Every unit and rotation conversion goes through ``geometry.frames``.
 
 Malformed input never raises anything but ``QtmProtocolError``. Untracked bodies (QTM sends
 NaN, §1.4 "Untracked bodies") decode as untracked, never as zeros.
@@ -37,8 +37,8 @@ from typing import Final, TypeAlias
 
 import numpy as np
 
-from mocap import frames
-from mocap.frames import FloatArray
+from geometry import frames
+from geometry.frames import FloatArray
 
 
 class QtmProtocolError(Exception):

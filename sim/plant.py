@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import root
 
-from mocap.frames import (
+from geometry.frames import (
     quaternion_from_rotation,
     rotation_from_euler_zyx,
     rotation_from_quaternion,

@@ -29,7 +29,7 @@ from enum import IntEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from mocap.frames import euler_zyx_from_quaternion, rotation_from_quaternion
+from geometry.frames import euler_zyx_from_quaternion, rotation_from_quaternion
 from sim.ports import AirframeState
 from sim.px4_control import HoldController, RateController
 

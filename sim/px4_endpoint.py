@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from mocap.frames import (
+from geometry.frames import (
     enu_to_ned,
     euler_zyx_from_rotation,
     flu_to_frd,

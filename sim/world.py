@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
-from mocap.frames import euler_zyx_from_quaternion
+from geometry.frames import euler_zyx_from_quaternion
 from mocap.qtm_protocol import BodyPose
 from sim.measurement import MocapFrame, MocapModel, MocapParams
 from sim.plant import Plant

@@ -1,0 +1,1 @@
+"""uavbar-supervisor: the flight service in rooms (see docs/architecture.md)."""

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from controllers.params import BarSystemParams, UavParams
-from supervisor.config import load_config
+from supervisor.app.config import load_config
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 LAB_INERTIA = (0.0348, 0.0459, 0.0977)

@@ -3,28 +3,60 @@
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("api", "supervisor", "controllers", "mocap", "sim", "benchmarks")
+PACKAGES = ("geometry", "api", "supervisor", "controllers", "mocap", "sim", "benchmarks")
 
 # Which first-party packages each package may import (arrows point one way).
 ALLOWED = {
-    "controllers": set(),
-    "mocap": set(),
-    "sim": {"mocap"},
-    "supervisor": {"controllers", "mocap", "sim", "benchmarks"},  # the CLI's `bench` command
-    "api": {"supervisor", "controllers", "mocap"},
-    "benchmarks": {"controllers", "mocap", "sim", "supervisor", "api"},
+    "geometry": set(),
+    "controllers": {"geometry"},
+    "mocap": {"geometry"},
+    "sim": {"geometry", "mocap", "supervisor"},  # supervisor: only SIM_MAY_USE below
+    "supervisor": {"geometry", "controllers", "mocap", "sim", "benchmarks", "api"},  # see ROOMS
+    "api": {"geometry", "supervisor", "controllers", "mocap"},
+    "benchmarks": {"geometry", "controllers", "mocap", "sim", "supervisor", "api"},
 }
-# The composition root: the one module that assembles the service, API included.
-COMPOSITION_ROOT = {"supervisor/serve.py": {"api"}}
-# Pure packages: computation only, no event loop, sockets or config files.
-FORBIDDEN_MODULES = {
-    "controllers": {"asyncio", "socket", "tomllib", "fastapi", "pymavlink", "supervisor"},
+# The simulated PX4 speaks MAVLink through the same sans-IO codec and UDP transport as the
+# supervisor's link, and nothing else of the supervisor.
+SIM_MAY_USE = {"supervisor.mavlink.codec", "supervisor.mavlink.transport"}
+
+# The rooms of supervisor/, and which other rooms each may import: arrows point one way,
+# and a value type lives in the lowest room that uses it.
+ROOMS = {
+    "vehicles": set(),
+    "flight": {"vehicles"},
+    "mavlink": {"vehicles"},
+    "logs": {"flight"},
+    "ipc": {"flight"},
+    "runtime": {"flight", "vehicles", "ipc", "logs"},
+    "app": {"flight", "vehicles", "mavlink", "ipc", "runtime", "logs"},
+    "simulate": {"flight", "logs", "runtime", "app"},
+    "cli": {"flight", "logs", "runtime", "app", "simulate"},
 }
+# Beyond the rooms: who may reach the world simulator, the API and the benchmarks.
+ROOMS_USING_SIM = {"app", "simulate"}
+COMPOSITION_ROOT = {"supervisor/app/serve.py": "api"}
+BENCH_COMMAND = {"supervisor/cli/main.py": "benchmarks"}
+
+# Pure cores: computation only — no event loop, sockets, clocks, threads or processes.
+NO_IO = {"asyncio", "socket", "time", "threading", "subprocess"}
+PURE = {
+    "geometry": NO_IO,
+    "controllers": NO_IO | {"tomllib", "fastapi", "pymavlink", "supervisor"},
+    "supervisor/flight": NO_IO,
+    "supervisor/mavlink/codec.py": NO_IO,
+    "supervisor/mavlink/session.py": NO_IO,
+    "mocap/qtm_protocol.py": NO_IO,
+    "mocap/fusion.py": NO_IO,
+}
+# The 36-state is indexed by name (geometry.state); a literal index or slice into a vector
+# called x / state / x_eq anywhere else is what this rule catches.
+LITERAL_STATE_INDEX = re.compile(r"\b(?:x|state|x_eq|x_ref|state_ref)\[\s*-?\d+\s*(?::\s*\d+\s*)?\]")
 
 
 def imported_modules(path: Path) -> set[str]:
@@ -39,7 +71,12 @@ def imported_modules(path: Path) -> set[str]:
 
 
 def modules_of(package: str) -> list[Path]:
-    return sorted((ROOT / package).rglob("*.py"))
+    path = ROOT / package
+    return [path] if path.suffix == ".py" else sorted(path.rglob("*.py"))
+
+
+def relative(path: Path) -> str:
+    return str(path.relative_to(ROOT))
 
 
 @pytest.mark.parametrize("package", PACKAGES)
@@ -48,20 +85,96 @@ def test_first_party_imports_point_one_way(package: str) -> None:
     for path in modules_of(package):
         for name in imported_modules(path):
             top = name.split(".")[0]
-            allowed = ALLOWED[package] | COMPOSITION_ROOT.get(str(path.relative_to(ROOT)), set())
-            if top in PACKAGES and top != package and top not in allowed:
-                violations.append(f"{path.relative_to(ROOT)} imports {name}")
+            if top in PACKAGES and top != package and top not in ALLOWED[package]:
+                violations.append(f"{relative(path)} imports {name}")
     assert not violations, "\n".join(violations)
 
 
-@pytest.mark.parametrize("package", sorted(FORBIDDEN_MODULES))
-def test_pure_packages_do_no_io(package: str) -> None:
+def test_sim_uses_only_the_mavlink_codec_and_transport_of_the_supervisor() -> None:
+    violations = [
+        f"{relative(path)} imports {name}"
+        for path in modules_of("sim")
+        for name in imported_modules(path)
+        if name.split(".")[0] == "supervisor" and name not in SIM_MAY_USE
+    ]
+    assert not violations, "\n".join(violations)
+    for module in SIM_MAY_USE:  # and those two stand on their own
+        path = ROOT / (module.replace(".", "/") + ".py")
+        inside = {n for n in imported_modules(path) if n.startswith("supervisor.")}
+        assert inside <= SIM_MAY_USE, f"{module} imports {inside - SIM_MAY_USE}"
+
+
+def test_every_supervisor_module_lives_in_a_room() -> None:
+    loose = [
+        relative(path)
+        for path in (ROOT / "supervisor").glob("*.py")
+        if path.name != "__init__.py"
+    ]
+    rooms = {p.name for p in (ROOT / "supervisor").iterdir() if (p / "__init__.py").exists()}
+    assert not loose, f"modules outside the rooms: {loose}"
+    assert rooms == set(ROOMS)
+
+
+@pytest.mark.parametrize("room", sorted(ROOMS))
+def test_rooms_import_one_way(room: str) -> None:
     violations = []
-    for path in modules_of(package):
+    for path in modules_of(f"supervisor/{room}"):
+        where = relative(path)
         for name in imported_modules(path):
-            if name.split(".")[0] in FORBIDDEN_MODULES[package]:
-                violations.append(f"{path.relative_to(ROOT)} imports {name}")
+            parts = name.split(".")
+            if parts[0] == "supervisor" and len(parts) > 1 and parts[1] != room:
+                if parts[1] not in ROOMS[room]:
+                    violations.append(f"{where} imports {name}")
+            elif parts[0] == "sim" and room not in ROOMS_USING_SIM:
+                violations.append(f"{where} imports {name}")
+            elif parts[0] == "api" and COMPOSITION_ROOT.get(where) != "api":
+                violations.append(f"{where} imports {name}")
+            elif parts[0] == "benchmarks" and BENCH_COMMAND.get(where) != "benchmarks":
+                violations.append(f"{where} imports {name}")
     assert not violations, "\n".join(violations)
+
+
+@pytest.mark.parametrize("part", sorted(PURE))
+def test_pure_cores_do_no_io(part: str) -> None:
+    paths = modules_of(part)
+    assert paths and all(p.exists() for p in paths), f"{part} is missing"
+    violations = [
+        f"{relative(path)} imports {name}"
+        for path in paths
+        for name in imported_modules(path)
+        if name.split(".")[0] in PURE[part]
+    ]
+    assert not violations, "\n".join(violations)
+
+
+def test_each_room_says_what_lives_there() -> None:
+    for room in (*ROOMS, "."):
+        init = ROOT / "supervisor" / room / "__init__.py"
+        docstring = ast.get_docstring(ast.parse(init.read_text())) or ""
+        assert docstring and "\n" not in docstring.strip(), f"{relative(init)}: one line"
+    assert ast.get_docstring(ast.parse((ROOT / "geometry" / "__init__.py").read_text()))
+
+
+def test_no_literal_state_index_outside_the_state_module() -> None:
+    violations = [
+        f"{relative(path)}:{number}: {line.strip()}"
+        for package in PACKAGES
+        for path in modules_of(package)
+        if relative(path) != "geometry/state.py"
+        for number, line in enumerate(path.read_text().splitlines(), start=1)
+        if LITERAL_STATE_INDEX.search(line)
+    ]
+    assert not violations, "\n".join(violations)
+
+
+def test_one_array_type() -> None:
+    definitions = [
+        relative(path)
+        for package in PACKAGES
+        for path in modules_of(package)
+        if re.search(r"^FloatArray\s*=", path.read_text(), re.MULTILINE)
+    ]
+    assert definitions == ["geometry/arrays.py"]
 
 
 def test_sim_plant_does_not_reuse_the_controller_model() -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from benchmarks.service import RunningService, running_service
-from supervisor.flight_log import read_flight_log
+from supervisor.logs.flight_log import read_flight_log
 
 TOKEN = "e2e-token-0123456789"
 SETPOINTS = [

@@ -12,7 +12,7 @@ A and B are the same on every stage but change every tick; Q, R, Q_N are diagona
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
 
@@ -66,7 +66,6 @@ class QpSolution:
     x: FloatArray
     status: QpStatus
     iterations: int
-    solve_time_s: float = field(default=0.0)
 
 
 class QpBackend(Protocol):

@@ -13,8 +13,6 @@ DAQP is warm-started with the previous active set.
 
 from __future__ import annotations
 
-import time
-
 import daqp
 import numpy as np
 
@@ -112,9 +110,8 @@ class CondensedDaqpBackend:
     def solve(self, qp: OcpQp) -> QpSolution:
         """Condense, solve warm-started from the last active set, expand the states."""
         nx, nu, N = self._dims
-        start = time.perf_counter()
         if not all(np.all(np.isfinite(a)) for a in (qp.A, qp.B, qp.x0)):
-            return self._failure(QpStatus.NUMERICAL_ERROR, start)
+            return self._failure(QpStatus.NUMERICAL_ERROR)
         H, g, AB, free = self.condense(qp)
         G, g_lo, g_hi = self._state_rows(qp, AB, free)
         upper = np.concatenate([np.tile(qp.u_ub, N), g_hi])
@@ -128,7 +125,7 @@ class CondensedDaqpBackend:
             status = (
                 QpStatus.INFEASIBLE if exitflag in _DAQP_INFEASIBLE else QpStatus.NUMERICAL_ERROR
             )
-            return self._failure(status, start, int(info.get("iterations", 0)))
+            return self._failure(status, int(info.get("iterations", 0)))
         self._active = np.where(np.abs(info["lam"]) > 0.0, 1, 0).astype(np.int32)
         u = np.asarray(U).reshape(N, nu)
         x = np.empty((N + 1, nx))
@@ -136,19 +133,14 @@ class CondensedDaqpBackend:
         for k in range(N):
             x[k + 1] = qp.A @ x[k] + qp.B @ u[k]
         return QpSolution(
-            u=u,
-            x=x,
-            status=QpStatus.SOLVED,
-            iterations=int(info.get("iterations", 0)),
-            solve_time_s=time.perf_counter() - start,
+            u=u, x=x, status=QpStatus.SOLVED, iterations=int(info.get("iterations", 0))
         )
 
-    def _failure(self, status: QpStatus, start: float, iterations: int = 0) -> QpSolution:
+    def _failure(self, status: QpStatus, iterations: int = 0) -> QpSolution:
         nx, nu, N = self._dims
         return QpSolution(
             u=np.full((N, nu), np.nan),
             x=np.full((N + 1, nx), np.nan),
             status=status,
             iterations=iterations,
-            solve_time_s=time.perf_counter() - start,
         )

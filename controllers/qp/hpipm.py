@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import ctypes
 import math
-import time
 from ctypes import POINTER, c_double, c_int, c_size_t, c_void_p
 from typing import Any
 
@@ -389,12 +388,11 @@ class HpipmBackend:
         """Solve box-free (by the prepared map, else by HPIPM; not while an input bound
         was active in the last boxed solve), and if a box is violated solve boxed with
         HPIPM; never raises."""
-        start = time.perf_counter()
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
         if not all(np.isfinite(a).all() for a in data):
-            return self._failure(QpStatus.NUMERICAL_ERROR, start)
+            return self._failure(QpStatus.NUMERICAL_ERROR)
         if self._boxes_empty(qp):
-            return self._failure(QpStatus.INFEASIBLE, start)
+            return self._failure(QpStatus.INFEASIBLE)
         self.last_was_prepared = len(self._prepared_model) == 5 and all(
             np.array_equal(a, b) for a, b in zip(self._model(qp), self._prepared_model, strict=True)
         )
@@ -425,7 +423,7 @@ class HpipmBackend:
         result = _STATUS.get(status, QpStatus.NUMERICAL_ERROR)
         if result is QpStatus.SOLVED and not (np.all(np.isfinite(u)) and np.all(np.isfinite(x))):
             result = QpStatus.NUMERICAL_ERROR
-        return QpSolution(u, x, result, iterations, time.perf_counter() - start)
+        return QpSolution(u, x, result, iterations)
 
     def _run(
         self, problem: _HpipmProblem, x0: FloatArray
@@ -506,12 +504,11 @@ class HpipmBackend:
         boxes = [(qp.u_lb, qp.u_ub), (qp.x_lb, qp.x_ub), (qp.x_terminal_lb, qp.x_terminal_ub)]
         return any(lo is not None and hi is not None and bool(np.any(lo > hi)) for lo, hi in boxes)
 
-    def _failure(self, status: QpStatus, start: float) -> QpSolution:
+    def _failure(self, status: QpStatus) -> QpSolution:
         nx, nu, N = self._dims
         return QpSolution(
             np.full((N, nu), math.nan),
             np.full((N + 1, nx), math.nan),
             status,
             0,
-            time.perf_counter() - start,
         )

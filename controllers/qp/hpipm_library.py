@@ -3,7 +3,7 @@
 The casadi wheel ships both libraries built for BLASFEO's GENERIC target (plain C, no
 SIMD): about 0.5 ms per interior-point iteration on the centralized problem. acados'
 distribution of the same libraries for x86-64 is built for X64_INTEL_HASWELL (AVX2 + FMA
-kernels) and is about 4× faster on the same QPs. ``supervisor/hpipm_install.py`` places
+kernels) and is about 4× faster on the same QPs. ``supervisor/cli/hpipm_install.py`` places
 that build in the virtualenv (``make`` runs it); it is used when present and the CPU has
 AVX2 and FMA (elsewhere its kernels would fault), else casadi's build.
 ``UAVBAR_HPIPM_DIR`` names a folder holding ``libblasfeo.so`` and ``libhpipm.so`` to use
@@ -22,7 +22,7 @@ from pathlib import Path
 import casadi
 
 OPTIMIZED_DIR = Path(sys.prefix) / "lib" / "uavbar-hpipm"
-"""Where ``supervisor/hpipm_install.py`` puts the AVX2 build."""
+"""Where ``supervisor/cli/hpipm_install.py`` puts the AVX2 build."""
 LIBRARIES = ("libblasfeo.so", "libhpipm.so")
 _NEEDED_CPU_FLAGS = frozenset({"avx2", "fma"})
 

@@ -8,8 +8,6 @@ tick only updates values.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import osqp
 import scipy.sparse as sp
@@ -180,11 +178,10 @@ class OsqpBackend:
     def solve(self, qp: OcpQp) -> QpSolution:
         """Update A, B, x0 and bounds (and weights if changed), solve warm-started."""
         nx, nu, N = self._dims
-        start = time.perf_counter()
         if not (
             np.all(np.isfinite(qp.A)) and np.all(np.isfinite(qp.B)) and np.all(np.isfinite(qp.x0))
         ):
-            return self._failure(QpStatus.NUMERICAL_ERROR, start)
+            return self._failure(QpStatus.NUMERICAL_ERROR)
         self._matrix_data[self._value_slots] = self._dynamics_values(qp)
         key = self._weights_key(qp)
         if key != self._cost_key:
@@ -195,22 +192,20 @@ class OsqpBackend:
         status_text = result.info.status
         if status_text not in _SOLVED:
             status = QpStatus.INFEASIBLE if status_text in _INFEASIBLE else QpStatus.MAX_ITERATIONS
-            return self._failure(status, start, int(result.info.iter))
+            return self._failure(status, int(result.info.iter))
         z = result.x
         return QpSolution(
             u=z[(N + 1) * nx :].reshape(N, nu).copy(),
             x=z[: (N + 1) * nx].reshape(N + 1, nx).copy(),
             status=QpStatus.SOLVED,
             iterations=int(result.info.iter),
-            solve_time_s=time.perf_counter() - start,
         )
 
-    def _failure(self, status: QpStatus, start: float, iterations: int = 0) -> QpSolution:
+    def _failure(self, status: QpStatus, iterations: int = 0) -> QpSolution:
         nx, nu, N = self._dims
         return QpSolution(
             u=np.full((N, nu), np.nan),
             x=np.full((N + 1, nx), np.nan),
             status=status,
             iterations=iterations,
-            solve_time_s=time.perf_counter() - start,
         )

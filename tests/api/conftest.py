@@ -16,14 +16,15 @@ import pytest
 
 from api.app import create_app
 from api.server import HttpServer, bind
-from supervisor.assembly import arena_from_config, flight_core_from_config
-from supervisor.channel import Channel
-from supervisor.config import load_config
-from supervisor.flight_client import FlightClient
-from supervisor.flight_core import FlightCore
-from supervisor.operator_requests import handle_request
-from supervisor.request_server import serve_requests
-from supervisor.telemetry import MocapView, VehicleView, build_telemetry
+from supervisor.app.assembly import arena_from_config, flight_core_from_config
+from supervisor.app.config import load_config
+from supervisor.flight.core import FlightCore
+from supervisor.flight.operator_requests import handle_request
+from supervisor.flight.telemetry import MocapView, build_telemetry
+from supervisor.ipc.channel import Channel
+from supervisor.ipc.client import FlightClient
+from supervisor.ipc.server import serve_requests
+from supervisor.vehicles.types import VehicleView
 from tests.conftest import CONFIGS
 
 TOKEN = "test-token-123"
@@ -44,7 +45,7 @@ class ApiUnderTest:
 @pytest.fixture
 async def api() -> AsyncIterator[ApiUnderTest]:
     config = load_config(CONFIGS / "sim.toml")
-    core = flight_core_from_config(config)
+    core = flight_core_from_config(config, clock=time.perf_counter)
     pairs = [socket.socketpair() for _ in range(2)]
     flight_side = [await Channel.open(b) for _, b in pairs]
     commands, urgent = [await Channel.open(a) for a, _ in pairs]

@@ -9,7 +9,7 @@ import math
 import pytest
 import websockets
 
-from supervisor.modes import Mode
+from supervisor.flight.modes import Mode
 from tests.api.conftest import TOKEN, ApiUnderTest
 
 MUTATING = [

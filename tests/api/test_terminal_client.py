@@ -8,9 +8,9 @@ import json
 
 import pytest
 
-from supervisor.cli import main
-from supervisor.modes import Mode
-from supervisor.terminal_client import format_status
+from supervisor.cli.client import format_status
+from supervisor.cli.main import main
+from supervisor.flight.modes import Mode
 from tests.api.conftest import TOKEN, ApiUnderTest
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import time
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from controllers.equilibria import Reference
 from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
 from controllers.params import RECOMMENDED_LEAD, BarSystemParams, ReferenceLead
-from supervisor.config import load_config
+from supervisor.app.config import load_config
 from tests.conftest import CONFIGS
 
 CONFIG = load_config(CONFIGS / "kth_sml.toml")
@@ -30,7 +31,7 @@ def mpc(
     settings = dataclasses.replace(
         CONFIG.mpc.settings(name), late_after_s=10.0, reference_lead=lead or ReferenceLead()
     )
-    return controller_cls(CONFIG.system.to_params(), settings, "daqp")  # type: ignore[no-any-return]
+    return controller_cls(CONFIG.system.to_params(), settings, "daqp", clock=time.perf_counter)  # type: ignore[no-any-return]
 
 
 @pytest.mark.parametrize("reference", EQUILIBRIA)

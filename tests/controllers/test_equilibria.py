@@ -17,7 +17,7 @@ from controllers.equilibria import (
 )
 from controllers.model import BarSystemModel, payload_model_for
 from controllers.params import BarSystemParams
-from mocap.frames import rotation_from_euler_zyx
+from geometry.frames import rotation_from_euler_zyx
 from tests.conftest import symmetric_params, uneven_params
 
 THETA_L_GRID_DEG = (0.0, 10.0, 25.0, 45.0, 60.0, 80.0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from controllers.params import BarSystemParams
 from controllers.qp.base import OcpQp, QpStatus
 from controllers.qp.condensed import CondensedDaqpBackend
 from controllers.qp.hpipm import HpipmBackend, _pointer
-from supervisor.config import load_config
+from supervisor.app.config import load_config
 from tests.conftest import CONFIGS
 
 CONFIG = load_config(CONFIGS / "kth_sml.toml")
@@ -26,7 +27,9 @@ def lab_qp(params: BarSystemParams, deviation: float, seed: int) -> OcpQp:
     settings = CONFIG.mpc.settings("centralized")
     reference = Reference((0.0, 0.0, 1.0), rng.uniform(-3, 3), (rng.uniform(-3, 3), 0.2), 0.3)
     eq = bar_equilibrium(params, reference)
-    A, B = CentralizedMpc(params, settings, "daqp").linearization(eq.x, reference)
+    A, B = CentralizedMpc(params, settings, "daqp", clock=time.perf_counter).linearization(
+        eq.x, reference
+    )
     w, lim = settings.weights, settings.limits
     u_lb = np.tile([lim.thrust_min_n, -1.0, -1.0, -1.0], 2) - eq.u
     u_ub = np.tile([lim.thrust_max_n, 1.0, 1.0, 1.0], 2) - eq.u

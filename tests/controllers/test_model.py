@@ -18,7 +18,7 @@ from controllers.model import (
     uav_slices,
 )
 from controllers.params import BarSystemParams, UavParams
-from mocap.frames import rotation_from_euler_zyx
+from geometry.frames import rotation_from_euler_zyx
 from tests.conftest import uneven_params
 
 Vector = np.ndarray

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+import time
 
 import numpy as np
 import pytest
@@ -20,7 +22,7 @@ from controllers.mpc import (
     yaws_ahead,
 )
 from controllers.params import RECOMMENDED_LEAD, BarSystemParams, MpcSettings, ReferenceLead
-from supervisor.config import load_config
+from supervisor.app.config import load_config
 from tests.conftest import CONFIGS
 from tests.controllers.closed_loop import Run, fly
 
@@ -56,7 +58,7 @@ def riccati_first_gain(
 def test_unconstrained_first_input_is_the_lqr_input(
     backend: str, lab_params: BarSystemParams
 ) -> None:
-    mpc = CentralizedMpc(lab_params, settings("centralized"), backend)
+    mpc = CentralizedMpc(lab_params, settings("centralized"), backend, clock=time.perf_counter)
     reference = Reference((0.0, 0.0, 1.0), 0.3, (0.3, 0.5), math.radians(20))
     eq = bar_equilibrium(lab_params, reference)
     state = eq.x.copy()
@@ -91,7 +93,9 @@ def saturating_sequence(params: BarSystemParams) -> list[tuple[np.ndarray, Refer
 @pytest.mark.parametrize("controller_cls", [CentralizedMpc, DecentralizedMpc])
 def test_backends_agree_on_the_same_qps(controller_cls: type, lab_params: BarSystemParams) -> None:
     name = "centralized" if controller_cls is CentralizedMpc else "decentralized"
-    controllers = {b: controller_cls(lab_params, settings(name), b) for b in BACKENDS}
+    controllers = {
+        b: controller_cls(lab_params, settings(name), b, clock=time.perf_counter) for b in BACKENDS
+    }
     saturated = 0
     lim = CONFIG.mpc.settings(name).limits
     for k, (x, ref) in enumerate(saturating_sequence(lab_params)):
@@ -112,7 +116,9 @@ def test_a_formation_moving_with_its_reference_needs_no_correction(
 ) -> None:
     """x_eq + v t solves the model with u_eq, so a system exactly on a reference that moves
     at constant velocity is left alone; the same state under a reference at rest is braked."""
-    mpc = controller_cls(lab_params, settings(controller_cls.__name__.lower()[:-3]))
+    mpc = controller_cls(
+        lab_params, settings(controller_cls.__name__.lower()[:-3]), clock=time.perf_counter
+    )
     moving = Reference((0.2, 0.1, 1.0), 0.4, (0.4, 0.9), math.radians(15), (0.3, -0.1, 0.05))
     eq = bar_equilibrium(lab_params, moving)
     np.testing.assert_allclose(eq.x[3:6], moving.velocity_mps)
@@ -142,7 +148,7 @@ def test_bad_input_falls_back_to_the_shifted_plan(
     controller_cls: type, lab_params: BarSystemParams
 ) -> None:
     name = "centralized" if controller_cls is CentralizedMpc else "decentralized"
-    mpc = controller_cls(lab_params, settings(name), "daqp")
+    mpc = controller_cls(lab_params, settings(name), "daqp", clock=time.perf_counter)
     reference = Reference((0.0, 0.0, 1.0))
     state = bar_equilibrium(lab_params, reference).x
     state[0] += 0.2
@@ -161,7 +167,10 @@ def test_bad_input_falls_back_to_the_shifted_plan(
 
 
 def test_a_late_solve_uses_the_shifted_plan(lab_params: BarSystemParams) -> None:
-    mpc = CentralizedMpc(lab_params, settings("centralized", late_after_s=1e-9), "daqp")
+    one_second_per_reading = itertools.count(0.0, 1.0).__next__
+    mpc = CentralizedMpc(
+        lab_params, settings("centralized", late_after_s=0.5), "daqp", clock=one_second_per_reading
+    )
     reference = Reference((0.0, 0.0, 1.0))
     state = bar_equilibrium(lab_params, reference).x
     first = mpc.step(state, reference, 0.0)
@@ -219,7 +228,7 @@ def fly_offset_case(
 ) -> tuple[Run, Reference]:
     name = "centralized" if controller_cls is CentralizedMpc else "decentralized"
     options = settings(name, reference_lead=lead or ReferenceLead())
-    mpc = controller_cls(params, options, "daqp")
+    mpc = controller_cls(params, options, "daqp", clock=time.perf_counter)
     reference = Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), 0.0)
     x0 = bar_equilibrium(params, Reference((0.3, 0.0, 1.0), math.radians(20), (0.0, 0.0))).x
     return fly(mpc, BarSystemModel(params), x0, reference, duration_s), reference
@@ -310,7 +319,8 @@ def test_a_prepared_model_is_used_when_the_yaws_stay_within_the_tolerance(
 ) -> None:
     options = settings(controller, prepared_yaw_tolerance_rad=0.01)
     mpc_class = CentralizedMpc if controller == "centralized" else DecentralizedMpc
-    prepared, fresh = mpc_class(lab_params, options), mpc_class(lab_params, options)
+    prepared = mpc_class(lab_params, options, clock=time.perf_counter)
+    fresh = mpc_class(lab_params, options, clock=time.perf_counter)
     reference = Reference((0.0, 0.0, 1.0), 0.3, (0.3, 0.5), math.radians(20))
     state = bar_equilibrium(lab_params, reference).x.copy()
     state[0:3] += (0.05, -0.03, 0.02)
@@ -331,7 +341,9 @@ def test_a_prepared_model_is_used_when_the_yaws_stay_within_the_tolerance(
 
 
 def test_a_zero_tolerance_prepares_nothing(lab_params: BarSystemParams) -> None:
-    mpc = CentralizedMpc(lab_params, settings("centralized", prepared_yaw_tolerance_rad=0.0))
+    mpc = CentralizedMpc(
+        lab_params, settings("centralized", prepared_yaw_tolerance_rad=0.0), clock=time.perf_counter
+    )
     reference = Reference((0.0, 0.0, 1.0), 0.3, (0.3, 0.5))
     state = bar_equilibrium(lab_params, reference).x
     mpc.prepare(state, reference)
@@ -342,7 +354,7 @@ def test_a_zero_tolerance_prepares_nothing(lab_params: BarSystemParams) -> None:
 def test_the_linearization_does_not_depend_on_where_the_formation_is(
     lab_params: BarSystemParams,
 ) -> None:
-    mpc = CentralizedMpc(lab_params, settings("centralized"))
+    mpc = CentralizedMpc(lab_params, settings("centralized"), clock=time.perf_counter)
     here = Reference((0.0, 0.0, 1.0), 0.7, (0.2, -0.4), math.radians(15))
     there = dataclasses.replace(here, bar_position_m=(1.3, -0.8, 2.1))
     for a, b in zip(

@@ -10,9 +10,9 @@ from collections.abc import AsyncIterator, Callable, Mapping
 import numpy as np
 import pytest
 
-from mocap import frames
+from geometry import frames
+from geometry.frames import FloatArray
 from mocap.client import FrameReceiver, MocapSource, QtmClient
-from mocap.frames import FloatArray
 from mocap.qtm_protocol import (
     GREETING,
     BodyPose,

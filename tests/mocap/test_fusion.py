@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from mocap import frames
-from mocap.frames import FloatArray
+from geometry import frames
+from geometry.frames import FloatArray
 from mocap.fusion import CaptureClock, FusionConfig, MocapFusion, RigidBodyFilter
 from mocap.qtm_protocol import BodyPose, MocapFrame
 

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from qtm_rt.packet import QRTComponentType, QRTPacket
 
 from benchmarks.fuzz_qtm import run_fuzz
-from mocap import frames
+from geometry import frames
 from mocap.qtm_protocol import (
     SIX_D_RECORD_SIZE_B,
     BodyPose,

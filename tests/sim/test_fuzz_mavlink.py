@@ -6,7 +6,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from benchmarks.fuzz_mavlink import MUTATIONS, _RestingAirframe, run_fuzz
 from sim.px4_endpoint import Px4Endpoint
-from supervisor.mavlink_link import LinkConfig, MavlinkLink
+from supervisor.mavlink.link import LinkConfig, MavlinkLink
 
 
 def test_fuzzed_frames_never_raise_and_are_counted() -> None:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from mocap.frames import quaternion_from_euler_zyx
+from geometry.frames import quaternion_from_euler_zyx
 from sim.measurement import MocapFrame, MocapModel, MocapParams, TrackingParams
 from sim.plant import BODY_NAMES, BodyTruth, Plant, PlantTruth
 

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from mocap.frames import quaternion_from_euler_zyx, rotation_from_quaternion
+from geometry.frames import quaternion_from_euler_zyx, rotation_from_quaternion
 from sim.plant import (
     ACT_OFFSET,
     BODY_NAMES,

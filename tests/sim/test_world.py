@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 import qtm_rt
 
-from mocap import frames
+from geometry import frames
 from mocap.client import MocapFrame, QtmClient
 from sim.world import SimulatedWorld
-from supervisor.config import load_config
-from supervisor.world_process import build_world
+from supervisor.app.config import load_config
+from supervisor.app.world_process import build_world
 from tests.conftest import CONFIGS
 
 BODIES = ("bar", "uav1", "uav2")

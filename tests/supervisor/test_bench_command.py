@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from supervisor.cli import main
+from supervisor.cli.main import main
 
 
 def test_bench_json_has_the_named_keys_and_backends_agree(

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from supervisor.cli import main
-from supervisor.config import ConfigError, load_config, parse_override
+from supervisor.app.config import ConfigError, load_config, parse_override
+from supervisor.cli.main import main
 from tests.conftest import CONFIGS
 
 KTH = CONFIGS / "kth_sml.toml"

@@ -12,9 +12,10 @@ import pytest
 
 from controllers.equilibria import Reference, bar_equilibrium
 from controllers.params import BarSystemParams
-from supervisor.cli import main
-from supervisor.flight_log import FlightLogWriter, TickRecord, read_flight_log
-from supervisor.report import summarize
+from supervisor.cli.main import main
+from supervisor.flight.tick_record import TickRecord
+from supervisor.logs.flight_log import FlightLogWriter, read_flight_log
+from supervisor.logs.report import summarize
 
 START = datetime(2026, 11, 23, 3, 15, 0, tzinfo=UTC)
 

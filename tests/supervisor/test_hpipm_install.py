@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from supervisor import hpipm_install
-from supervisor.hpipm_install import _MEMBER_FOLDER, extract_libraries, main
+from supervisor.cli import hpipm_install
+from supervisor.cli.hpipm_install import _MEMBER_FOLDER, extract_libraries, main
 
 LIBS = {"libblasfeo.so": b"blasfeo build", "libhpipm.so": b"hpipm build"}
 

@@ -6,7 +6,7 @@ import itertools
 
 import pytest
 
-from supervisor.modes import OPERATOR_REQUESTS, TRANSITIONS, FlightModes, Mode
+from supervisor.flight.modes import OPERATOR_REQUESTS, TRANSITIONS, FlightModes, Mode
 
 
 def test_nominal_flight() -> None:

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from supervisor.phase_lock import MocapPhaseLock
-from supervisor.scheduler import DeadlineTicker
+from supervisor.runtime.phase_lock import MocapPhaseLock
+from supervisor.runtime.scheduler import DeadlineTicker
 
 TICK_S = 0.02
 

@@ -4,20 +4,21 @@ notices that forced decisions leave."""
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
 
 from controllers.equilibria import Reference, bar_equilibrium
-from supervisor.assembly import (
+from supervisor.app.assembly import (
     arena_from_config,
     flight_core_from_config,
     safety_limits_from_config,
 )
-from supervisor.config import ConfigError, load_config
-from supervisor.estimation import Estimate
-from supervisor.modes import Mode
-from supervisor.safety import Response, SafetyLimits, SafetyMonitor
+from supervisor.app.config import ConfigError, load_config
+from supervisor.flight.estimation import Estimate
+from supervisor.flight.modes import Mode
+from supervisor.flight.safety import Response, SafetyLimits, SafetyMonitor
 from tests.conftest import CONFIGS
 
 CONFIG = load_config(CONFIGS / "sim.toml")
@@ -67,7 +68,7 @@ def test_the_swing_monitor_watches_hover_and_tracking_only_and_can_be_off() -> N
 
 
 def test_a_swing_hands_the_decentralized_bar_to_the_centralized_mpc() -> None:
-    core = flight_core_from_config(CONFIG, "decentralized", simulated_time=True)
+    core = flight_core_from_config(CONFIG, "decentralized", clock=time.thread_time)
     still = Estimate(hovering_state(0.0), 0.01, ())
     core.start_in_hover(still, 0.0, (0.05, 0.1, 0.1))
     assert "swing" not in " ".join(core.tick(0.02, still).events)
@@ -97,7 +98,7 @@ def test_the_hand_over_angle_is_a_setting() -> None:
 
 
 def test_a_forced_abort_is_kept_as_a_notice() -> None:
-    core = flight_core_from_config(CONFIG, "centralized", simulated_time=True)
+    core = flight_core_from_config(CONFIG, "centralized", clock=time.thread_time)
     core.start_in_hover(Estimate(hovering_state(0.0), 0.01, ()), 0.0, (0.05, 0.1, 0.1))
     outside = hovering_state(0.0)
     outside[0:3] += (50.0, 0.0, 0.0)  # the bar far outside the arena

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.config import ConfigError
-from supervisor.scenarios import available_scenarios, load_scenario
+from supervisor.app.config import ConfigError
+from supervisor.simulate.scenarios import available_scenarios, load_scenario
 
 
 def test_shipped_scenarios_load() -> None:

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from supervisor.scheduler import DeadlineTicker, TickTiming, TimingStats
+from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
 
 
 def busy(seconds: float) -> None:

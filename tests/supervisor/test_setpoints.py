@@ -9,7 +9,7 @@ import pytest
 
 from controllers.equilibria import Reference
 from controllers.params import BarSystemParams
-from supervisor.setpoints import (
+from supervisor.flight.setpoints import (
     Arena,
     RateLimits,
     ReferenceShaper,

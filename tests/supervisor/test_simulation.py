@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from controllers.params import RECOMMENDED_LEAD
-from supervisor.cli import main
-from supervisor.config import Config, load_config
-from supervisor.flight_log import read_flight_log
-from supervisor.report import summarize
-from supervisor.scenarios import load_scenario
-from supervisor.simulation import run_scenario
+from supervisor.app.config import Config, load_config
+from supervisor.cli.main import main
+from supervisor.logs.flight_log import read_flight_log
+from supervisor.logs.report import summarize
+from supervisor.simulate.closed_loop import run_scenario
+from supervisor.simulate.scenarios import load_scenario
 from tests.conftest import CONFIGS
 
 SHORT_SCENARIO = """

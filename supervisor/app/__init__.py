@@ -1,0 +1,1 @@
+"""The composition root: typed config, assembly from it, serve, process entry points."""

@@ -1,0 +1,195 @@
+"""Objects built from a validated ``Config``: the tick core, the plant and its mocap model.
+
+The plant starts from the same ``system`` section the controllers use and then applies the
+``sim`` section's deliberate mismatch, motor lag and wind, so that a simulated flight
+exercises the controllers on a plant that is not their own model.
+"""
+
+from __future__ import annotations
+
+import math
+
+from controllers.params import Clock
+from mocap.fusion import FusionConfig, MocapFusion
+from sim.measurement import MocapParams, TrackingParams
+from sim.plant_params import (
+    BarParams,
+    CableParams,
+    MismatchParams,
+    PlantParams,
+    UavBodyParams,
+    WindParams,
+    diagonal,
+)
+from sim.px4 import Px4Params
+from supervisor.app.config import Config
+from supervisor.flight.core import CONTROLLERS, FlightCore
+from supervisor.flight.estimation import BodyNames
+from supervisor.flight.safety import SafetyLimits
+from supervisor.flight.setpoints import Arena
+from supervisor.mavlink.link import LinkConfig
+
+
+def arena_from_config(config: Config) -> Arena:
+    """The geofence of the configured arena."""
+    lo, hi = config.arena.min_m, config.arena.max_m
+    return Arena((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
+
+
+def safety_limits_from_config(config: Config) -> SafetyLimits:
+    """The monitors' thresholds for this setup (the ones it does not set at their defaults)."""
+    return SafetyLimits(max_bar_yaw_error_rad=math.radians(config.safety.max_bar_yaw_error_deg))
+
+
+def flight_core_from_config(
+    config: Config, controller: str = "centralized", *, clock: Clock
+) -> FlightCore:
+    """The tick core with both MPCs built for the configured system, timed on ``clock``."""
+    return FlightCore(
+        config.system.to_params(),
+        {name: config.mpc.settings(name) for name in CONTROLLERS},
+        arena_from_config(config),
+        controller,
+        safety=safety_limits_from_config(config),
+        clock=clock,
+    )
+
+
+def fusion_from_config(config: Config) -> MocapFusion:
+    """The rigid-body filters of the configured bodies."""
+    m = config.mocap
+    fusion_config = FusionConfig(
+        position_accel_psd=m.position_accel_psd,
+        position_noise_m=m.position_noise_m,
+        angular_accel_psd=m.angular_accel_psd,
+        attitude_noise_rad=math.radians(m.attitude_noise_deg),
+        max_age_s=m.max_age_s,
+    )
+    return MocapFusion(fusion_config, names=m.bodies)
+
+
+def body_names_from_config(config: Config) -> BodyNames:
+    """Which QTM body is the bar and which the UAVs."""
+    bar, uav1, uav2 = config.mocap.bodies
+    return BodyNames(bar, uav1, uav2)
+
+
+def plant_params_from_config(config: Config) -> PlantParams:
+    """The simulator's plant: the configured system, then the ``sim`` mismatch."""
+    params = config.system.to_params()
+    sim = config.sim
+    uavs = tuple(
+        UavBodyParams(
+            mass_kg=uav.mass_kg,
+            inertia_kgm2=diagonal(uav.inertia_kgm2),
+            thrust_time_constant_s=sim.motor_time_constant_s,
+            torque_time_constant_s=sim.motor_time_constant_s,
+            thrust_max_n=sim.uav_thrust_max_n,
+            torque_max_nm=(config.mpc.torque_max_nm,) * 3,
+            drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
+        )
+        for uav in params.uavs
+    )
+    length = params.d1_m + params.d2_m
+    perpendicular = params.bar_inertia_kgm2
+    bar = BarParams(
+        mass_kg=params.bar_mass_kg,
+        length_m=length,
+        com_from_end1_m=params.d1_m,
+        inertia_kgm2=diagonal(
+            (params.bar_mass_kg * BarParams().tube_radius_m ** 2, perpendicular, perpendicular)
+        ),
+        drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
+    )
+    cables = tuple(CableParams(length_m=length) for length in params.cable_lengths_m)
+    wind = WindParams(
+        mean_velocity_mps=(sim.wind_mean_mps[0], sim.wind_mean_mps[1], sim.wind_mean_mps[2]),
+        gust_std_mps=(
+            sim.wind_gust_std_mps[0],
+            sim.wind_gust_std_mps[1],
+            sim.wind_gust_std_mps[2],
+        ),
+        seed=sim.seed,
+    )
+    plant = PlantParams(
+        uavs=(uavs[0], uavs[1]),
+        bar=bar,
+        cables=(cables[0], cables[1]),
+        wind=wind,
+        gravity_mps2=params.gravity_mps2,
+        step_s=sim.step_s,
+    )
+    mismatch = MismatchParams(
+        (sim.uav_mass_scale[0], sim.uav_mass_scale[1]), sim.bar_mass_scale, sim.bar_com_shift_m
+    )
+    return plant.with_mismatch(mismatch)
+
+
+def mocap_params_from_config(config: Config, seed: int | None = None) -> MocapParams:
+    """The simulated motion capture of ``sim.mocap`` (``seed`` overrides ``sim.seed``)."""
+    m = config.sim.mocap
+    return MocapParams(
+        rate_hz=m.rate_hz,
+        position_sigma_m=m.position_sigma_m,
+        orientation_sigma_rad=math.radians(m.orientation_sigma_deg),
+        latency_s=m.latency_s,
+        tracking=TrackingParams(
+            dropout_probability=m.dropout_probability,
+            burst_probability=m.burst_probability,
+            burst_frames=(m.burst_frames[0], m.burst_frames[1]),
+        ),
+        seed=config.sim.seed if seed is None else seed,
+    )
+
+
+def _per_vehicle(value: float | list[float]) -> tuple[float, float]:
+    return (value[0], value[1]) if isinstance(value, list) else (value, value)
+
+
+def link_configs_from_config(
+    config: Config,
+    vehicle_addresses: tuple[tuple[str, int], tuple[str, int]] | None = None,
+    local_ports: tuple[int, int] | None = None,
+) -> tuple[LinkConfig, LinkConfig]:
+    """Both vehicles' MAVLink links (the embedded world passes its own addresses/ports)."""
+    v = config.vehicles
+    thrust, torque = _per_vehicle(v.thrust_max_n), _per_vehicle(v.torque_max_nm)
+    configured = [
+        (host, int(port)) for host, _, port in (a.rpartition(":") for a in v.addresses or [])
+    ]
+    addresses = vehicle_addresses or (tuple(configured) if configured else (None, None))
+    ports = local_ports or (v.ports[0], v.ports[1])
+    links = [
+        LinkConfig(
+            system_id=v.system_ids[k],
+            local_host=v.bind_host,
+            local_port=ports[k],
+            vehicle_address=addresses[k],
+            command_mode=v.command_mode,
+            mocap_message=v.mocap_message,
+            thrust_max_n=thrust[k],
+            torque_max_nm=torque[k],
+            ack_timeout_s=v.ack_timeout_s,
+            retries=v.retries,
+            link_loss_s=v.link_loss_s,
+        )
+        for k in range(2)
+    ]
+    return links[0], links[1]
+
+
+def px4_params_from_config(config: Config, uav: int) -> Px4Params:
+    """The simulated PX4 of UAV ``uav`` (1 or 2): the vehicle's true calibration (the
+    configured one, times ``sim.px4_thrust_scale``) and its hover thrust with half the bar."""
+    params = config.system.to_params()
+    k = uav - 1
+    inertia = params.uavs[k].inertia_kgm2
+    carried_kg = params.uavs[k].mass_kg + params.payload_mass_kg(uav)  # (13)
+    return Px4Params(
+        inertia_kgm2=(inertia[0], inertia[1], inertia[2]),
+        thrust_max_n=_per_vehicle(config.vehicles.thrust_max_n)[k],
+        torque_max_nm=_per_vehicle(config.vehicles.torque_max_nm)[k],
+        thrust_scale=config.sim.px4_thrust_scale[k],
+        hover_thrust_n=carried_kg * params.gravity_mps2,
+        require_vision=config.sim.px4_require_vision,
+    )

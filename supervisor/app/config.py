@@ -1,0 +1,476 @@
+"""Typed configuration: TOML files validated by pydantic, frozen after load.
+
+A setup is one TOML file (``configs/*.toml``). A file may name another with
+``extends = "other.toml"`` (relative to itself); its own tables are merged over the
+other's, key by key. Command-line overrides ``--set section.key=value`` are applied last,
+with values parsed as TOML literals (``--set system.cable_length=[1.0, 1.1]``).
+
+Every error names the offending key; nothing is applied from an invalid setup.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from controllers.params import (
+    BarSystemParams,
+    InputLimits,
+    MpcSettings,
+    MpcWeights,
+    ReferenceLead,
+    StateBound,
+    UavParams,
+)
+from controllers.qp.registry import BACKEND_NAMES
+
+PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
+PositiveVec3 = Annotated[list[PositiveFloat], Field(min_length=3, max_length=3)]
+
+# The shipped setups and scenarios: configs/ at the top of the repository.
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+# The API token of `serve` and of the terminal client, when not configured or given.
+TOKEN_ENV = "UAVBAR_TOKEN"
+
+
+class ConfigError(Exception):
+    """A setup that cannot be used: unreadable file, unknown key, wrong type or value."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _one_or_two(value: float | list[float], key: str) -> tuple[float, float]:
+    if isinstance(value, list):
+        if len(value) != 2:
+            raise ValueError(f"{key} takes one value or two (one per UAV/cable), got {len(value)}")
+        return (value[0], value[1])
+    return (value, value)
+
+
+class SystemSection(_Section):
+    """Physical parameters of the two UAVs, the bar and the cables (SI units)."""
+
+    uav_mass: PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    uav_inertia: PositiveVec3
+    bar_mass: PositiveFloat
+    bar_d1: FiniteFloat
+    bar_d2: FiniteFloat
+    bar_inertia: PositiveFloat
+    cable_length: PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    gravity: PositiveFloat = 9.81
+
+    @field_validator("bar_d1", "bar_d2")
+    @classmethod
+    def _non_negative_arm(cls, value: float) -> float:
+        if value < 0.0:
+            raise ValueError("the distance from the bar's CoM to a cable attachment is >= 0")
+        return value
+
+    @model_validator(mode="after")
+    def _bar_has_length(self) -> SystemSection:
+        if self.bar_d1 + self.bar_d2 <= 0.0:
+            raise ValueError("bar_d1 + bar_d2 (the bar's length) must be > 0")
+        return self
+
+    def to_params(self) -> BarSystemParams:
+        """The controllers' plain parameter object."""
+        m1, m2 = _one_or_two(self.uav_mass, "uav_mass")
+        l1, l2 = _one_or_two(self.cable_length, "cable_length")
+        inertia = (self.uav_inertia[0], self.uav_inertia[1], self.uav_inertia[2])
+        return BarSystemParams(
+            uavs=(UavParams(m1, inertia), UavParams(m2, inertia)),
+            bar_mass_kg=self.bar_mass,
+            d1_m=self.bar_d1,
+            d2_m=self.bar_d2,
+            bar_inertia_kgm2=self.bar_inertia,
+            cable_lengths_m=(l1, l2),
+            gravity_mps2=self.gravity,
+        )
+
+
+class ArenaSection(_Section):
+    """The flight volume (arena frame, z up), used as the geofence."""
+
+    min_m: Vec3
+    max_m: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ArenaSection:
+        if any(lo >= hi for lo, hi in zip(self.min_m, self.max_m, strict=True)):
+            raise ValueError("arena.min_m must be below arena.max_m on every axis")
+        return self
+
+
+class StateBoundEntry(_Section):
+    """One bound of the state set X or X_N, on the absolute state (paper order)."""
+
+    index: Annotated[int, Field(ge=0)]
+    lower: FiniteFloat
+    upper: FiniteFloat
+
+    @model_validator(mode="after")
+    def _ordered(self) -> StateBoundEntry:
+        if self.lower > self.upper:
+            raise ValueError("lower must not exceed upper")
+        return self
+
+
+class CentralizedWeights(_Section):
+    """Table I: Q = diag(q_bar, q_uav, q_uav), R = diag(r), Q_N = terminal_scale * Q."""
+
+    q_bar: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
+    q_uav: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
+    r: Annotated[list[PositiveFloat], Field(min_length=8, max_length=8)]
+    terminal_scale: PositiveFloat
+    state_bounds: list[StateBoundEntry] = []
+    terminal_bounds: list[StateBoundEntry] = []
+
+    @model_validator(mode="after")
+    def _indices(self) -> CentralizedWeights:
+        _check_indices(self.state_bounds + self.terminal_bounds, 36)
+        return self
+
+    def to_weights(self) -> MpcWeights:
+        q = (*self.q_bar, *self.q_uav, *self.q_uav)
+        return MpcWeights(q_diag=q, r_diag=tuple(self.r), terminal_scale=self.terminal_scale)
+
+
+class DecentralizedWeights(_Section):
+    """Table II: Q = diag(q_uav, q_payload), R = diag(r), Q_N = terminal_scale * Q."""
+
+    q_uav: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
+    q_payload: Annotated[list[NonNegativeFloat], Field(min_length=6, max_length=6)]
+    r: Annotated[list[PositiveFloat], Field(min_length=4, max_length=4)]
+    terminal_scale: PositiveFloat
+    state_bounds: list[StateBoundEntry] = []
+    terminal_bounds: list[StateBoundEntry] = []
+    reference_lead_s: Annotated[
+        list[Annotated[float, Field(ge=0.0, le=2.0)]], Field(min_length=2, max_length=2)
+    ] = [0.0, 0.0]
+    """Beyond the paper: [position, yaw] lead of the agents' setpoint along the bar's
+    measured velocity and yaw rate (``ReferenceLead``); [0, 0] is Section V."""
+
+    @model_validator(mode="after")
+    def _indices(self) -> DecentralizedWeights:
+        _check_indices(self.state_bounds + self.terminal_bounds, 18)
+        return self
+
+    def to_weights(self) -> MpcWeights:
+        q = (*self.q_uav, *self.q_payload)
+        return MpcWeights(q_diag=q, r_diag=tuple(self.r), terminal_scale=self.terminal_scale)
+
+
+def _check_indices(bounds: list[StateBoundEntry], nx: int) -> None:
+    for bound in bounds:
+        if bound.index >= nx:
+            raise ValueError(f"state bound index {bound.index} is outside the {nx}-state vector")
+
+
+def _bounds(entries: list[StateBoundEntry]) -> tuple[StateBound, ...]:
+    return tuple(StateBound(e.index, e.lower, e.upper) for e in entries)
+
+
+class MpcSection(_Section):
+    """The MPC problem (MPC) of Section IV: horizon, step, input set U, weights."""
+
+    horizon: Annotated[int, Field(ge=1, le=200)] = 30
+    dt_s: PositiveFloat = 0.02
+    thrust_min_n: PositiveFloat
+    thrust_max_n: PositiveFloat
+    torque_max_nm: PositiveFloat = 1.0
+    qp_backend: str = "hpipm"
+    late_after_s: PositiveFloat = 0.015
+    prepared_yaw_tolerance_rad: Annotated[float, Field(ge=0.0, le=0.1)] = 0.0
+    centralized: CentralizedWeights
+    decentralized: DecentralizedWeights
+
+    @model_validator(mode="after")
+    def _thrust_range(self) -> MpcSection:
+        if self.thrust_min_n >= self.thrust_max_n:
+            raise ValueError("mpc.thrust_min_n must be below mpc.thrust_max_n")
+        if self.qp_backend not in BACKEND_NAMES:
+            raise ValueError(f"qp_backend must be one of {', '.join(BACKEND_NAMES)}")
+        return self
+
+    def settings(self, controller: str) -> MpcSettings:
+        """The plain settings of the ``centralized`` or ``decentralized`` controller."""
+        section = self.centralized if controller == "centralized" else self.decentralized
+        return MpcSettings(
+            horizon=self.horizon,
+            dt_s=self.dt_s,
+            weights=section.to_weights(),
+            limits=InputLimits(self.thrust_min_n, self.thrust_max_n, self.torque_max_nm),
+            state_bounds=_bounds(section.state_bounds),
+            terminal_bounds=_bounds(section.terminal_bounds),
+            qp_backend=self.qp_backend,
+            late_after_s=self.late_after_s,
+            prepared_yaw_tolerance_rad=self.prepared_yaw_tolerance_rad,
+            reference_lead=ReferenceLead(*self.decentralized.reference_lead_s)
+            if controller == "decentralized"
+            else ReferenceLead(),
+        )
+
+
+class MocapSection(_Section):
+    """The motion-capture source (a QTM RT server) and the state filter's tuning."""
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=1, le=65535)] = 22223
+    bodies: Annotated[list[str], Field(min_length=3, max_length=3)] = ["bar", "uav1", "uav2"]
+    # Filter tuning (mocap/fusion.py): white-acceleration PSDs and measurement noise.
+    # Lower PSDs smooth velocities and rates (the MPC weighs them) at the price of lag in
+    # fast manoeuvres; these suit the bar's slow swing and the paper's gentle references
+    # (measured with `simulate --scenario paper`, both controllers).
+    position_accel_psd: PositiveFloat = 0.2
+    angular_accel_psd: PositiveFloat = 2.0
+    position_noise_m: PositiveFloat = 0.0005
+    attitude_noise_deg: PositiveFloat = 0.1
+    max_age_s: PositiveFloat = 0.05
+    # Lock the 20 ms deadlines to the mocap frames and start each tick on its frame's arrival
+    # (supervisor/runtime/phase_lock.py): the frame then waits under a millisecond for its tick, not
+    # up to a frame period; false: ticks by the clock alone.
+    phase_lock: bool = True
+
+    @model_validator(mode="after")
+    def _distinct_bodies(self) -> MocapSection:
+        if len(set(self.bodies)) != 3:
+            raise ValueError("mocap.bodies: three distinct names (bar, UAV 1, UAV 2)")
+        return self
+
+
+class SimMocapSection(_Section):
+    """The simulated motion capture: rate, noise (1σ), latency and tracking losses."""
+
+    rate_hz: PositiveFloat = 100.0
+    position_sigma_m: NonNegativeFloat = 0.0005
+    orientation_sigma_deg: NonNegativeFloat = 0.1
+    latency_s: NonNegativeFloat = 0.005
+    dropout_probability: Annotated[float, Field(ge=0.0, le=1.0)] = 0.002
+    burst_probability: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+    burst_frames: Annotated[
+        list[Annotated[int, Field(ge=1)]], Field(min_length=2, max_length=2)
+    ] = [
+        10,
+        50,
+    ]
+
+    @model_validator(mode="after")
+    def _burst_range(self) -> SimMocapSection:
+        if self.burst_frames[0] > self.burst_frames[1]:
+            raise ValueError("sim.mocap.burst_frames must be [min, max] with min <= max")
+        return self
+
+
+class SimSection(_Section):
+    """The embedded simulator's plant: its step, actuators and deliberate mismatch against
+    the ``system`` section the controllers use (the plant is built from ``system`` first)."""
+
+    # true: `serve` starts the simulated world (plant, PX4s, QTM) in its own process and
+    # connects to it on loopback; false: it connects to the lab's real QTM and PX4s.
+    embedded: bool = False
+    seed: Annotated[int, Field(ge=0)] = 0
+    step_s: PositiveFloat = 0.001
+    motor_time_constant_s: NonNegativeFloat = 0.02
+    uav_thrust_max_n: PositiveFloat = 30.0
+    # The simulated PX4s' own calibration against the supervisor's vehicles.thrust_max_n:
+    # true thrust = scale × commanded (1.0: the supervisor's calibration is right).
+    px4_thrust_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
+    # The simulated PX4s refuse to arm without fresh external vision (the forwarded mocap),
+    # as PX4 does when its estimator has no position.
+    px4_require_vision: bool = True
+    uav_mass_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
+    bar_mass_scale: PositiveFloat = 1.0
+    bar_com_shift_m: FiniteFloat = 0.0
+    drag_linear_n_s_per_m: NonNegativeFloat = 0.0
+    wind_mean_mps: Vec3 = [0.0, 0.0, 0.0]
+    wind_gust_std_mps: Annotated[list[NonNegativeFloat], Field(min_length=3, max_length=3)] = [
+        0.0,
+        0.0,
+        0.0,
+    ]
+    mocap: SimMocapSection = SimMocapSection()
+
+
+Port = Annotated[int, Field(ge=0, le=65535)]
+
+
+class VehiclesSection(_Section):
+    """The two PX4s: MAVLink links, command mode and calibration (one value or one per
+    vehicle). ``ports`` are the local UDP ports the links listen on (PX4's offboard/API
+    link sends to 14540+i); ``addresses`` ("host:port"), when set, are contacted first."""
+
+    command_mode: Literal["actuator", "rates"] = "actuator"
+    mocap_message: Literal["vision_position_estimate", "odometry"] = "vision_position_estimate"
+    bind_host: str = "0.0.0.0"
+    ports: Annotated[list[Port], Field(min_length=2, max_length=2)] = [14540, 14541]
+    addresses: Annotated[list[str], Field(min_length=2, max_length=2)] | None = None
+    system_ids: Annotated[
+        list[Annotated[int, Field(ge=1, le=255)]], Field(min_length=2, max_length=2)
+    ] = [1, 2]
+    # Thrust [N] at PX4's normalized 1.0 and torque [N m] at ±1.0: identify them per vehicle.
+    thrust_max_n: (
+        PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    ) = 26.0
+    torque_max_nm: (
+        PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    ) = 1.0
+    ack_timeout_s: PositiveFloat = 0.5
+    retries: Annotated[int, Field(ge=1, le=10)] = 3
+    link_loss_s: PositiveFloat = 1.5
+
+    @field_validator("addresses")
+    @classmethod
+    def _host_port(cls, values: list[str] | None) -> list[str] | None:
+        for value in values or []:
+            host, _, port = value.rpartition(":")
+            if not host or not port.isdigit() or not 0 < int(port) < 65536:
+                raise ValueError(f"{value!r} is not host:port")
+        return values
+
+
+class ApiSection(_Section):
+    """The HTTP API and dashboard. ``token`` unset: the env var ``UAVBAR_TOKEN``, else one
+    is generated and printed at start."""
+
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=0, le=65535)] = 8000
+    token: Annotated[str, Field(min_length=8)] | None = None
+
+
+class SafetySection(_Section):
+    """Thresholds of the safety monitors that a setup may want to tune (docs/safety.md)."""
+
+    max_bar_yaw_error_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 20.0
+    """The bar's yaw this far from its reference while hovering or tracking under the
+    decentralized MPC: the centralized MPC takes over. 0 turns the hand-over off."""
+
+
+class LogSection(_Section):
+    """Flight logs: one JSON Lines file per flight, named by its start time."""
+
+    folder: str = "flight-logs"
+
+
+class Config(_Section):
+    """One complete setup."""
+
+    name: str = "unnamed"
+    system: SystemSection
+    arena: ArenaSection
+    mpc: MpcSection
+    mocap: MocapSection = MocapSection()
+    vehicles: VehiclesSection = VehiclesSection()
+    api: ApiSection = ApiSection()
+    log: LogSection = LogSection()
+    safety: SafetySection = SafetySection()
+    sim: SimSection = SimSection()
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = _merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
+
+
+def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    path = path.resolve()
+    if path in seen:
+        raise ConfigError(f"{path}: 'extends' loops back to itself")
+    try:
+        with path.open("rb") as handle:
+            data = tomllib.load(handle)
+    except OSError as error:
+        raise ConfigError(f"cannot read config {path}: {error.strerror}") from error
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from error
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise ConfigError(f"{path}: 'extends' must be a file name")
+    return _merge(_read_toml(path.parent / parent, (*seen, path)), data)
+
+
+def parse_override(assignment: str) -> tuple[list[str], Any]:
+    """Split ``section.key=value`` into its key path and the TOML literal's value."""
+    key, sep, literal = assignment.partition("=")
+    key = key.strip()
+    if not sep or not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"--set {assignment!r}: expected section.key=value")
+    try:
+        value = tomllib.loads(f"v = {literal.strip()}")["v"]
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(
+            f"--set {key}: {literal.strip()!r} is not a TOML value ({error})"
+        ) from error
+    return key.split("."), value
+
+
+def _apply_override(data: dict[str, Any], path: list[str], value: Any) -> None:
+    node = data
+    for part in path[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"--set {'.'.join(path)}: {part!r} is a value, not a section")
+        node = child
+    node[path[-1]] = value
+
+
+def _describe(error: ValidationError) -> str:
+    lines = []
+    for item in error.errors():
+        key = ".".join(str(part) for part in item["loc"]) or "(top level)"
+        message = item["msg"]
+        if item["type"] == "extra_forbidden":
+            message = "unknown key"
+        elif item["type"] == "missing":
+            message = "required key is missing"
+        lines.append(f"{key}: {message}")
+    return "invalid configuration:\n  " + "\n  ".join(lines)
+
+
+def load_config(path: Path, overrides: Sequence[str] = ()) -> Config:
+    """Read, merge, override and validate a setup. Raises ``ConfigError`` naming the key."""
+    data = _read_toml(path)
+    for assignment in overrides:
+        key_path, value = parse_override(assignment)
+        _apply_override(data, key_path, value)
+    try:
+        config = Config.model_validate(data)
+    except ValidationError as error:
+        raise ConfigError(_describe(error)) from None
+    _check_finite(data, ())
+    return config
+
+
+def _check_finite(node: Any, path: tuple[str, ...]) -> None:
+    """Reject NaN and inf anywhere, including keys pydantic would coerce silently."""
+    if isinstance(node, dict):
+        for key, value in node.items():
+            _check_finite(value, (*path, str(key)))
+    elif isinstance(node, list):
+        for value in node:
+            _check_finite(value, path)
+    elif isinstance(node, float) and not math.isfinite(node):
+        raise ConfigError(f"invalid configuration:\n  {'.'.join(path)}: must be finite")

@@ -1,0 +1,85 @@
+"""The flight process's entry point: connect mocap and both vehicles as configured (or to
+the embedded world's addresses), then run ``FlightProcess`` until SIGTERM, a shutdown
+request, or the API process going away (each of which lands first)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+from mocap.client import QtmClient
+from supervisor.app.assembly import (
+    body_names_from_config,
+    flight_core_from_config,
+    fusion_from_config,
+    link_configs_from_config,
+)
+from supervisor.app.config import Config
+from supervisor.ipc.channel import Channel
+from supervisor.mavlink.link import MavlinkLink
+from supervisor.runtime.cpu import raise_priority, single_threaded_blas
+from supervisor.runtime.flight_process import FlightProcess, FlightSettings
+
+
+def _host_port(address: str) -> tuple[str, int]:
+    host, _, port = address.rpartition(":")
+    return host, int(port)
+
+
+async def fly(
+    config: Config, commands: Channel, urgent: Channel, world: dict[str, Any] | None
+) -> None:
+    """Run the flight process on already opened channels."""
+    if world is not None:
+        qtm_host, qtm_port = _host_port(world["qtm"])
+        vehicles = [_host_port(address) for address in world["vehicles"]]
+        link_configs = link_configs_from_config(config, (vehicles[0], vehicles[1]), (0, 0))
+    else:
+        qtm_host, qtm_port = config.mocap.host, config.mocap.port
+        link_configs = link_configs_from_config(config)
+    links = (MavlinkLink(link_configs[0]), MavlinkLink(link_configs[1]))
+    for link in links:
+        await link.start()
+    try:
+        async with QtmClient(qtm_host, qtm_port) as mocap:
+            process = FlightProcess(
+                FlightSettings(config.mpc.dt_s, config.mocap.phase_lock, config.name),
+                flight_core_from_config(config, clock=time.perf_counter),
+                fusion_from_config(config),
+                body_names_from_config(config),
+                mocap,
+                links,
+                Path(config.log.folder),
+            )
+            loop = asyncio.get_running_loop()
+            loop.add_signal_handler(signal.SIGTERM, process.stop)
+            loop.add_signal_handler(signal.SIGINT, lambda: None)  # the API process decides
+            await process.run(commands, urgent)
+    finally:
+        for link in links:
+            await link.close()
+
+
+def run_flight_process(
+    config: Config, commands: socket.socket, urgent: socket.socket, world: dict[str, Any] | None
+) -> None:
+    """Child-process entry of ``serve``."""
+    single_threaded_blas()
+    print(f"flight process: {raise_priority()}", flush=True)
+
+    async def main() -> None:
+        command_channel = await Channel.open(commands)
+        urgent_channel = await Channel.open(urgent)
+        try:
+            await fly(config, command_channel, urgent_channel, world)
+        finally:
+            for channel in (command_channel, urgent_channel):
+                with contextlib.suppress(Exception):
+                    await channel.close()
+
+    asyncio.run(main())

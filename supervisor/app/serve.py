@@ -1,0 +1,166 @@
+"""``uavbar-supervisor serve``: the service, composed from config.
+
+Three processes (docs/architecture.md): this one serves the API; a flight process runs
+mocap, the vehicle links and the control loop; with ``sim.embedded`` a third runs the
+simulated world, which the flight process then reaches over loopback exactly as it would
+reach a lab. SIGINT/SIGTERM (or the flight process ending) stops everything in order: the
+flight process lands whatever is airborne and disarms, then the world stops, then HTTP.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import multiprocessing
+import multiprocessing.connection
+import os
+import secrets
+import signal
+import socket
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from multiprocessing.process import BaseProcess
+from pathlib import Path
+from typing import Any
+
+from api.app import create_app
+from api.server import HttpServer, bind
+from supervisor.app.assembly import arena_from_config
+from supervisor.app.config import TOKEN_ENV, Config, load_config
+from supervisor.ipc.channel import Channel
+from supervisor.ipc.client import FlightClient
+from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
+
+SPAWN = multiprocessing.get_context("spawn")
+WORLD_START_TIMEOUT_S = 60.0
+API_NICENESS = 5
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How to rebuild the configuration in a child process."""
+
+    config_path: Path
+    overrides: tuple[str, ...]
+
+    def load(self) -> Config:
+        return load_config(self.config_path, self.overrides)
+
+
+def resolve_token(config: Config) -> tuple[str, bool]:
+    """The API token and whether it was generated (then it must be shown)."""
+    if config.api.token:
+        return config.api.token, False
+    from_env = os.environ.get(TOKEN_ENV)
+    if from_env:
+        return from_env, False
+    return secrets.token_urlsafe(18), True
+
+
+def _world_main(setup: Setup, ready: multiprocessing.connection.Connection) -> None:
+    from supervisor.app.world_process import run_world_process
+
+    run_world_process(setup.load(), ready)
+
+
+def _flight_main(setup: Setup, commands: socket.socket, urgent: socket.socket, world: Any) -> None:
+    from supervisor.app.flight_main import run_flight_process
+
+    run_flight_process(setup.load(), commands, urgent, world)
+
+
+def _start_world(
+    setup: Setup,
+) -> tuple[BaseProcess, multiprocessing.connection.Connection, dict[str, Any]]:
+    """The world process, the pipe whose closing stops it, and its addresses."""
+    parent, child = SPAWN.Pipe()
+    process = SPAWN.Process(target=_world_main, args=(setup, child), name="uavbar-world")
+    process.start()
+    child.close()
+    if not parent.poll(WORLD_START_TIMEOUT_S):
+        process.kill()
+        raise RuntimeError("the simulated world did not start")
+    addresses: dict[str, Any] = parent.recv()
+    if "error" in addresses:
+        process.join(5.0)
+        raise RuntimeError(f"the simulated world failed: {addresses['error']}")
+    return process, parent, addresses
+
+
+def _stop(process: BaseProcess | None, timeout_s: float) -> None:
+    if process is None or not process.is_alive():
+        return
+    if process.pid is not None:
+        os.kill(process.pid, signal.SIGTERM)
+    process.join(timeout_s)
+    if process.is_alive():
+        process.kill()
+        process.join(5.0)
+
+
+async def serve(setup: Setup) -> int:
+    """Run the service until a signal or the flight process ends; returns the exit status."""
+    config = setup.load()
+    token, generated = resolve_token(config)
+    http_socket = bind(config.api.host, config.api.port)
+    world: BaseProcess | None = None
+    world_addresses: dict[str, Any] | None = None
+    world_pipe: multiprocessing.connection.Connection | None = None
+    if config.sim.embedded:
+        world, world_pipe, started = await asyncio.to_thread(_start_world, setup)
+        print(f"simulated world: QTM {started['qtm']}, PX4s {', '.join(started['vehicles'])}")
+        world_addresses = started
+    pairs = [socket.socketpair() for _ in range(2)]
+    flight = SPAWN.Process(
+        target=_flight_main,
+        args=(setup, pairs[0][1], pairs[1][1], world_addresses),
+        name="uavbar-flight",
+    )
+    flight.start()
+    for _, child_end in pairs:
+        child_end.close()
+    # The flight process and the world it flies come first on a busy machine: requests
+    # and WebSocket clients may wait, ticks and mocap frames may not.
+    os.nice(API_NICENESS)
+    commands, urgent = [await Channel.open(parent_end) for parent_end, _ in pairs]
+    client = FlightClient(commands, urgent)
+    app = create_app(client, config.system.to_params(), arena_from_config(config), token)
+    http = HttpServer(app, http_socket)
+    host = config.api.host
+    print(f"uavbar-supervisor serving http://{host}:{http.port}/ (setup {config.name})")
+    if generated:
+        print(f"API token (generated; set {TOKEN_ENV} or api.token to choose one): {token}")
+    sys.stdout.flush()
+
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        async with asyncio.TaskGroup() as group:
+            group.create_task(http.serve())
+            flight_link = group.create_task(client.run())
+            stopper = group.create_task(stop.wait())
+            await asyncio.wait({flight_link, stopper}, return_when=asyncio.FIRST_COMPLETED)
+            if not flight_link.done():
+                await client.request("shutdown")
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(LANDING_TIMEOUT_S + 10.0):
+                        await flight_link
+            stopper.cancel()
+            http.stop()
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.remove_signal_handler(sig)
+        await asyncio.to_thread(_stop, flight, 10.0)
+        await asyncio.to_thread(_stop, world, 10.0)
+        if world_pipe is not None:
+            world_pipe.close()
+        await client.close()
+    return 0 if flight.exitcode in (0, None) or stop.is_set() else 1
+
+
+def run_serve(config_path: Path, overrides: Sequence[str]) -> int:
+    """Entry point of ``serve`` (the configuration was already validated)."""
+    return asyncio.run(serve(Setup(config_path, tuple(overrides))))

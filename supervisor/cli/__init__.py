@@ -1,0 +1,1 @@
+"""The command line (uavbar-supervisor ...), the terminal client, the HPIPM installer."""

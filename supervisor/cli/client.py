@@ -1,0 +1,168 @@
+"""The terminal client: ``uavbar-supervisor status|arm|takeoff|land|abort|disarm|kill|mode|
+setpoint`` against a running service's REST API, for scripts and the laptop next to the
+drones.
+
+The URL defaults to the configured ``api.host``/``api.port``; the token comes from
+``--token`` or the environment variable ``UAVBAR_TOKEN``. Exit status: 0 done, 1 refused
+(the reason is printed), 3 the service cannot be reached (2 is a usage error, as for every
+command).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from typing import Any
+
+import httpx
+
+from supervisor.app.config import TOKEN_ENV, Config
+from supervisor.cli.usage import UsageError
+
+EXIT_REFUSED = 1
+EXIT_UNREACHABLE = 3
+SIMPLE_REQUESTS = ("arm", "takeoff", "land", "abort", "disarm")
+
+
+def add_client_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--url", metavar="URL", help="service address (default: from config)")
+    parser.add_argument("--token", metavar="TOKEN", help=f"API token (default: ${TOKEN_ENV})")
+    parser.add_argument("--json", action="store_true", help="print the raw JSON answer")
+
+
+def _base_url(config: Config, args: argparse.Namespace) -> str:
+    if args.url:
+        return str(args.url).rstrip("/")
+    host = config.api.host if config.api.host not in ("0.0.0.0", "::") else "127.0.0.1"
+    return f"http://{host}:{config.api.port}"
+
+
+def _headers(args: argparse.Namespace) -> dict[str, str]:
+    token = args.token or os.environ.get(TOKEN_ENV)
+    return {"Authorization": f"Bearer {token}"} if token else {}
+
+
+def _format_position(values: Any) -> str:
+    if not values or any(v is None for v in values):
+        return "unknown"
+    return "(" + ", ".join(f"{v:+.3f}" for v in values) + ") m"
+
+
+def format_status(status: dict[str, Any]) -> str:
+    """A few lines an operator reads at a glance."""
+    bar = status.get("bar", {})
+    yaw = bar.get("yaw")
+    tick = status.get("tick", {})
+    mocap = status.get("mocap", {})
+    lines = [
+        f"mode {status.get('mode')} ({status.get('phase', '-')}), controller "
+        f"{status.get('controller')}{'  [STALE]' if status.get('stale') else ''}",
+        f"bar  {_format_position(bar.get('position'))}, yaw "
+        + (f"{math.degrees(yaw):+.1f}°" if yaw is not None else "unknown"),
+    ]
+    for i, uav in enumerate(status.get("uavs", []), start=1):
+        armed = status.get("armed", [False, False])[i - 1]
+        lines.append(
+            f"uav{i} {_format_position(uav.get('position'))}, px4 {uav.get('px4_mode')}, "
+            f"{'armed' if armed else 'disarmed'}, link {'up' if uav.get('connected') else 'DOWN'}"
+        )
+    lines.append(
+        f"mocap {'healthy' if mocap.get('healthy') else 'NOT HEALTHY'} at "
+        f"{mocap.get('rate_hz') or 0:.0f} Hz; setpoints: "
+        f"{'active' if status.get('setpoints', {}).get('active') else 'none active'}, "
+        f"{len(status.get('setpoints', {}).get('queued', []))} queued"
+    )
+    lines.append(
+        f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
+        f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
+    )
+    lines += [
+        f"notice ({notice['age_s']:.0f} s ago): {notice['message']}"
+        for notice in status.get("notices", [])[-3:]
+    ]
+    return "\n".join(lines)
+
+
+def _request_for(args: argparse.Namespace) -> tuple[str, str, Any]:
+    """(method, path, JSON body) of the command in ``args``."""
+    command = args.command
+    if command == "status":
+        return "GET", "/api/status", None
+    if command in SIMPLE_REQUESTS:
+        return "POST", f"/api/{command}", None
+    if command == "kill":
+        if not args.confirm:
+            raise UsageError("kill stops the motors in the air: add --confirm")
+        return "POST", "/api/kill", {"confirm": True}
+    if command == "mode":
+        return "POST", "/api/mode", {"controller": args.controller}
+    if args.clear:
+        return "DELETE", "/api/setpoints", None
+    if not args.position:
+        return "GET", "/api/setpoints", None
+    if len(args.position) != 3:
+        raise UsageError(f"setpoint takes X Y Z (metres), got {len(args.position)} numbers")
+    body: dict[str, Any] = {"bar_position": args.position, "hold_s": args.hold}
+    if args.yaw is not None:
+        body["bar_yaw"] = args.yaw
+    if args.uav_yaw is not None:
+        body["uav_yaw"] = args.uav_yaw
+    if args.theta_l is not None:
+        body["theta_l"] = args.theta_l
+    return "POST", "/api/setpoints", body
+
+
+def run_client(config: Config, args: argparse.Namespace) -> int:
+    """Send the command, print the answer; returns the exit status."""
+    method, path, body = _request_for(args)
+    url = _base_url(config, args)
+    try:
+        response = httpx.request(method, url + path, json=body, headers=_headers(args), timeout=10)
+    except httpx.HTTPError as error:
+        print(f"cannot reach the service at {url}: {error}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    try:
+        answer = response.json()
+    except ValueError:
+        answer = {"detail": response.text}
+    if response.status_code >= 400:
+        detail = answer.get("detail", answer) if isinstance(answer, dict) else answer
+        print(f"refused ({response.status_code}): {detail}", file=sys.stderr)
+        return EXIT_REFUSED
+    if args.json:
+        print(json.dumps(answer))
+    elif args.command == "status":
+        print(format_status(answer))
+    else:
+        print(", ".join(f"{k}: {v}" for k, v in answer.items()))
+    return 0
+
+
+def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
+    """The client subcommands, each with ``handler`` set to ``run_client``."""
+    parsers = [commands.add_parser("status", help="the running service's status")]
+    parsers += [
+        commands.add_parser(name, help=f"ask the running service to {name}")
+        for name in SIMPLE_REQUESTS
+    ]
+    kill = commands.add_parser("kill", help="force-disarm both vehicles (they fall)")
+    kill.add_argument("--confirm", action="store_true", help="required: yes, kill")
+    mode = commands.add_parser("mode", help="switch the controller")
+    mode.add_argument("controller", choices=("centralized", "decentralized"))
+    setpoint = commands.add_parser(
+        "setpoint", help="queue a bar setpoint (no position: list them; --clear: drop them)"
+    )
+    setpoint.add_argument("position", nargs="*", type=float, metavar="X Y Z")
+    setpoint.add_argument("--yaw", type=float, metavar="RAD", help="bar yaw")
+    setpoint.add_argument("--uav-yaw", type=float, nargs=2, metavar=("PSI1", "PSI2"))
+    setpoint.add_argument("--theta-l", type=float, metavar="RAD", help="cable angle")
+    setpoint.add_argument("--hold", type=float, default=5.0, metavar="S", help="hold time")
+    setpoint.add_argument("--clear", action="store_true", help="drop queue and active")
+    parsers += [kill, mode, setpoint]
+    for parser in parsers:
+        add_client_options(parser)
+        parser.set_defaults(handler=run_client)
+    return parsers

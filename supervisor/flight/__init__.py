@@ -1,0 +1,1 @@
+"""The pure tick core: modes, phases, safety, setpoints, estimation, the core, telemetry view."""

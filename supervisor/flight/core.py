@@ -1,0 +1,514 @@
+"""The synchronous tick core: estimation → mode logic → controller → safety → commands.
+
+No I/O and no clock of its own: the asyncio service calls ``tick`` on the wall clock, the
+fast simulator calls the very same object against the physics plant. Operator requests
+(``request``, ``set_controller``, ``queue_setpoints``) are applied between ticks.
+
+Flight phases inside the modes:
+* takeoff — ``climb``: each UAV flies alone (``uav_pd``) to just above its bar end until
+  the cables are taut; ``lift``: the MPC raises the bar to the take-off height.
+* hover / tracking — the MPC regulates to the rate-limited reference.
+* landing / abort — ``lower``: the MPC sets the bar down; ``descend``: each UAV flies alone,
+  moves clear of its bar end and descends; motors stop on the ground.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controllers.equilibria import Reference, bar_equilibrium
+from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
+from controllers.params import BarSystemParams, Clock, MpcSettings
+from controllers.uav_pd import UavPdGains, uav_pd_control
+from geometry.frames import rotation_from_euler_zyx
+from supervisor.flight.estimation import Estimate
+from supervisor.flight.modes import FlightModes, Mode, Transition
+from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor
+from supervisor.flight.setpoints import (
+    Arena,
+    RateLimits,
+    ReferenceShaper,
+    Setpoint,
+    SetpointQueue,
+    validate_setpoint,
+)
+from supervisor.flight.tick_record import TickRecord
+from supervisor.vehicles.types import UavCommand
+
+FloatArray = NDArray[np.float64]
+CONTROLLERS = ("centralized", "decentralized")
+NOTICES_KEPT = 20
+
+
+@dataclass(frozen=True)
+class CoreSettings:
+    """Flight-phase parameters (SI units)."""
+
+    takeoff_height_m: float = 1.0
+    reached_position_m: float = 0.05
+    reached_yaw_rad: float = math.radians(3.0)
+    flight_rates: RateLimits = field(default_factory=RateLimits)
+    takeoff_rates: RateLimits = field(
+        default_factory=lambda: RateLimits(position_mps=0.25, acceleration_mps2=0.15)
+    )
+    abort_rates: RateLimits = field(default_factory=lambda: RateLimits(position_mps=0.4))
+    descend_speed_mps: float = 0.3
+    settle_on_ground_s: float = 1.0
+    landing_clearance_m: float = 0.3
+    bumpless_ticks: int = 15
+    rate_lookahead_steps: int = 3
+    pd_gains: UavPdGains = field(default_factory=UavPdGains)
+
+
+@dataclass(frozen=True)
+class TickResult:
+    """Everything one tick decided."""
+
+    commands: tuple[UavCommand, UavCommand]
+    mode: Mode
+    phase: str
+    plan: Plan | None
+    reference: Reference | None
+    faults: list[Fault]
+    record: TickRecord
+    events: list[str] = field(default_factory=list)
+
+
+class FlightCore:
+    """The supervisor's decision-making, one ``tick`` per control period. ``clock`` times
+    the tick's compute and the MPC's solves (``controllers.params.Clock``)."""
+
+    def __init__(
+        self,
+        params: BarSystemParams,
+        mpc_settings: dict[str, MpcSettings],
+        arena: Arena,
+        controller: str = "centralized",
+        settings: CoreSettings | None = None,
+        safety: SafetyLimits | None = None,
+        *,
+        clock: Clock,
+    ) -> None:
+        if controller not in CONTROLLERS:
+            raise ValueError(f"controller must be one of {CONTROLLERS}")
+        self.params = params
+        self.settings = settings or CoreSettings()
+        self.arena = arena
+        self.controllers: dict[str, CentralizedMpc | DecentralizedMpc] = {
+            "centralized": CentralizedMpc(params, mpc_settings["centralized"], clock=clock),
+            "decentralized": DecentralizedMpc(params, mpc_settings["decentralized"], clock=clock),
+        }
+        self._clock = clock
+        self.controller = controller
+        self.modes = FlightModes()
+        self.queue = SetpointQueue()
+        self.safety = SafetyMonitor(params, arena, safety or SafetyLimits())
+        self.notices: deque[tuple[float, str]] = deque(maxlen=NOTICES_KEPT)
+        """The latest decisions the safety monitors forced (time, what and why), oldest
+        first: what an operator must be told even if no screen was watching."""
+        self.phase = "ground"
+        self._limits = mpc_settings["centralized"].limits
+        self._shaper: ReferenceShaper | None = None
+        self._hold_target: Reference | None = None
+        self._ground_bar_z = 0.0
+        self._ground_uav_z = (0.0, 0.0)
+        self._yaw_hold = (0.0, 0.0)
+        self._pd_targets: list[FloatArray] = [np.zeros(3), np.zeros(3)]
+        self._last_u = np.zeros(8)
+        self._blend_from: FloatArray | None = None
+        self._blend_tick = 0
+        self._last_estimate: Estimate | None = None
+        self._mpc_reference: Reference | None = None
+        self.mpc_was_prepared: bool | None = None
+        """Whether this tick's MPC used the model prepared after the last (None: no MPC)."""
+        self._last_tick_s: float | None = None
+        self._dt_s = 0.0
+        self._low_since_s: float | None = None
+
+    # ---- operator interface -------------------------------------------------------------
+    def request(self, event: str, now_s: float) -> Transition:
+        """An operator request (arm, disarm, takeoff, land, abort, kill)."""
+        if event == "takeoff" and self.modes.mode is Mode.ARMED and not self._mocap_fresh():
+            return Transition(
+                False,
+                self.modes.mode,
+                "cannot take off without fresh motion capture of all bodies",
+            )
+        before = self.modes.mode
+        result = self.modes.handle(event, now_s)
+        if result.accepted and result.mode is not before:
+            self._entered(result.mode, now_s)
+        return result
+
+    def _mocap_fresh(self) -> bool:
+        """Every body measured, none older than the safety monitor's coasting limit: one
+        dropped frame (10 ms) must not refuse a take-off, a lost body must."""
+        estimate = self._last_estimate
+        return (
+            estimate is not None
+            and bool(np.all(np.isfinite(estimate.x)))
+            and estimate.age_s <= self.safety.limits.mocap_coast_s
+        )
+
+    def set_controller(self, name: str, now_s: float) -> Transition:
+        """Switch between the centralized and decentralized MPC, bumplessly in flight."""
+        if name not in CONTROLLERS:
+            return Transition(
+                False, self.modes.mode, f"controller must be one of {', '.join(CONTROLLERS)}"
+            )
+        if name != self.controller:
+            self.controllers[name].reset()
+            self.controller = name
+            if self.modes.mode.airborne:
+                self._blend_from = self._last_u.copy()
+                self._blend_tick = 0
+        return Transition(True, self.modes.mode)
+
+    def start_in_hover(
+        self, estimate: Estimate, now_s: float, ground_z_m: tuple[float, float, float]
+    ) -> None:
+        """Begin airborne, hovering where the system is (simulations that start in the air,
+        as the paper's Section VII does); ``ground_z_m`` are the heights of the bar's and
+        the UAVs' centres when they rest on the ground, which a landing returns to. Not an
+        operator request: the mode table has no way from the ground to hover but take-off."""
+        self.modes = FlightModes(Mode.HOVER)
+        self._ground_bar_z = ground_z_m[0]
+        self._ground_uav_z = (ground_z_m[1], ground_z_m[2])
+        self._last_estimate = estimate
+        x = estimate.x
+        self._yaw_hold = (float(x[20]), float(x[32]))
+        self._entered(Mode.HOVER, now_s)
+
+    def queue_setpoints(self, setpoints: list[Setpoint]) -> None:
+        """Queue setpoints, all or none: each is validated against the arena and
+        equilibrium feasibility, and they must fit the queue (raises ``SetpointError``)."""
+        for setpoint in setpoints:
+            validate_setpoint(setpoint, self.params, self.arena)
+        self.queue.extend(setpoints)
+
+    def clear_setpoints(self) -> None:
+        """Drop the queue and the active setpoint; in flight the bar holds its reference."""
+        self.queue.clear()
+        if self._shaper is not None and self.modes.mode in (Mode.HOVER, Mode.TRACKING):
+            self._hold_target = self._shaper.current.at_rest()
+
+    # ---- the tick -----------------------------------------------------------------------
+    def tick(
+        self,
+        now_s: float,
+        estimate: Estimate,
+        links_connected: tuple[bool, bool] = (True, True),
+        lateness_s: float = 0.0,
+    ) -> TickResult:
+        """Decide this tick's commands from the estimate at ``now_s``."""
+        started = self._clock()
+        self._dt_s = 0.0 if self._last_tick_s is None else max(0.0, now_s - self._last_tick_s)
+        self._last_tick_s = now_s
+        self._last_estimate = estimate
+        self._mpc_reference = None
+        self.mpc_was_prepared = None
+        events: list[str] = []
+        mode = self.modes.mode
+        plan: Plan | None = None
+        reference: Reference | None = None
+        if mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
+            commands = (UavCommand.off(), UavCommand.off())
+            self._remember_ground(estimate)
+        elif mode is Mode.TAKEOFF:
+            commands, plan, reference = self._takeoff(now_s, estimate, events)
+        elif mode in (Mode.HOVER, Mode.TRACKING):
+            commands, plan, reference = self._fly(now_s, estimate, events)
+        else:
+            commands, plan, reference = self._land(now_s, estimate, events)
+
+        faults = self.safety.check(
+            now_s,
+            estimate,
+            self.modes.mode,
+            plan.status if plan else None,
+            links_connected,
+            reference.bar_yaw_rad if reference is not None else None,
+        )
+        swings = [f.message for f in faults if f.response is Response.CENTRALIZE]
+        if swings and self.controller == "decentralized":
+            self.set_controller("centralized", now_s)
+            events.append(f"swing: {swings[0]}; switched to the centralized MPC")
+        serious = any(f.response in (Response.ABORT, Response.LAND_OTHER) for f in faults)
+        if serious and self.modes.mode.airborne and self.modes.mode is not Mode.ABORT:
+            self.modes.handle("fault", now_s)
+            self._entered(Mode.ABORT, now_s)
+            events.append("abort: " + "; ".join(f.message for f in faults))
+        self.notices.extend((now_s, e) for e in events if e.startswith(("abort:", "swing:")))
+        # A vehicle whose link is lost is left to its own failsafe: it gets no commands.
+        commands = (
+            commands[0] if links_connected[0] else UavCommand.off(),
+            commands[1] if links_connected[1] else UavCommand.off(),
+        )
+        for event in events:
+            if event in ("airborne", "track", "hold", "landed"):
+                before = self.modes.mode
+                if self.modes.handle(event, now_s).accepted and self.modes.mode is not before:
+                    self._entered(self.modes.mode, now_s)
+        u = np.array([v for c in commands for v in (c.thrust_n, *c.torque_nm)])
+        self._last_u = u
+        state_ref = (
+            bar_equilibrium(self.params, reference).x
+            if reference is not None
+            else np.full(36, np.nan)
+        )
+        record = TickRecord(
+            t_s=now_s,
+            mode=self.modes.mode.value,
+            controller=self.controller,
+            state=estimate.x.tolist(),
+            state_ref=state_ref.tolist(),
+            inputs=u.tolist(),
+            plan_status=plan.status.value if plan else self.phase,
+            solve_ms=plan.solve_time_s * 1e3 if plan else math.nan,
+            compute_ms=(self._clock() - started) * 1e3,
+            lateness_ms=lateness_s * 1e3,
+            mocap_age_ms=estimate.age_s * 1e3,
+        )
+        return TickResult(
+            commands, self.modes.mode, self.phase, plan, reference, faults, record, events
+        )
+
+    # ---- phases ---------------------------------------------------------------------------
+    def _entered(self, mode: Mode, now_s: float) -> None:
+        x = self._last_estimate.x if self._last_estimate is not None else None
+        if mode is Mode.TAKEOFF and x is not None and self._last_estimate is not None:
+            self._remember_ground(self._last_estimate)
+            self.phase = "climb"
+            self._set_climb_targets(x)
+        elif mode in (Mode.LANDING, Mode.ABORT):
+            self.phase = "lower" if self.phase not in ("climb", "descend") else "descend"
+            if self.phase == "descend" and x is not None:
+                self._set_descend_targets(x)
+            self.queue.clear()
+            if x is not None:
+                self._shaper = ReferenceShaper(self._current_reference(x), self._rates(mode))
+        elif mode is Mode.HOVER:
+            self.phase = "hover"
+            if self._shaper is not None:
+                self._hold_target = self._shaper.current
+        elif mode is Mode.TRACKING:
+            self.phase = "tracking"
+        elif mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
+            self.phase = "ground"
+            self._shaper = None
+            self._hold_target = None
+            for c in self.controllers.values():
+                c.reset()
+
+    def _rates(self, mode: Mode) -> RateLimits:
+        if mode is Mode.ABORT:
+            return self.settings.abort_rates
+        if mode is Mode.TAKEOFF:
+            return self.settings.takeoff_rates
+        return self.settings.flight_rates
+
+    def _remember_ground(self, estimate: Estimate) -> None:
+        x = estimate.x
+        if np.all(np.isfinite(x)):
+            self._ground_bar_z = float(x[2])
+            self._ground_uav_z = (float(x[14]), float(x[26]))
+            self._yaw_hold = (float(x[20]), float(x[32]))
+
+    def _bar_ends(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        psi, theta = x[8], x[7]
+        n_b = np.array(
+            [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
+        )
+        return x[0:3] - self.params.d1_m * n_b, x[0:3] + self.params.d2_m * n_b, n_b
+
+    def _set_climb_targets(self, x: FloatArray) -> None:
+        end_1, end_2, _ = self._bar_ends(x)
+        self._pd_targets = [
+            end + np.array([0.0, 0.0, length + 0.02])
+            for end, length in zip((end_1, end_2), self.params.cable_lengths_m, strict=True)
+        ]
+
+    def _set_descend_targets(self, x: FloatArray) -> None:
+        end_1, end_2, n_b = self._bar_ends(x)
+        out = self.settings.landing_clearance_m
+        self._pd_targets = [
+            np.array([*(end_1 - out * n_b)[0:2], x[14]]),
+            np.array([*(end_2 + out * n_b)[0:2], x[26]]),
+        ]
+
+    def _current_reference(self, x: FloatArray) -> Reference:
+        return Reference(
+            (float(x[0]), float(x[1]), float(x[2])), float(x[8]), (float(x[20]), float(x[32])), 0.0
+        )
+
+    def _pd_commands(
+        self, x: FloatArray, extra_load: tuple[float, float]
+    ) -> tuple[UavCommand, UavCommand]:
+        commands = []
+        for k, offset in enumerate((12, 24)):
+            uav = self.params.uavs[k]
+            thrust, torque, rates = uav_pd_control(
+                x[offset : offset + 3],
+                x[offset + 3 : offset + 6],
+                rotation_from_euler_zyx(*x[offset + 6 : offset + 9]),
+                x[offset + 9 : offset + 12],
+                self._pd_targets[k],
+                self._yaw_hold[k],
+                uav.mass_kg,
+                uav.inertia_kgm2,
+                (self._limits.thrust_min_n, self._limits.thrust_max_n, self._limits.torque_max_nm),
+                extra_load[k],
+                self.settings.pd_gains,
+                self.params.gravity_mps2,
+            )
+            commands.append(UavCommand(thrust, torque, rates, True))
+        return commands[0], commands[1]
+
+    def _mpc_commands(self, plan: Plan) -> tuple[UavCommand, UavCommand]:
+        u = plan.u.copy()
+        if self._blend_from is not None:  # bumpless transfer after a controller switch
+            self._blend_tick += 1
+            alpha = self._blend_tick / self.settings.bumpless_ticks
+            u = (1.0 - alpha) * self._blend_from + alpha * u
+            if self._blend_tick >= self.settings.bumpless_ticks:
+                self._blend_from = None
+        # A rate-controlled PX4 turns a rate error into torque through its rate loop, whose
+        # time constant is ~1/K_P (50–70 ms): the MPC's predicted rate that far ahead asks
+        # it for about the MPC's own torque; the next step's rate would ask for a third.
+        ahead = min(self.settings.rate_lookahead_steps, len(plan.x_pred) - 1)
+        next_x = plan.x_pred[ahead]
+        rate_slices = (
+            ((21, 24), (33, 36)) if self.controller == "centralized" else ((9, 12), (27, 30))
+        )
+        return tuple(  # type: ignore[return-value]
+            UavCommand(float(u[4 * k]), u[4 * k + 1 : 4 * k + 4].copy(), next_x[a:b].copy(), True)
+            for k, (a, b) in enumerate(rate_slices)
+        )
+
+    def _mpc(
+        self, now_s: float, x: FloatArray, reference: Reference
+    ) -> tuple[tuple[UavCommand, UavCommand], Plan]:
+        controller = self.controllers[self.controller]
+        plan = controller.step(x, reference, now_s)
+        self._mpc_reference = reference
+        self.mpc_was_prepared = controller.last_step_was_prepared
+        return self._mpc_commands(plan), plan
+
+    def prepare_next(self) -> None:
+        """Between ticks, once the commands are out: let the MPC that flew this tick
+        linearize for the next one (controllers/mpc.py, ``prepare``)."""
+        if self._mpc_reference is not None and self._last_estimate is not None:
+            controller = self.controllers[self.controller]
+            controller.prepare(self._last_estimate.x, self._mpc_reference)
+
+    def _takeoff(
+        self, now_s: float, estimate: Estimate, events: list[str]
+    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+        x = estimate.x
+        if self.phase == "climb":
+            commands = self._pd_commands(x, (0.0, 0.0))
+            end_1, end_2, _ = self._bar_ends(x)
+            taut = all(
+                np.linalg.norm(x[o : o + 3] - end) >= length - 0.03
+                for o, end, length in zip(
+                    (12, 24), (end_1, end_2), self.params.cable_lengths_m, strict=True
+                )
+            )
+            if taut and max(np.linalg.norm(x[15:18]), np.linalg.norm(x[27:30])) < 0.3:
+                self.phase = "lift"
+                self._shaper = ReferenceShaper(
+                    self._current_reference(x), self.settings.takeoff_rates
+                )
+            return commands, None, None
+        assert self._shaper is not None
+        target = Reference(
+            (float(x[0]), float(x[1]), self._ground_bar_z + self.settings.takeoff_height_m),
+            float(x[8]),
+            self._yaw_hold,
+            0.0,
+        )
+        if self._hold_target is None:
+            self._hold_target = target
+        reference = self._shaper.update(self._hold_target, now_s)
+        commands, plan = self._mpc(now_s, x, reference)
+        if reference == self._hold_target and self._reached(x, reference):
+            events.append("airborne")
+        return commands, plan, reference
+
+    def _reached(self, x: FloatArray, reference: Reference) -> bool:
+        position_error = np.linalg.norm(x[0:3] - np.asarray(reference.bar_position_m))
+        yaw_error = abs(math.remainder(x[8] - reference.bar_yaw_rad, 2 * math.pi))
+        return bool(
+            position_error < self.settings.reached_position_m
+            and yaw_error < self.settings.reached_yaw_rad
+        )
+
+    def _fly(
+        self, now_s: float, estimate: Estimate, events: list[str]
+    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+        x = estimate.x
+        if self._shaper is None:
+            self._shaper = ReferenceShaper(self._current_reference(x), self.settings.flight_rates)
+        if self._hold_target is None:
+            self._hold_target = self._shaper.current
+        target = self._hold_target
+        active = self.queue.active
+        if active is not None:
+            target = active.reference()
+        reached = self._shaper.current == target and self._reached(x, target)
+        setpoint = self.queue.update(reached, now_s)
+        if setpoint is not None:
+            target = setpoint.reference()
+            if self.modes.mode is Mode.HOVER:
+                events.append("track")
+        elif self.modes.mode is Mode.TRACKING:
+            self._hold_target = target
+            events.append("hold")
+        reference = self._shaper.update(target, now_s)
+        commands, plan = self._mpc(now_s, x, reference)
+        return commands, plan, reference
+
+    def _land(
+        self, now_s: float, estimate: Estimate, events: list[str]
+    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+        x = estimate.x
+        if self.phase == "lower":
+            if self._shaper is None:
+                self._shaper = ReferenceShaper(
+                    self._current_reference(x), self._rates(self.modes.mode)
+                )
+            current = self._shaper.current
+            target = Reference(
+                (current.bar_position_m[0], current.bar_position_m[1], self._ground_bar_z),
+                current.bar_yaw_rad,
+                current.uav_yaw_rad,
+                0.0,
+            )
+            reference = self._shaper.update(target, now_s)
+            commands, plan = self._mpc(now_s, x, reference)
+            if x[2] < self._ground_bar_z + 0.03 or (reference == target and abs(x[5]) < 0.05):
+                self.phase = "descend"
+                self._yaw_hold = (float(x[20]), float(x[32]))
+                self._set_descend_targets(x)
+            return commands, plan, reference
+        dt_descend = self.settings.descend_speed_mps * self._dt_s
+        for k, ground_z in enumerate(self._ground_uav_z):
+            self._pd_targets[k][2] = max(ground_z - 0.05, self._pd_targets[k][2] - dt_descend)
+        commands = self._pd_commands(x, (0.0, 0.0))
+        # Down once both have stayed at their ground height for a while: velocity
+        # estimates are too noisy near zero to decide on one tick.
+        low = all(x[o + 2] < gz + 0.05 for o, gz in zip((12, 24), self._ground_uav_z, strict=True))
+        if not low:
+            self._low_since_s = None
+        elif self._low_since_s is None:
+            self._low_since_s = now_s
+        settled_since = self._low_since_s
+        if settled_since is not None and now_s - settled_since >= self.settings.settle_on_ground_s:
+            events.append("landed")
+            return (UavCommand.off(), UavCommand.off()), None, None
+        return commands, None, None

@@ -1,0 +1,161 @@
+"""Safety monitors: pure checks on every tick (time as an argument).
+
+Each monitor reports a ``Fault`` whose ``response`` the flight core carries out; the table
+with the reasoning is ``docs/safety.md``. Abort means a coordinated landing of the bar and
+both UAVs; the monitors never disarm in the air (kill is the operator's decision).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from controllers.mpc import PlanStatus
+from controllers.params import BarSystemParams
+from geometry.frames import rotation_from_euler_zyx
+from supervisor.flight.estimation import Estimate
+from supervisor.flight.modes import Mode
+from supervisor.flight.setpoints import Arena
+
+
+class Response(Enum):
+    COAST = "coast"  # keep flying on the prediction / shifted plan, report
+    ABORT = "abort"  # coordinated landing
+    LAND_OTHER = "land_other"  # one vehicle lost: the other sets the bar down
+    CENTRALIZE = "centralize"  # the decentralized MPC hands the bar to the centralized one
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A detected problem: which monitor, what it saw, and what is done about it."""
+
+    monitor: str
+    message: str
+    response: Response
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """Thresholds of the monitors (see docs/safety.md for the reasoning)."""
+
+    mocap_coast_s: float = 0.1
+    max_tilt_rad: float = math.radians(45.0)
+    max_consecutive_fallbacks: int = 10
+    slack_margin_m: float = 0.05
+    slack_time_s: float = 0.5
+    max_bar_yaw_error_rad: float = math.radians(20.0)  # 0: no hand-over
+
+
+class SafetyMonitor:
+    """Runs every monitor on a tick; keeps the little state some of them need."""
+
+    def __init__(
+        self, params: BarSystemParams, arena: Arena, limits: SafetyLimits = SafetyLimits()
+    ) -> None:
+        self.params = params
+        self.arena = arena
+        self.limits = limits
+        self._fallbacks = 0
+        self._slack_since_s: float | None = None
+
+    def check(
+        self,
+        now_s: float,
+        estimate: Estimate,
+        mode: Mode,
+        plan_status: PlanStatus | None,
+        links_connected: tuple[bool, bool],
+        bar_yaw_reference_rad: float | None = None,
+    ) -> list[Fault]:
+        """All faults seen on this tick (empty when everything is fine); the bar's yaw is
+        checked against ``bar_yaw_reference_rad`` when the tick had a reference."""
+        if not mode.airborne:
+            self._fallbacks = 0
+            self._slack_since_s = None
+            return []
+        faults: list[Fault] = []
+        lim = self.limits
+        if estimate.unhealthy:
+            response = Response.ABORT if estimate.age_s > lim.mocap_coast_s else Response.COAST
+            faults.append(
+                Fault(
+                    "mocap",
+                    f"{', '.join(estimate.unhealthy)} stale or untracked"
+                    f" ({estimate.age_s * 1e3:.0f} ms)",
+                    response,
+                )
+            )
+        if not np.all(np.isfinite(estimate.x)) and estimate.age_s <= lim.mocap_coast_s:
+            faults.append(Fault("numeric", "NaN or inf in the estimated state", Response.ABORT))
+        for i, connected in enumerate(links_connected, start=1):
+            if not connected:
+                faults.append(Fault("link", f"vehicle {i} link lost", Response.LAND_OTHER))
+        x = estimate.x
+        if np.all(np.isfinite(x)):
+            self._geofence(x, faults)
+            self._tilt(x, faults)
+            self._slack(now_s, x, mode, faults)
+            if bar_yaw_reference_rad is not None:
+                self._swing(x, mode, bar_yaw_reference_rad, faults)
+        if plan_status is not None:
+            self._fallbacks = self._fallbacks + 1 if plan_status.is_fallback else 0
+            if self._fallbacks >= lim.max_consecutive_fallbacks:
+                faults.append(
+                    Fault("solver", f"{self._fallbacks} consecutive fallback plans", Response.ABORT)
+                )
+        return faults
+
+    def _geofence(self, x: np.ndarray, faults: list[Fault]) -> None:
+        for name, offset in (("bar", 0), ("UAV 1", 12), ("UAV 2", 24)):
+            if not self.arena.contains(x[offset : offset + 3], margin_m=0.0):
+                faults.append(Fault("geofence", f"{name} left the arena", Response.ABORT))
+
+    def _tilt(self, x: np.ndarray, faults: list[Fault]) -> None:
+        for i, offset in ((1, 18), (2, 30)):
+            tilt = math.acos(
+                max(-1.0, min(1.0, float(rotation_from_euler_zyx(*x[offset : offset + 3])[2, 2])))
+            )
+            if tilt > self.limits.max_tilt_rad:
+                faults.append(
+                    Fault("tilt", f"UAV {i} tilted {math.degrees(tilt):.0f}°", Response.ABORT)
+                )
+
+    def _slack(self, now_s: float, x: np.ndarray, mode: Mode, faults: list[Fault]) -> None:
+        """A cable much shorter than its length for a while means the bar is not hanging."""
+        if mode not in (Mode.HOVER, Mode.TRACKING):
+            self._slack_since_s = None
+            return
+        psi, theta = x[8], x[7]
+        n_b = np.array(
+            [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
+        )
+        ends = (x[0:3] - self.params.d1_m * n_b, x[0:3] + self.params.d2_m * n_b)
+        slack = [
+            np.linalg.norm(x[o : o + 3] - end) < length - self.limits.slack_margin_m
+            for o, end, length in zip((12, 24), ends, self.params.cable_lengths_m, strict=True)
+        ]
+        if not any(slack):
+            self._slack_since_s = None
+            return
+        self._slack_since_s = now_s if self._slack_since_s is None else self._slack_since_s
+        if now_s - self._slack_since_s >= self.limits.slack_time_s:
+            faults.append(Fault("slack", "a cable has been slack for too long", Response.ABORT))
+
+    def _swing(self, x: np.ndarray, mode: Mode, reference_rad: float, faults: list[Fault]) -> None:
+        """The bar turned far from its reference while the MPC holds or tracks it: the
+        decentralized MPC lets the bar's yaw swing grow (docs/safety.md)."""
+        limit = self.limits.max_bar_yaw_error_rad
+        if limit <= 0.0 or mode not in (Mode.HOVER, Mode.TRACKING):
+            return
+        error = math.remainder(float(x[8]) - reference_rad, math.tau)
+        if abs(error) > limit:
+            faults.append(
+                Fault(
+                    "swing",
+                    f"bar yaw {math.degrees(error):+.1f}° off its reference",
+                    Response.CENTRALIZE,
+                )
+            )

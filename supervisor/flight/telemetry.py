@@ -1,0 +1,125 @@
+"""The telemetry message: what ``GET /api/status`` returns and the WebSocket streams.
+
+Pure: built from the tick core, the last tick, the estimate and plain views of the links
+and the mocap source. Angles in radians, positions in metres (arena frame), times in ms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from controllers.equilibria import bar_equilibrium
+from supervisor.flight.core import FlightCore, TickResult
+from supervisor.flight.estimation import Estimate
+from supervisor.flight.operator_requests import setpoint_json
+from supervisor.vehicles.types import VehicleView
+
+
+@dataclass(frozen=True)
+class MocapView:
+    """The motion-capture source as the client sees it."""
+
+    connected: bool
+    rate_hz: float
+    frames: int
+    dropped: int
+
+
+def _floats(values: Any) -> list[float | None]:
+    return [float(v) if math.isfinite(v) else None for v in np.asarray(values, dtype=float)]
+
+
+def _bar_ends(x: np.ndarray, arms_m: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Cable attachment points: p_b ∓ d_i n_b, n_b from the bar's pitch and yaw (5)."""
+    theta, psi = x[7], x[8]
+    n_b = np.array(
+        [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
+    )
+    return x[0:3] - arms_m[0] * n_b, x[0:3] + arms_m[1] * n_b
+
+
+def build_telemetry(
+    core: FlightCore,
+    estimate: Estimate | None,
+    last_tick: TickResult | None,
+    vehicles: tuple[VehicleView, VehicleView],
+    mocap: MocapView,
+    tick_summary: dict[str, float | int],
+    now_s: float,
+) -> dict[str, Any]:
+    """The status/telemetry message at ``now_s`` (monotonic seconds of the flight process)."""
+    x = estimate.x if estimate is not None else np.full(36, math.nan)
+    reference = last_tick.reference if last_tick is not None else None
+    plan = last_tick.plan if last_tick is not None else None
+    reference_json = None
+    if reference is not None:
+        eq = bar_equilibrium(core.params, reference)
+        reference_json = {
+            "bar_position": list(reference.bar_position_m),
+            "bar_yaw": reference.bar_yaw_rad,
+            "uav_yaw": list(reference.uav_yaw_rad),
+            "theta_l": reference.theta_l_rad,
+            "uav_positions": [_floats(eq.uav_position(i)) for i in (1, 2)],
+            "bar_ends": [_floats(end) for end in eq.bar_ends_m],
+        }
+    bar_error = (
+        float(np.linalg.norm(x[0:3] - np.asarray(reference.bar_position_m)))
+        if reference is not None
+        else None
+    )
+    return {
+        "kind": "telemetry",
+        "time_s": now_s,
+        "mode": core.modes.mode.value,
+        "phase": core.phase,
+        "controller": core.controller,
+        "armed": [v.armed for v in vehicles],
+        "arena": {"min": list(core.arena.min_m), "max": list(core.arena.max_m)},
+        "bar": {
+            "position": _floats(x[0:3]),
+            "ends": [_floats(end) for end in _bar_ends(x, core.params.arms_m)],
+            "yaw": _floats(x[8:9])[0],
+            "velocity": _floats(x[3:6]),
+            "error_m": bar_error,
+        },
+        "uavs": [
+            {
+                "position": _floats(x[o : o + 3]),
+                "yaw": _floats(x[o + 8 : o + 9])[0],
+                "attitude": _floats(x[o + 6 : o + 9]),
+                "connected": v.connected,
+                "px4_mode": v.px4_mode,
+                "battery_v": v.battery_v if math.isfinite(v.battery_v) else None,
+                "status_text": v.status_text,
+            }
+            for o, v in zip((12, 24), vehicles, strict=True)
+        ],
+        "reference": reference_json,
+        "mocap": {
+            "healthy": bool(estimate is not None and estimate.healthy),
+            "connected": mocap.connected,
+            "rate_hz": mocap.rate_hz,
+            "age_ms": estimate.age_s * 1e3
+            if estimate is not None and math.isfinite(estimate.age_s)
+            else None,
+            "unhealthy": list(estimate.unhealthy) if estimate is not None else [],
+            "frames": mocap.frames,
+            "dropped": mocap.dropped,
+        },
+        "setpoints": {
+            "active": setpoint_json(core.queue.active),
+            "queued": [setpoint_json(s) for s in core.queue.queued],
+        },
+        "plan": {
+            "status": plan.status.value if plan is not None else None,
+            "solve_ms": plan.solve_time_s * 1e3 if plan is not None else None,
+            "thrust_n": [c.thrust_n for c in last_tick.commands] if last_tick else None,
+        },
+        "faults": [f.message for f in last_tick.faults] if last_tick is not None else [],
+        "notices": [{"age_s": now_s - t_s, "message": message} for t_s, message in core.notices],
+        "tick": tick_summary,
+    }

@@ -1,0 +1,1 @@
+"""API ⇄ flight process: typed messages, the framed channel, its client and server."""

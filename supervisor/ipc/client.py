@@ -1,0 +1,140 @@
+"""The API process's handle on the flight process: requests with replies, the latest
+telemetry, and a fan-out of telemetry to subscribers (WebSocket clients).
+
+Two channels: ``commands`` carries ordinary requests and the telemetry stream; ``urgent``
+carries only abort and kill, so that they never wait behind anything else.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from supervisor.ipc.channel import Channel, ChannelClosedError
+
+URGENT = ("abort", "kill")
+
+
+@dataclass(frozen=True)
+class Reply:
+    """The flight process's answer. ``outcome`` is ``ok``, ``refused`` (the mode table or
+    the queue said no: HTTP 409), ``invalid`` (bad data: 422) or ``unavailable`` (no flight
+    process answering: 503)."""
+
+    outcome: str
+    reason: str = ""
+    data: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome == "ok"
+
+
+class TelemetrySubscription:
+    """Telemetry for one consumer; a slow consumer loses the oldest messages, never
+    slows the others."""
+
+    def __init__(self, owner: FlightClient, depth: int) -> None:
+        self._owner = owner
+        self.queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue(maxsize=depth)
+        self.dropped = 0
+
+    def offer(self, message: dict[str, Any]) -> None:
+        if self.queue.full():
+            self.queue.get_nowait()
+            self.dropped += 1
+        self.queue.put_nowait(message)
+
+    async def next(self) -> dict[str, Any]:
+        return await self.queue.get()
+
+    def close(self) -> None:
+        self._owner.unsubscribe(self)
+
+
+class FlightClient:
+    """Requests to, and telemetry from, the flight process."""
+
+    def __init__(self, commands: Channel, urgent: Channel, timeout_s: float = 2.0) -> None:
+        self._channels = {"commands": commands, "urgent": urgent}
+        self._timeout_s = timeout_s
+        self._ids = itertools.count(1)
+        self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}
+        self._subscribers: set[TelemetrySubscription] = set()
+        self.latest: dict[str, Any] | None = None
+        self.latest_at_s = -float("inf")
+        self.connected = True
+
+    @property
+    def telemetry_age_s(self) -> float:
+        return time.monotonic() - self.latest_at_s
+
+    async def run(self) -> None:
+        """Receive replies and telemetry until the flight process goes away."""
+        try:
+            async with asyncio.TaskGroup() as group:
+                for channel in self._channels.values():
+                    group.create_task(self._receive(channel))
+        except* ChannelClosedError:
+            pass
+        finally:
+            self.connected = False
+            for future in self._pending.values():
+                if not future.done():
+                    future.set_exception(ChannelClosedError("flight process gone"))
+
+    async def _receive(self, channel: Channel) -> None:
+        while True:
+            message = await channel.receive()
+            if message.get("kind") == "telemetry":
+                self.latest = message
+                self.latest_at_s = time.monotonic()
+                for subscriber in list(self._subscribers):
+                    subscriber.offer(message)
+                continue
+            future = self._pending.pop(int(message.get("id", -1)), None)
+            if future is not None and not future.done():
+                future.set_result(message)
+
+    async def request(self, kind: str, **data: Any) -> Reply:
+        """Send a request and wait for its reply (abort and kill take the urgent channel)."""
+        if not self.connected:
+            return Reply("unavailable", "the flight process is not running")
+        request_id = next(self._ids)
+        future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._pending[request_id] = future
+        channel = self._channels["urgent" if kind in URGENT else "commands"]
+        try:
+            channel.send({"kind": kind, "id": request_id, **data})
+            async with asyncio.timeout(self._timeout_s):
+                answer = await future
+        except TimeoutError:
+            return Reply("unavailable", f"no answer from the flight process in {self._timeout_s} s")
+        except ChannelClosedError:
+            return Reply("unavailable", "the flight process is not running")
+        finally:
+            self._pending.pop(request_id, None)
+        return Reply(
+            str(answer.get("outcome", "unavailable")),
+            str(answer.get("reason", "")),
+            dict(answer.get("data") or {}),
+        )
+
+    def subscribe(self, depth: int = 8) -> TelemetrySubscription:
+        subscription = TelemetrySubscription(self, depth)
+        self._subscribers.add(subscription)
+        if self.latest is not None:
+            subscription.offer(self.latest)
+        return subscription
+
+    def unsubscribe(self, subscription: TelemetrySubscription) -> None:
+        self._subscribers.discard(subscription)
+
+    async def close(self) -> None:
+        for channel in self._channels.values():
+            with contextlib.suppress(ChannelClosedError):
+                await channel.close()

@@ -1,0 +1,190 @@
+"""The flight log: one JSON Lines file per flight, one line per tick, crash-safe.
+
+The first line is a header (``{"kind": "header", ...}``: setup name, parameters, start
+time); every tick appends ``{"kind": "tick", ...}`` with the fields of ``TickRecord``.
+Each line is flushed to the OS as it is written and the file is fsync'ed at least once a
+second, so a killed process loses at most the last second and a reader skips a torn last
+line. Files are named by the flight's start time: ``flight-20261123-031500.jsonl``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, fields
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from supervisor.flight.tick_record import TickRecord
+
+FloatArray = NDArray[np.float64]
+
+FSYNC_INTERVAL_S = 1.0
+
+
+_TICK_FIELDS = tuple(f.name for f in fields(TickRecord))
+
+
+def finite_or_none(value: Any) -> Any:
+    """JSON has no NaN: non-finite floats (in lists and dicts too) become None (null)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, list):
+        return [finite_or_none(v) for v in value]
+    if isinstance(value, dict):
+        return {k: finite_or_none(v) for k, v in value.items()}
+    return value
+
+
+def _new_log_path(folder: Path, started: datetime) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = f"flight-{started:%Y%m%d-%H%M%S}"
+    path = folder / f"{stem}.jsonl"
+    suffix = 1
+    while path.exists():  # two flights started within the same second
+        path = folder / f"{stem}-{suffix}.jsonl"
+        suffix += 1
+    return path
+
+
+class FlightLogWriter:
+    """Appends tick records to a log file; use as a context manager.
+
+    ``destination`` is a folder (a new file named by the start time is created in it; the
+    service's one-log-per-flight) or a ``.jsonl`` file path (created or replaced).
+    """
+
+    def __init__(
+        self, destination: Path, header: dict[str, Any], started: datetime | None = None
+    ) -> None:
+        started = started or datetime.now(UTC)
+        if destination.suffix == ".jsonl":
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            path, mode = destination, "w"
+        else:
+            path, mode = _new_log_path(destination, started), "x"
+        self.path = path
+        self._file: IO[str] = path.open(mode, encoding="utf-8")
+        self._last_sync_s = -math.inf
+        self._write({"kind": "header", "started": started.isoformat(), **header})
+        self._sync()
+
+    def _write(self, payload: dict[str, Any]) -> None:
+        try:
+            line = json.dumps(payload, separators=(",", ":"), allow_nan=False)
+        except ValueError:  # a NaN or inf somewhere: the rare path pays for the walk
+            line = json.dumps(finite_or_none(payload), separators=(",", ":"))
+        self._file.write(line + "\n")
+        self._file.flush()
+
+    def _sync(self) -> None:
+        os.fsync(self._file.fileno())
+
+    def append(self, record: TickRecord) -> None:
+        """Write one tick; fsync when the last sync is more than a second (of ``t_s``) old."""
+        values = {name: getattr(record, name) for name in _TICK_FIELDS}  # shallow: no deepcopy
+        self._write({"kind": "tick", **values})
+        if record.t_s - self._last_sync_s >= FSYNC_INTERVAL_S:
+            self._sync()
+            self._last_sync_s = record.t_s
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._sync()
+            self._file.close()
+
+    def __enter__(self) -> FlightLogWriter:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class FlightLog:
+    """A log read back as arrays (ticks along axis 0)."""
+
+    path: Path
+    header: dict[str, Any]
+    t_s: FloatArray
+    state: FloatArray  # (T, 36)
+    state_ref: FloatArray  # (T, 36)
+    inputs: FloatArray  # (T, 8)
+    solve_ms: FloatArray
+    compute_ms: FloatArray
+    lateness_ms: FloatArray
+    mocap_age_ms: FloatArray
+    modes: list[str]
+    controllers: list[str]
+    plan_status: list[str]
+    extra: list[dict[str, Any]]
+
+    @property
+    def controller(self) -> str:
+        """The controller that flew, or the controllers in turn with when each took over,
+        counted from the log's first tick ("decentralized, centralized after 45.1 s"), when
+        it was switched in flight."""
+        if not self.controllers:
+            return "none"
+        turns = [0] + [
+            k
+            for k in range(1, len(self.controllers))
+            if self.controllers[k] != self.controllers[k - 1]
+        ]
+        return ", ".join(
+            self.controllers[k] + (f" after {self.t_s[k] - self.t_s[0]:.1f} s" if k else "")
+            for k in turns
+        )
+
+
+def _array(rows: list[Any], width: int | None = None) -> FloatArray:
+    """Rows as floats; JSON nulls (non-finite values) come back as NaN."""
+    array = np.array(rows, dtype=float)
+    if width is not None and array.size == 0:
+        array = array.reshape(0, width)
+    return array
+
+
+def read_flight_log(path: Path) -> FlightLog:
+    """Read a log; a torn last line (the process was killed mid-write) is skipped.
+    Raises ``ValueError`` for a file that is not a flight log."""
+    header: dict[str, Any] | None = None
+    ticks: list[dict[str, Any]] = []
+    with path.open(encoding="utf-8") as handle:
+        lines = handle.read().split("\n")
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError as error:
+            if number >= len(lines) - 1:
+                break  # torn tail of a killed process
+            raise ValueError(f"{path}:{number}: not a flight-log line ({error})") from error
+        if entry.get("kind") == "header" and header is None:
+            header = entry
+        elif entry.get("kind") == "tick":
+            ticks.append(entry)
+    if header is None:
+        raise ValueError(f"{path}: no flight-log header")
+    return FlightLog(
+        path=path,
+        header=header,
+        t_s=_array([t["t_s"] for t in ticks]),
+        state=_array([t["state"] for t in ticks], 36),
+        state_ref=_array([t["state_ref"] for t in ticks], 36),
+        inputs=_array([t["inputs"] for t in ticks], 8),
+        solve_ms=_array([t["solve_ms"] for t in ticks]),
+        compute_ms=_array([t["compute_ms"] for t in ticks]),
+        lateness_ms=_array([t["lateness_ms"] for t in ticks]),
+        mocap_age_ms=_array([t["mocap_age_ms"] for t in ticks]),
+        modes=[t["mode"] for t in ticks],
+        controllers=[t["controller"] for t in ticks],
+        plan_status=[t["plan_status"] for t in ticks],
+        extra=[t.get("extra", {}) for t in ticks],
+    )

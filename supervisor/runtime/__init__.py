@@ -1,0 +1,1 @@
+"""The flight process: deadline scheduler, phase lock, CPU set-up, the shared tick driver."""

@@ -1,0 +1,341 @@
+"""The flight process: mocap in, the 20 ms control loop, vehicle links out, the flight log,
+and the channels to the API process. It runs in its own process so that nothing the API
+does (requests, WebSockets, the GIL they hold) can delay a tick.
+
+One event loop, one ``TaskGroup``: the control loop on absolute deadlines, one request
+server per channel (abort and kill have their own), and the telemetry publisher. Operator
+requests are applied between ticks. The setpoint stream to the vehicles runs from arming
+until they are disarmed; when the control loop stops, setpoints stop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import gc
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Coroutine
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mocap.client import MocapSource
+from mocap.fusion import MocapFusion
+from mocap.qtm_protocol import MocapFrame
+from supervisor.flight.core import FlightCore, TickResult
+from supervisor.flight.estimation import BodyNames, Estimate, estimate_state
+from supervisor.flight.modes import TRANSITIONS, Mode
+from supervisor.flight.operator_requests import handle_request
+from supervisor.flight.telemetry import MocapView, build_telemetry
+from supervisor.ipc.channel import Channel, ChannelClosedError
+from supervisor.ipc.server import serve_requests
+from supervisor.logs.flight_log import FlightLogWriter
+from supervisor.runtime.phase_lock import MocapPhaseLock
+from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
+from supervisor.vehicles.link import VehicleLink
+from supervisor.vehicles.sequences import PROOF_OF_LIFE_S, arm_for_offboard, disarm_all, kill_all
+
+TELEMETRY_PERIOD_S = 0.04
+TELEMETRY_BACKLOG_BYTES = 1 << 20
+LANDING_TIMEOUT_S = 90.0
+FULL_COLLECTION_TICKS = 250  # a full garbage collection every 5 s, between two ticks
+
+
+@dataclass(frozen=True)
+class FlightSettings:
+    """What the flight process needs of the setup besides its parts: the control period
+    [s], whether ticks lock to the mocap frames, and the setup's name (for flight logs)."""
+
+    dt_s: float
+    phase_lock: bool
+    setup_name: str
+
+
+def _percentiles(values: deque[float]) -> tuple[float, float]:
+    if not values:
+        return math.nan, math.nan
+    array = np.fromiter(values, float)
+    return float(np.percentile(array, 50)), float(np.percentile(array, 99))
+
+
+class FlightProcess:
+    """Everything that flies, on one event loop: the tick ``core`` (built for ``settings``),
+    the rigid-body ``fusion`` of the bodies ``names`` names, and ``mocap`` and ``links``,
+    already running. ``run`` returns when ``stop`` has landed what was airborne."""
+
+    def __init__(
+        self,
+        settings: FlightSettings,
+        core: FlightCore,
+        fusion: MocapFusion,
+        names: BodyNames,
+        mocap: MocapSource,
+        links: tuple[VehicleLink, VehicleLink],
+        log_folder: Path | None,
+        clock: Callable[[], float] = time.monotonic,
+        proof_of_life_s: float = PROOF_OF_LIFE_S,
+    ) -> None:
+        self.settings = settings
+        self.mocap = mocap
+        self.links = links
+        self.log_folder = log_folder
+        self.clock = clock
+        self.proof_of_life_s = proof_of_life_s
+        self.core = core
+        self.fusion = fusion
+        self.names = names
+        self.stats = TimingStats()
+        self.streaming = False
+        self.estimate: Estimate | None = None
+        self.last_tick: TickResult | None = None
+        self.latency_ms: deque[float] = deque(maxlen=3000)
+        self.phase_lock = MocapPhaseLock(settings.dt_s) if settings.phase_lock else None
+        self._log: FlightLogWriter | None = None
+        self._stopping = asyncio.Event()
+        self._on_ground = asyncio.Event()
+        self._sequences: set[asyncio.Task[None]] = set()
+        self._mocap_rate = (0, clock(), 0.0)  # frames, since, rate
+        self._frames_since_tick = 0
+        self._newest_frame: MocapFrame | None = None
+
+    # ---- lifecycle ------------------------------------------------------------------------
+    async def run(self, commands: Channel, urgent: Channel) -> None:
+        """Fly until ``stop``; the channels close with the API process (which also stops)."""
+        try:
+            async with asyncio.TaskGroup() as group:
+                control = group.create_task(self._control_loop(), name="control-loop")
+                servers = [
+                    group.create_task(self._serve(commands)),
+                    group.create_task(self._serve(urgent)),
+                    group.create_task(self._publish(commands)),
+                ]
+                await self._stopping.wait()
+                await self._land_if_airborne()
+                for task in servers:
+                    task.cancel()
+                control.cancel()
+        finally:
+            self.streaming = False
+            self._close_log()
+
+    async def _serve(self, channel: Channel) -> None:
+        """Answer requests; the API process going away lands the system like a stop."""
+        try:
+            await serve_requests(channel, self.handle)
+        except ChannelClosedError:
+            self.stop()
+
+    def stop(self) -> None:
+        """Land (if airborne), disarm, then return from ``run``."""
+        self._stopping.set()
+
+    async def _land_if_airborne(self) -> None:
+        now = self.clock()
+        if self.core.modes.mode.airborne:
+            self.core.request("land", now)
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(LANDING_TIMEOUT_S):
+                    await self._on_ground.wait()
+        if self.core.modes.mode is Mode.ARMED:
+            self.core.request("disarm", self.clock())
+        if self.streaming:
+            await disarm_all(self.links)
+            self.streaming = False
+
+    # ---- the control loop -------------------------------------------------------------------
+    async def _control_loop(self) -> None:
+        ticker = DeadlineTicker(self.settings.dt_s, clock=self.clock)
+
+        def on_frame() -> None:
+            self._fuse(self.mocap.drain())  # on arrival: off the path of the tick it waits for
+            if self.phase_lock is not None:
+                ticker.trigger()  # an on-time frame starts its tick at once
+
+        self.mocap.on_frame(on_frame)
+        # Python's collector may start a full collection in any allocation; one took 80 ms
+        # here. What exists now (modules, models, solvers) is never scanned again, and the
+        # collections run right after a tick, when the next frame is most of a period away.
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        try:
+            async for timing in ticker:
+                self._tick(timing)
+                if self.phase_lock is not None:
+                    ticker.shift(self.phase_lock.correction(ticker.next_deadline_s))
+                    ticker.early_window_s = self.phase_lock.trigger_window_s
+                gc.collect(2 if timing.index % FULL_COLLECTION_TICKS == 0 else 0)
+        finally:
+            gc.enable()
+            self.mocap.on_frame(None)
+            ticker.close()
+
+    def _fuse(self, frames: list[MocapFrame]) -> None:
+        """Fuse frames as they come; the tick reads the newest since the last tick."""
+        for frame in frames:
+            self.fusion.update(frame)
+        if frames:
+            self._frames_since_tick += len(frames)
+            self._newest_frame = frames[-1]
+            if self.phase_lock is not None:
+                self.phase_lock.observe((f.frame_number, f.receive_time_s) for f in frames)
+
+    def _tick(self, timing: TickTiming) -> None:
+        started = self.clock()
+        self._fuse(self.mocap.drain())
+        newest = self._newest_frame if self._frames_since_tick else None
+        self._count_frames(self._frames_since_tick, started)
+        self._frames_since_tick = 0
+        self.estimate = estimate_state(self.fusion.states(started), self.names)
+        before = self.core.modes.mode
+        connected = (self.links[0].connected, self.links[1].connected)
+        result = self.core.tick(started, self.estimate, connected, timing.lateness_s)
+        latency_ms = wait_ms = math.nan
+        if self.streaming:
+            for link, command in zip(self.links, result.commands, strict=True):
+                link.send_setpoint(command)
+            if newest is not None and math.isfinite(newest.receive_time_s):
+                latency_ms = (self.clock() - newest.receive_time_s) * 1e3
+                wait_ms = (started - newest.receive_time_s) * 1e3
+                self.latency_ms.append(latency_ms)
+        self._forward_mocap()
+        compute_s = self.clock() - started
+        self.stats.record(timing, compute_s, self.settings.dt_s)
+        self.last_tick = result
+        if result.mode.airborne:
+            self._on_ground.clear()
+        else:
+            self._on_ground.set()
+        if self._log is not None:
+            record = result.record
+            record.extra.update(
+                compute_total_ms=compute_s * 1e3,
+                latency_ms=latency_ms,
+                mocap_wait_ms=wait_ms,
+                skipped=timing.skipped,
+                mpc_prepared=self.core.mpc_was_prepared,
+            )
+            self._log.append(record)
+        self._react(before, result.mode)
+        self.core.prepare_next()  # the next tick's model, while no frame waits
+
+    def _count_frames(self, new_frames: int, now_s: float) -> None:
+        frames, since, rate = self._mocap_rate
+        frames += new_frames
+        if now_s - since >= 1.0:
+            rate, frames, since = frames / (now_s - since), 0, now_s
+        self._mocap_rate = (frames, since, rate)
+
+    def _forward_mocap(self) -> None:
+        frame = self.mocap.latest()
+        if frame is None:
+            return
+        for link, name in zip(self.links, (self.names.uav1, self.names.uav2), strict=True):
+            pose = frame.bodies.get(name)
+            if pose is not None and pose.tracked:
+                link.send_mocap(pose.position_m, pose.quaternion, frame.receive_time_s)
+
+    def _react(self, before: Mode, after: Mode) -> None:
+        """Vehicle sequences the tick core's own mode changes call for."""
+        if before is after:
+            return
+        if after is Mode.DISARMED and before.airborne:  # landed (after a landing or an abort)
+            self._sequence(self._disarm_vehicles())
+
+    def _sequence(self, coroutine: Coroutine[Any, Any, None]) -> None:
+        task = asyncio.get_running_loop().create_task(coroutine)
+        self._sequences.add(task)
+        task.add_done_callback(self._sequences.discard)
+
+    async def _disarm_vehicles(self) -> None:
+        await disarm_all(self.links)
+        self.streaming = False
+        self._close_log()
+
+    # ---- requests ---------------------------------------------------------------------------
+    async def handle(self, message: dict[str, Any]) -> dict[str, Any]:
+        """Apply one operator request (the channels call this); returns the reply."""
+        kind = message.get("kind")
+        if kind == "shutdown":
+            self.stop()
+            return {"id": message.get("id"), "outcome": "ok", "reason": "", "data": {}}
+        if kind == "arm":
+            return await self._arm(message)
+        if kind == "kill":
+            reply = handle_request(self.core, message, self.clock())
+            failures = await kill_all(self.links)
+            self.streaming = False
+            self._close_log()
+            if failures:
+                reply["reason"] = "; ".join(failures)
+            return reply
+        reply = handle_request(self.core, message, self.clock())
+        on_ground = self.core.modes.mode is Mode.DISARMED
+        if kind in ("disarm", "abort") and on_ground and self.streaming:
+            await self._disarm_vehicles()
+        return reply
+
+    async def _arm(self, message: dict[str, Any]) -> dict[str, Any]:
+        mode = self.core.modes.mode
+        if (mode, "arm") not in TRANSITIONS:
+            return handle_request(self.core, message, self.clock())  # the table's refusal
+        self.streaming = True  # idle setpoints: PX4's proof of life before offboard
+        failures = await arm_for_offboard(self.links, self.proof_of_life_s)
+        if failures:
+            self.streaming = False
+            return {
+                "id": message.get("id"),
+                "outcome": "refused",
+                "reason": "arming failed: " + "; ".join(failures),
+                "data": {"mode": self.core.modes.mode.value},
+            }
+        reply = handle_request(self.core, message, self.clock())
+        if reply["outcome"] == "ok" and self.log_folder is not None:
+            self._close_log()
+            self._log = FlightLogWriter(
+                self.log_folder,
+                {"setup": self.settings.setup_name, "controller": self.core.controller},
+            )
+        return reply
+
+    def _close_log(self) -> None:
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    # ---- telemetry ----------------------------------------------------------------------------
+    def telemetry(self) -> dict[str, Any]:
+        """The status message now."""
+        stats = self.mocap.stats()
+        mocap = MocapView(stats.connected, self._mocap_rate[2], stats.frames, stats.frames_missed)
+        summary: dict[str, Any] = dict(self.stats.summary())
+        p50, p99 = _percentiles(self.latency_ms)
+        summary["latency_ms_p50"], summary["latency_ms_p99"] = p50, p99
+        message = build_telemetry(
+            self.core,
+            self.estimate,
+            self.last_tick,
+            (self.links[0].view(), self.links[1].view()),
+            mocap,
+            summary,
+            self.clock(),
+        )
+        message["streaming"] = self.streaming
+        message["log"] = str(self._log.path) if self._log is not None else None
+        return message
+
+    async def _publish(self, channel: Channel) -> None:
+        ticker = DeadlineTicker(TELEMETRY_PERIOD_S, clock=self.clock)
+        try:
+            async for _ in ticker:
+                if channel.buffered_bytes < TELEMETRY_BACKLOG_BYTES:  # a stuck reader: skip
+                    try:
+                        channel.send(self.telemetry())
+                    except ChannelClosedError:
+                        return
+        finally:
+            ticker.close()

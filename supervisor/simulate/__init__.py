@@ -1,0 +1,1 @@
+"""The fast closed-loop simulator and the scenarios that script it."""

@@ -1,0 +1,316 @@
+"""The closed-loop simulator: the service's tick path flown against the physics plant,
+faster than real time.
+
+Per 20 ms tick: the plant (RK4, 1 kHz) advances, the mocap model captures frames at its
+rate and delivers them after its latency, ``MocapFusion`` filters them, ``estimate_state``
+assembles x, and the very ``FlightCore`` the service runs decides the commands, which the
+plant receives as thrust and body torque (the paper's direct actuator path). A scenario
+script plays the operator.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controllers.equilibria import Reference, bar_equilibrium
+from geometry.frames import euler_zyx_from_quaternion
+from mocap.qtm_protocol import BodyPose
+from mocap.qtm_protocol import MocapFrame as QtmFrame
+from sim.measurement import MocapFrame as SimFrame
+from sim.measurement import MocapModel
+from sim.plant import Plant, body_slice, resting_state
+from supervisor.app.assembly import (
+    body_names_from_config,
+    flight_core_from_config,
+    fusion_from_config,
+    mocap_params_from_config,
+    plant_params_from_config,
+)
+from supervisor.app.config import Config
+from supervisor.flight.core import FlightCore, TickResult
+from supervisor.flight.estimation import Estimate, estimate_state
+from supervisor.flight.modes import Mode
+from supervisor.logs.flight_log import FlightLogWriter
+from supervisor.simulate.scenarios import Scenario, Step
+
+TICK_S = 0.02
+STEP_TIMEOUT_S = 60.0
+
+
+def qtm_frame(frame: SimFrame) -> QtmFrame:
+    """A simulated mocap frame as the QTM client would deliver it (µs capture stamp,
+    receive time = delivery time)."""
+    bodies = {
+        name: BodyPose.untracked(name)
+        if pose is None
+        else BodyPose(
+            name, True, pose.position_m, pose.quaternion, euler_zyx_from_quaternion(pose.quaternion)
+        )
+        for name, pose in frame.poses.items()
+    }
+    return QtmFrame(
+        frame.frame_number, round(frame.capture_time_s * 1e6), bodies, frame.delivery_time_s
+    )
+
+
+HANGING_CLEARANCE_M = 0.05
+
+
+@dataclass
+class TruthStats:
+    """What only the simulator can see. Slack and tension count while the bar hangs: in an
+    airborne mode with the bar more than ``HANGING_CLEARANCE_M`` above its resting height
+    (so touch-down and the first centimetres of lift-off, where the ground carries the bar,
+    are not counted as slack)."""
+
+    bar_rest_z_m: float
+    slack_events: int = 0
+    max_tilt_deg: float = 0.0
+    min_tension_n: float = math.inf
+    min_tension_airborne_n: float = math.inf
+    _slack: tuple[bool, bool] = (False, False)
+
+    def update(self, plant: Plant, airborne: bool) -> None:
+        """Account for the plant's state now; ``airborne`` is the flight mode's view."""
+        cables = plant.cables()
+        self.min_tension_n = min(self.min_tension_n, *cables.tension_n)
+        hanging = plant.body("bar").position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
+        if not airborne or not hanging:
+            self._slack = cables.slack
+            return
+        self.min_tension_airborne_n = min(self.min_tension_airborne_n, *cables.tension_n)
+        self.slack_events += sum(
+            1 for now, before in zip(cables.slack, self._slack, strict=True) if now and not before
+        )
+        self._slack = cables.slack
+        for name in ("uav1", "uav2"):
+            z_axis_z = float(plant.body(name).rotation[2, 2])
+            tilt = math.degrees(math.acos(max(-1.0, min(1.0, z_axis_z))))
+            self.max_tilt_deg = max(self.max_tilt_deg, tilt)
+
+
+@dataclass
+class SimulationResult:
+    """The outcome of one simulated flight."""
+
+    completed: bool
+    sim_time_s: float
+    wall_time_s: float
+    final_mode: str
+    truth: TruthStats
+    messages: list[str] = field(default_factory=list)
+    log_path: Path | None = None
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+
+class ScenarioScript:
+    """Plays a scenario's steps as an operator would, one tick at a time."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.steps = list(scenario.step)
+        self.index = 0
+        self.messages: list[str] = []
+        self._started_s: float | None = None
+        self._budget_s = 0.0
+        self.failed = False
+
+    @property
+    def done(self) -> bool:
+        return self.failed or self.index >= len(self.steps)
+
+    def advance(self, core: FlightCore, now_s: float) -> None:
+        """Start the current step, or finish it when its condition holds."""
+        if self.done:
+            return
+        step = self.steps[self.index]
+        if self._started_s is None:
+            self._started_s = now_s
+            first = self.index
+            self._start(step, core, now_s)
+            self._budget_s = sum(
+                (s.timeout_s or STEP_TIMEOUT_S) + s.hold_s
+                for s in self.steps[first : self.index + 1]
+            )
+            return
+        if self._finished(step, core, now_s):
+            self.index += 1
+            self._started_s = None
+            self.advance(core, now_s)
+            return
+        budget = self._budget_s
+        if core.modes.mode in (Mode.DISARMED, Mode.KILLED) and step.action not in ("land", "abort"):
+            self._fail(f"step {self.index + 1}: the system is {core.modes.mode.value}")
+        elif now_s - self._started_s > budget:
+            self._fail(f"step {self.index + 1} did not finish within {budget:.0f} s")
+
+    def _fail(self, message: str) -> None:
+        self.messages.append(message)
+        self.failed = True
+
+    def _start(self, step: Step, core: FlightCore, now_s: float) -> None:
+        if step.action is None:
+            setpoints = [step.setpoint()]
+            # Queue the following setpoint steps too, so the queue flows from one to the next.
+            while self.index + 1 < len(self.steps) and self.steps[self.index + 1].action is None:
+                self.index += 1
+                setpoints.append(self.steps[self.index].setpoint())
+            core.queue_setpoints(setpoints)
+        elif step.action == "takeoff":
+            for request in ("arm", "takeoff"):
+                result = core.request(request, now_s)
+                if not result.accepted:
+                    self._fail(f"{request} refused: {result.reason}")
+                    return
+        elif step.action in ("land", "abort"):
+            result = core.request(step.action, now_s)
+            if not result.accepted:
+                self._fail(f"{step.action} refused: {result.reason}")
+
+    def _finished(self, step: Step, core: FlightCore, now_s: float) -> bool:
+        assert self._started_s is not None
+        mode = core.modes.mode
+        if step.action is None:
+            return core.queue.active is None and not core.queue.queued
+        if step.action == "takeoff":
+            return mode is Mode.HOVER
+        if step.action == "hover":
+            return now_s - self._started_s >= step.hold_s
+        return mode is Mode.DISARMED
+
+
+class ClosedLoop:
+    """Plant, mocap model, fusion and tick core wired together on simulated time."""
+
+    def __init__(
+        self,
+        config: Config,
+        controller: str = "centralized",
+        seed: int | None = None,
+    ) -> None:
+        self.config = config
+        self.plant = Plant(plant_params_from_config(config))
+        self.mocap = MocapModel(mocap_params_from_config(config, seed))
+        self.fusion = fusion_from_config(config)
+        self.body_names = body_names_from_config(config)
+        self.core = flight_core_from_config(config, controller, clock=time.thread_time)
+        self.now_s = 0.0
+
+    def place(self, scenario: Scenario) -> None:
+        """Put the plant where the scenario starts (hanging equilibrium, or on the ground)."""
+        position = scenario.start_bar_position
+        yaw = math.radians(scenario.start_bar_yaw_deg)
+        if scenario.start == "ground":
+            self.plant.place_resting((position[0], position[1]), yaw)
+        else:
+            reference = Reference((position[0], position[1], position[2]), yaw, (yaw, yaw), 0.0)
+            x = bar_equilibrium(self.config.system.to_params(), reference).x
+            self.plant.place_hanging((x[12:15], x[24:27]), (yaw, yaw))
+
+    def resting_heights(self) -> tuple[float, float, float]:
+        """Heights of the bar's and the UAVs' centres [m] when all rest on the ground."""
+        x = resting_state(self.plant.params)
+        z = [float(x[body_slice(name)][2]) for name in ("bar", "uav1", "uav2")]
+        return (z[0], z[1], z[2])
+
+    def estimate(self) -> Estimate:
+        """Advance the mocap pipeline to ``now_s`` and estimate the state there."""
+        for frame in self.mocap.poll(self.now_s):
+            self.fusion.update(qtm_frame(frame))
+        return estimate_state(self.fusion.states(self.now_s), self.body_names)
+
+    def advance_plant(self, until_s: float) -> None:
+        """Step the plant to ``until_s``, capturing mocap frames when they are due."""
+        while self.plant.time_s < until_s - 1e-9:
+            next_capture = self.mocap.next_capture_time_s
+            stop = min(until_s, max(next_capture, self.plant.time_s + self.plant.step_s))
+            self.plant.advance(stop - self.plant.time_s)
+            self.mocap.capture(self.plant.truth())
+        self.now_s = until_s
+
+    def apply(self, result: TickResult) -> None:
+        """Hand the tick's commands to the plant (motors off: zero thrust and torque)."""
+        for uav, command in enumerate(result.commands, start=1):
+            if command.motors_on:
+                self.plant.command(uav, command.thrust_n, command.torque_nm)
+            else:
+                self.plant.command(uav, 0.0, np.zeros(3))
+
+
+def run_scenario(
+    config: Config,
+    scenario: Scenario,
+    controller: str = "centralized",
+    seed: int | None = None,
+    log_path: Path | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> SimulationResult:
+    """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second."""
+    loop = ClosedLoop(config, controller, seed)
+    loop.place(scenario)
+    script = ScenarioScript(scenario)
+    truth = TruthStats(loop.resting_heights()[0])
+    header = {"setup": config.name, "scenario": scenario.name, "controller": controller}
+    log = FlightLogWriter(log_path, header) if log_path is not None else None
+    started = time.perf_counter()
+    # Let the filters converge on a still system before anyone acts.
+    loop.advance_plant(0.2)
+    if scenario.start == "hover":
+        loop.core.start_in_hover(loop.estimate(), loop.now_s, loop.resting_heights())
+    last_progress = 0.0
+    try:
+        while True:
+            estimate = loop.estimate()
+            result = loop.core.tick(loop.now_s, estimate)
+            loop.apply(result)
+            if log is not None:
+                log.append(result.record)
+            script.messages.extend(e for e in result.events if e.startswith(("abort", "swing")))
+            script.advance(loop.core, loop.now_s)
+            loop.core.prepare_next()  # as the service does between ticks
+            truth.update(loop.plant, loop.core.modes.mode.airborne)
+            if script.done:
+                break
+            loop.advance_plant(loop.now_s + TICK_S)
+            if progress is not None and loop.now_s - last_progress >= 1.0:
+                last_progress = loop.now_s
+                progress(loop.now_s)
+    finally:
+        if log is not None:
+            log.close()
+    return SimulationResult(
+        completed=not script.failed,
+        sim_time_s=loop.now_s,
+        wall_time_s=time.perf_counter() - started,
+        final_mode=loop.core.modes.mode.value,
+        truth=truth,
+        messages=script.messages,
+        log_path=log.path if log is not None else None,
+    )
+
+
+def result_summary(result: SimulationResult, controller: str) -> dict[str, Any]:
+    """The truth-side figures of ``simulate --json`` (the log adds the tracking figures)."""
+    t = result.truth
+    return {
+        "controller": controller,
+        "completed": result.completed,
+        "final_mode": result.final_mode,
+        "sim_time_s": result.sim_time_s,
+        "wall_time_s": result.wall_time_s,
+        "realtime_factor": result.realtime_factor,
+        "slack_events": t.slack_events,
+        "max_tilt_deg": t.max_tilt_deg,
+        "min_tension_n": t.min_tension_n,
+        "min_tension_airborne_n": t.min_tension_airborne_n,
+        "messages": result.messages,
+    }

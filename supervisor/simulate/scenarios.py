@@ -1,0 +1,130 @@
+"""Flight scenarios: TOML files in ``configs/scenarios/`` that script a simulated flight.
+
+A scenario starts either hovering at the hanging equilibrium (``start = "hover"``, as the
+paper's Section VII) or resting on the ground (``start = "ground"``). Each ``[[step]]`` is
+a bar setpoint (``bar_position`` [m], ``bar_yaw_deg``, ``uav_yaw_deg`` [ψ1, ψ2] (default:
+the bar yaw), ``theta_l_deg``, ``hold_s``, and ``timeout_s``, after which the queue moves
+on even if the setpoint was not reached) or an operator action (``action = "takeoff"`` —
+arm and take off, done when hovering; ``"hover"`` — wait ``hold_s``; ``"land"`` — done
+when landed and disarmed; ``"abort"`` — done when landed and disarmed).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from supervisor.app.config import (
+    CONFIG_DIR,
+    ConfigError,
+    FiniteFloat,
+    NonNegativeFloat,
+    PositiveFloat,
+    Vec3,
+)
+from supervisor.flight.setpoints import Setpoint
+
+SCENARIO_DIR = CONFIG_DIR / "scenarios"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Step(_Strict):
+    """One scripted step: a setpoint when ``action`` is absent, else an operator action."""
+
+    action: Literal["takeoff", "hover", "land", "abort"] | None = None
+    bar_position: Vec3 | None = None
+    bar_yaw_deg: FiniteFloat = 0.0
+    uav_yaw_deg: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] | None = None
+    theta_l_deg: FiniteFloat = 0.0
+    hold_s: NonNegativeFloat = 5.0
+    timeout_s: PositiveFloat | None = None
+
+    @model_validator(mode="after")
+    def _setpoint_or_action(self) -> Step:
+        if self.action is None and self.bar_position is None:
+            raise ValueError("a step needs either 'action' or 'bar_position'")
+        if self.action is not None and self.bar_position is not None:
+            raise ValueError("a step is either an 'action' or a setpoint, not both")
+        return self
+
+    def setpoint(self) -> Setpoint:
+        """This step as a setpoint (only for steps without an action)."""
+        assert self.bar_position is not None
+        bar_yaw = math.radians(self.bar_yaw_deg)
+        uav_yaw = (
+            (math.radians(self.uav_yaw_deg[0]), math.radians(self.uav_yaw_deg[1]))
+            if self.uav_yaw_deg is not None
+            else (bar_yaw, bar_yaw)
+        )
+        return Setpoint(
+            (self.bar_position[0], self.bar_position[1], self.bar_position[2]),
+            bar_yaw,
+            uav_yaw,
+            math.radians(self.theta_l_deg),
+            self.hold_s,
+            self.timeout_s,
+        )
+
+
+class Scenario(_Strict):
+    """A scripted flight."""
+
+    name: str
+    start: Literal["hover", "ground"]
+    start_bar_position: Vec3 = [0.0, 0.0, 1.0]
+    start_bar_yaw_deg: FiniteFloat = 0.0
+    step: Annotated[list[Step], Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _actions_fit_the_start(self) -> Scenario:
+        if self.start == "hover" and any(s.action == "takeoff" for s in self.step):
+            raise ValueError("a scenario starting in hover cannot take off")
+        return self
+
+
+def scenario_path(name: str) -> Path:
+    """A scenario by name (``configs/scenarios/NAME.toml``) or by path."""
+    path = Path(name)
+    if path.suffix == ".toml" or path.parent != Path("."):
+        return path
+    return SCENARIO_DIR / f"{name}.toml"
+
+
+def available_scenarios() -> list[str]:
+    """Names of the scenarios shipped in ``configs/scenarios/``."""
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+
+
+def load_scenario(name: str) -> Scenario:
+    """Read and validate a scenario; raises ``ConfigError`` naming the bad key."""
+    path = scenario_path(name)
+    try:
+        with path.open("rb") as handle:
+            data = tomllib.load(handle)
+    except FileNotFoundError:
+        known = ", ".join(available_scenarios())
+        raise ConfigError(f"no scenario {name!r} (shipped: {known})") from None
+    except OSError as error:
+        raise ConfigError(f"cannot read scenario {path}: {error.strerror}") from error
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from error
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as error:
+        problems = [
+            f"{'.'.join(str(p) for p in item['loc']) or '(top level)'}: {item['msg']}"
+            for item in error.errors()
+        ]
+        raise ConfigError(f"invalid scenario {path.name}:\n  " + "\n  ".join(problems)) from None
+
+
+def scenario_duration_s(scenario: Scenario, transit_s: float = 6.0) -> float:
+    """A rough length of the flight [s] (holds plus a transit per step), for progress bars."""
+    return sum(step.hold_s + transit_s for step in scenario.step)

@@ -1,0 +1,1 @@
+"""Vehicle value types, the VehicleLink protocol, arm/disarm/kill sequences over both."""

@@ -1,0 +1,49 @@
+"""What the flight process needs from one vehicle link (MAVLink to a PX4, or a test's fake)."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from geometry.arrays import FloatArray
+from supervisor.vehicles.types import UavCommand, VehicleView
+
+
+class VehicleLink(Protocol):
+    """One PX4 as the flight process drives it."""
+
+    @property
+    def connected(self) -> bool:
+        """Heartbeats arrive."""
+        ...
+
+    def view(self) -> VehicleView:
+        """Connection, arming, PX4 mode, battery and last status text."""
+        ...
+
+    async def arm(self) -> None:
+        """Arm; raises ``VehicleCommandError`` with the vehicle's reason."""
+        ...
+
+    async def disarm(self) -> None:
+        """Disarm (on the ground)."""
+        ...
+
+    async def kill(self) -> None:
+        """Force-disarm, in the air too."""
+        ...
+
+    async def set_offboard(self) -> None:
+        """Select offboard mode (the setpoint stream must already be running)."""
+        ...
+
+    async def set_hold(self) -> None:
+        """Leave offboard for a mode that needs no stream."""
+        ...
+
+    def send_setpoint(self, command: UavCommand) -> None:
+        """Send this tick's setpoint (never blocks)."""
+        ...
+
+    def send_mocap(self, position_m: FloatArray, quaternion: FloatArray, time_s: float) -> None:
+        """Forward the vehicle's own mocap pose (arena frame, FLU→arena quaternion)."""
+        ...

@@ -1,0 +1,76 @@
+"""The sequences the flight process runs over both vehicles: arming the PX4 way, disarming
+after a landing, killing.
+
+PX4 enters offboard only after setpoints have streamed for more than a second at more than
+2 Hz (protocols.md §2.3), so arming starts the idle stream first, waits out that proof of
+life, then selects offboard and arms each vehicle, checking every acknowledgement. A
+vehicle that refuses leaves both disarmed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from supervisor.vehicles.link import VehicleLink
+from supervisor.vehicles.types import VehicleCommandError
+
+PROOF_OF_LIFE_S = 1.2
+
+
+async def _each(links: tuple[VehicleLink, ...], action: str) -> list[str]:
+    """Run ``action`` on every link at once; the failures, as 'vehicle i: reason'."""
+    results = await asyncio.gather(
+        *(getattr(link, action)() for link in links), return_exceptions=True
+    )
+    return [
+        f"vehicle {i}: {result}"
+        for i, result in enumerate(results, start=1)
+        if isinstance(result, BaseException)
+    ]
+
+
+async def arm_for_offboard(links: tuple[VehicleLink, ...], proof_of_life_s: float) -> list[str]:
+    """Offboard then arm on every vehicle; the caller already streams idle setpoints. On any
+    failure both are disarmed again; returns the failures (empty: all armed)."""
+    disconnected = [
+        f"vehicle {i}: no link" for i, link in enumerate(links, 1) if not link.connected
+    ]
+    if disconnected:
+        return disconnected
+    await asyncio.sleep(proof_of_life_s)
+    failures = await _each(links, "set_offboard")
+    if not failures:
+        failures = await _each(links, "arm")
+    if failures:
+        await _each(links, "disarm")
+    return failures
+
+
+async def _disarm_landed(link: VehicleLink) -> None:
+    """Disarm a vehicle the motion capture shows on the ground. PX4 refuses a normal disarm
+    while its own land detector still says airborne (it lags a second or two after
+    touch-down); on the ground a forced disarm is safe, and waiting would leave it armed
+    with motors idling next to people."""
+    try:
+        await link.disarm()
+    except VehicleCommandError:
+        await link.kill()
+
+
+async def disarm_all(links: tuple[VehicleLink, ...]) -> list[str]:
+    """Disarm every landed vehicle (forced if PX4 refuses) and leave offboard; returns the
+    failures."""
+    results = await asyncio.gather(
+        *(_disarm_landed(link) for link in links), return_exceptions=True
+    )
+    failures = [
+        f"vehicle {i}: {result}"
+        for i, result in enumerate(results, start=1)
+        if isinstance(result, BaseException)
+    ]
+    return failures + await _each(links, "set_hold")
+
+
+async def kill_all(links: tuple[VehicleLink, ...]) -> list[str]:
+    """Force-disarm every vehicle at once; returns the failures."""
+    return await _each(links, "kill")
