@@ -31,6 +31,7 @@ from controllers.model import BarSystemModel
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, agent_state, measured_yaws
 from controllers.params import BarSystemParams, MpcSettings
 from controllers.qp.registry import BACKEND_NAMES
+from geometry.state import uav_slices
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "sim.toml"
 REFERENCE_BACKEND = "daqp"
@@ -49,8 +50,8 @@ def record_sequence(params: BarSystemParams, settings: MpcSettings, ticks: int) 
         yaw = 0.6 * math.sin(2 * math.pi * k / 400)  # ~0.2 rad/s: every yaw moves every tick
         reference = Reference((0.0, 0.0, 1.0), yaw, (yaw, yaw), math.radians(20) * (k // 250 % 2))
         if k % 100 == 50:  # a gust spins both UAVs: the torques saturate for a few ticks
-            x[21:24] += (3.0, -3.0, 2.0)
-            x[33:36] += (-3.0, 3.0, -2.0)
+            x[uav_slices(1)[3]] += (3.0, -3.0, 2.0)
+            x[uav_slices(2)[3]] += (-3.0, 3.0, -2.0)
         out.append((x.copy(), reference))
         u = controller.step(x, reference, k * settings.dt_s).u
         for _ in range(4):

@@ -13,15 +13,13 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from geometry.arrays import FloatArray
 
 
 def _cache_dir() -> Path:
@@ -44,13 +42,23 @@ def compile_function(function: ca.Function) -> ca.Function:
         library = cache / f"{function.name()}_{digest}.so"
         if not library.exists():
             cache.mkdir(parents=True, exist_ok=True)
-            partial = cache / f".{library.name}.{os.getpid()}"
-            subprocess.run(
-                [compiler, "-O2", "-fPIC", "-shared", str(source), "-o", str(partial)],
-                check=True,
-                capture_output=True,
+            partial = f".{library.stem}.{os.getpid()}"
+            # CasADi's own JIT runs the compiler (its "shell" plugin); kept, not cleaned up,
+            # and moved into place atomically so concurrent processes never load half a file.
+            ca.Importer(
+                str(source),
+                "shell",
+                {
+                    "compiler": compiler,
+                    "compiler_flags": ["-O2", "-fPIC"],
+                    "directory": str(cache) + os.sep,
+                    "name": partial,
+                    "temp_suffix": False,
+                    "cleanup": False,
+                },
             )
-            partial.replace(library)  # atomic: concurrent processes never load half a file
+            (cache / f"{partial}.so").replace(library)
+            (cache / f"{partial}.o").unlink(missing_ok=True)
     return ca.external(function.name(), str(library))
 
 

@@ -22,22 +22,26 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from numpy.typing import NDArray
 
-from controllers.model import (
+from controllers.params import BarSystemParams
+from controllers.vectors import cross3
+from geometry.arrays import FloatArray
+from geometry.state import (
     BAR_INPUTS,
     BAR_STATES,
     P_B,
+    P_P,
     PAYLOAD_STATES,
     TH_B,
+    UAV_BLOCK,
     V_B,
+    V_P,
     W_B,
+    thrust_index,
+    uav_block,
+    uav_input_slice,
     uav_slices,
 )
-from controllers.params import BarSystemParams
-from controllers.vectors import cross3
-
-FloatArray = NDArray[np.float64]
 
 
 class EquilibriumError(ValueError):
@@ -126,16 +130,15 @@ class Equilibrium:
 
     def payload_state(self, i: int) -> FloatArray:
         """The decentralized controller's x_i ∈ R^18 at this equilibrium."""
-        first = uav_slices(i)[0].start
         x_i = np.zeros(PAYLOAD_STATES)
-        x_i[0:12] = self.x[first : first + 12]
-        x_i[12:15] = self.bar_ends_m[i - 1]
-        x_i[15:18] = self.x[V_B] + cross3(self.x[W_B], self.bar_ends_m[i - 1] - self.x[P_B])
+        x_i[UAV_BLOCK] = self.x[uav_block(i)]
+        x_i[P_P] = self.bar_ends_m[i - 1]
+        x_i[V_P] = self.x[V_B] + cross3(self.x[W_B], self.bar_ends_m[i - 1] - self.x[P_B])
         return x_i
 
     def payload_input(self, i: int) -> FloatArray:
         """The decentralized controller's u_i ∈ R^4 at this equilibrium."""
-        return self.u[4 * (i - 1) : 4 * i].copy()
+        return self.u[uav_input_slice(i)].copy()
 
 
 def tilt_to_euler(
@@ -229,7 +232,7 @@ def _cached_equilibrium(params: BarSystemParams, reference: Reference) -> Equili
             uav_rates[k] * math.sin(roll) * cos_pitch,
             uav_rates[k] * math.cos(roll) * cos_pitch,
         )
-        u[4 * k] = thrust
+        u[thrust_index(k + 1)] = thrust
 
         tensions.append(tension)
         thrusts.append(thrust)

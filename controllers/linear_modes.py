@@ -24,6 +24,7 @@ from controllers.linearization import bar_jacobians
 from controllers.model import BarSystemModel
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, agent_state
 from controllers.params import BarSystemParams
+from geometry.state import P_I, P_P
 
 BAR_SPIN = (6, 9)  # φ_b and ω_b,x: the bar's rotation about its own axis
 BAR_YAW = (8, 11)  # ψ_b and ω_b,z
@@ -69,7 +70,7 @@ def probed_gain(
 
 def _cable_lengths(state: np.ndarray, params: BarSystemParams) -> np.ndarray:
     ends = (agent_state(state, params, i) for i in (1, 2))
-    return np.array([np.linalg.norm(x_i[0:3] - x_i[12:15]) for x_i in ends])
+    return np.array([np.linalg.norm(x_i[P_I] - x_i[P_P]) for x_i in ends])
 
 
 def _cable_length_jacobian(x: np.ndarray, params: BarSystemParams) -> np.ndarray:

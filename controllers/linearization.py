@@ -11,11 +11,9 @@ from functools import cache
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
 
 from controllers.model import BarSystemModel, PayloadModel
-
-FloatArray = NDArray[np.float64]
+from geometry.arrays import FloatArray
 
 
 @cache

@@ -6,11 +6,7 @@
   by the decentralized controller with the payload mass (13). Its parameter ``f_ext`` is a
   constant external force on the payload (zero in the paper; see ``docs/model.md``).
 
-State layouts (the paper's order):
-  bar system  x = (p_b, v_b, Θ_b, ω_b, p_1, v_1, Θ_1, ω_1, p_2, v_2, Θ_2, ω_2)
-  UAV–payload x_i = (p_i, v_i, Θ_i, ω_i, p_p, v_p)
-Euler angles Θ = (φ, θ, ψ) are Z-Y-X; UAV rates ω_i are in the body frame, the bar's ω_b
-in the inertial frame; z points up.
+State layouts (the paper's order): ``geometry.state``.
 """
 
 from __future__ import annotations
@@ -21,22 +17,25 @@ from functools import cached_property
 import casadi as ca
 
 from controllers.params import BarSystemParams, UavParams
-
-BAR_STATES = 36
-BAR_INPUTS = 8
-PAYLOAD_STATES = 18
-PAYLOAD_INPUTS = 4
-
-# Slices into the 36-state vector.
-P_B, V_B, TH_B, W_B = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
-UAV_OFFSETS = (12, 24)
-
-
-def uav_slices(i: int) -> tuple[slice, slice, slice, slice]:
-    """(p_i, v_i, Θ_i, ω_i) slices of UAV ``i`` (1 or 2) in the 36-state vector."""
-    o = UAV_OFFSETS[i - 1]
-    return slice(o, o + 3), slice(o + 3, o + 6), slice(o + 6, o + 9), slice(o + 9, o + 12)
-
+from geometry.state import (
+    BAR_INPUTS,
+    BAR_STATES,
+    P_B,
+    P_I,
+    P_P,
+    PAYLOAD_INPUTS,
+    PAYLOAD_STATES,
+    TH_B,
+    TH_I,
+    V_B,
+    V_I,
+    V_P,
+    W_B,
+    W_I,
+    thrust_index,
+    torque_slice,
+    uav_slices,
+)
 
 E_Z = ca.DM([0.0, 0.0, 1.0])
 
@@ -146,7 +145,7 @@ class BarSystemModel:
         lam = ca.SX(2, 1)
         for i in range(2):
             uav = prm.uavs[i]
-            thrust = u[4 * i]
+            thrust = u[thrust_index(i + 1)]
             R_i = rotation_zyx(x[uav_slices(i + 1)[2]])
             lam[i] = (
                 thrust * ca.dot(n[i], R_i @ E_Z) / uav.mass_kg
@@ -182,7 +181,7 @@ class BarSystemModel:
         for i in (1, 2):
             uav = prm.uavs[i - 1]
             _, v_i, th_i, w_i = uav_slices(i)
-            thrust, tau = u[4 * (i - 1)], u[4 * (i - 1) + 1 : 4 * i]
+            thrust, tau = u[thrust_index(i)], u[torque_slice(i)]
             R_i = rotation_zyx(x[th_i])
             parts += [
                 x[v_i],
@@ -229,23 +228,23 @@ class PayloadModel:
 
     def _tension_expr(self, x: ca.SX, u: ca.SX, f_ext: ca.SX) -> ca.SX:
         m, m_p, length = self.uav.mass_kg, self.payload_mass_kg, self.cable_length_m
-        n = (x[0:3] - x[12:15]) / length
-        dv = x[3:6] - x[15:18]
-        thrust_along_cable = u[0] * ca.dot(rotation_zyx(x[6:9]) @ E_Z, n)
+        n = (x[P_I] - x[P_P]) / length
+        dv = x[V_I] - x[V_P]
+        thrust_along_cable = u[0] * ca.dot(rotation_zyx(x[TH_I]) @ E_Z, n)
         return (m_p * (thrust_along_cable + m * ca.dot(dv, dv) / length) - m * ca.dot(f_ext, n)) / (
             m + m_p
         )
 
     def _xdot_expr(self, x: ca.SX, u: ca.SX, f_ext: ca.SX, tension: ca.SX) -> ca.SX:
         m, m_p, g = self.uav.mass_kg, self.payload_mass_kg, self.gravity_mps2
-        n = (x[0:3] - x[12:15]) / self.cable_length_m
-        R = rotation_zyx(x[6:9])
+        n = (x[P_I] - x[P_P]) / self.cable_length_m
+        R = rotation_zyx(x[TH_I])
         return ca.vertcat(
-            x[3:6],
+            x[V_I],
             (u[0] * R @ E_Z - tension * n) / m - g * E_Z,
-            body_rates_to_euler_rates(x[6:9]) @ x[9:12],
-            _rigid_uav_rates(self.uav, x[9:12], u[1:4]),
-            x[15:18],
+            body_rates_to_euler_rates(x[TH_I]) @ x[W_I],
+            _rigid_uav_rates(self.uav, x[W_I], u[1:4]),
+            x[V_P],
             (tension * n + f_ext) / m_p - g * E_Z,
         )
 

@@ -28,32 +28,37 @@ from enum import Enum
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
 
 from controllers.codegen import NumericFunction
 from controllers.equilibria import Equilibrium, Reference, bar_equilibrium
 from controllers.linearization import bar_jacobians, discretize, payload_jacobians
-from controllers.model import (
-    BAR_INPUTS,
-    BAR_STATES,
-    P_B,
-    PAYLOAD_INPUTS,
-    PAYLOAD_STATES,
-    V_B,
-    W_B,
-    BarSystemModel,
-    payload_model_for,
-    uav_slices,
-)
+from controllers.model import BarSystemModel, payload_model_for
 from controllers.params import BarSystemParams, Clock, MpcSettings, ReferenceLead, StateBound
 from controllers.qp.base import OcpQp, QpBackend, QpStatus
 from controllers.qp.registry import make_backend
 from controllers.vectors import cross3
-
-FloatArray = NDArray[np.float64]
-
-BAR_YAW_INDICES = (8, 20, 32)  # ψ_b, ψ_1, ψ_2 in the 36-state vector
-PAYLOAD_YAW_INDICES = (8,)  # ψ_i in the 18-state vector
+from geometry.arrays import FloatArray
+from geometry.state import (
+    BAR_INPUTS,
+    BAR_PITCH,
+    BAR_STATES,
+    BAR_YAW,
+    P_B,
+    P_P,
+    PAYLOAD_INPUTS,
+    PAYLOAD_STATES,
+    PAYLOAD_YAW_INDICES,
+    UAV_BLOCK,
+    V_B,
+    V_P,
+    W_B,
+    YAW_INDICES,
+    bar_axis,
+    bar_yaw,
+    uav_block,
+    uav_slices,
+    uav_yaws,
+)
 
 
 class PlanStatus(Enum):
@@ -153,7 +158,7 @@ class LinearMpc:
         x_eq: FloatArray,
     ) -> OcpQp:
         """This tick's QP; absolute state bounds become bounds on Δx around ``x_eq``."""
-        state = self._state_bounds
+        state_box = self._state_bounds
         terminal = self._terminal_bounds
         return OcpQp(
             A=A,
@@ -165,8 +170,8 @@ class LinearMpc:
             u_lb=du_lb,
             u_ub=du_ub,
             horizon=self.settings.horizon,
-            x_lb=None if state is None else state[0] - x_eq,
-            x_ub=None if state is None else state[1] - x_eq,
+            x_lb=None if state_box is None else state_box[0] - x_eq,
+            x_ub=None if state_box is None else state_box[1] - x_eq,
             x_terminal_lb=None if terminal is None else terminal[0] - x_eq,
             x_terminal_ub=None if terminal is None else terminal[1] - x_eq,
         )
@@ -220,23 +225,24 @@ def _hold_plan(u_eq: FloatArray, x_eq: FloatArray, horizon: int, now_s: float) -
 
 def measured_yaws(state: FloatArray) -> tuple[float, tuple[float, float]]:
     """(ψ_b, (ψ_1, ψ_2)) of a 36-state."""
-    return float(state[8]), (float(state[20]), float(state[32]))
+    return bar_yaw(state), uav_yaws(state)
 
 
 def yaws_ahead(state: FloatArray, dt_s: float) -> tuple[float, tuple[float, float]]:
     """(ψ_b, (ψ_1, ψ_2)) of a 36-state ``dt_s`` later at its current yaw rates, from the
     rates it holds: the bar's ω in the inertial frame, each UAV's in its body frame (the
     third rows of H^E of (6) and H of (4), Z-Y-X Euler angles)."""
-    theta_b, psi_b = state[7], state[8]
-    bar_rate = math.tan(theta_b) * (math.cos(psi_b) * state[9] + math.sin(psi_b) * state[10])
-    bar_rate += state[11]
-    uav_yaws = []
-    for first in (18, 30):  # Θ_i = (φ, θ, ψ), then ω_i = (p, q, r)
-        phi, theta, psi = state[first : first + 3]
-        q_rate, r_rate = state[first + 4], state[first + 5]
+    theta_b, psi_b = state[BAR_PITCH], state[BAR_YAW]
+    w_x, w_y, w_z = state[W_B]
+    bar_rate = math.tan(theta_b) * (math.cos(psi_b) * w_x + math.sin(psi_b) * w_y) + w_z
+    yaws = []
+    for i in (1, 2):
+        _, _, euler, rates = uav_slices(i)
+        phi, theta, psi = state[euler]
+        _, q_rate, r_rate = state[rates]
         rate = (math.sin(phi) * q_rate + math.cos(phi) * r_rate) / math.cos(theta)
-        uav_yaws.append(float(psi + dt_s * rate))
-    return float(psi_b + dt_s * bar_rate), (uav_yaws[0], uav_yaws[1])
+        yaws.append(float(psi + dt_s * rate))
+    return float(psi_b + dt_s * bar_rate), (yaws[0], yaws[1])
 
 
 @dataclass(frozen=True)
@@ -386,7 +392,7 @@ class CentralizedMpc:
             )
         try:
             A, B = self._preparation.models(state, reference)[0]
-            dx0 = wrap_angles(state - eq.x, BAR_YAW_INDICES)
+            dx0 = wrap_angles(state - eq.x, YAW_INDICES)
             qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x)
             solution = self._mpc.backend.solve(qp)
         except Exception as error:
@@ -427,16 +433,12 @@ class CentralizedMpc:
 def agent_state(state: FloatArray, params: BarSystemParams, i: int) -> FloatArray:
     """UAV ``i``'s decentralized state x_i = (p_i, v_i, Θ_i, ω_i, p_p, v_p) from a 36-state:
     its bar end e_i = p_b + s_i d_i n_b and that end's velocity."""
-    psi, theta = state[8], state[7]
-    n_b = np.array(
-        [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
-    )
+    n_b = bar_axis(state)
     sign, d = (-1.0, params.d1_m) if i == 1 else (1.0, params.d2_m)
-    first = uav_slices(i)[0].start
     x_i = np.empty(PAYLOAD_STATES)
-    x_i[0:12] = state[first : first + 12]
-    x_i[12:15] = state[P_B] + sign * d * n_b
-    x_i[15:18] = state[V_B] + sign * d * cross3(state[W_B], n_b)
+    x_i[UAV_BLOCK] = state[uav_block(i)]
+    x_i[P_P] = state[P_B] + sign * d * n_b
+    x_i[V_P] = state[V_B] + sign * d * cross3(state[W_B], n_b)
     return x_i
 
 

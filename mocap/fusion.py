@@ -33,7 +33,7 @@ from typing import Literal
 import numpy as np
 
 from geometry import frames
-from geometry.frames import FloatArray
+from geometry.arrays import FloatArray
 from mocap.qtm_protocol import BodyPose, MocapFrame
 
 
@@ -119,7 +119,7 @@ class BodyState:
 class _ConstantVelocityAxes:
     """Three independent constant-velocity Kalman filters sharing one 2×2 covariance.
 
-    ``x``: shape (2, 3), rows (value, rate) per axis. The textbook discrete white-noise
+    ``mean``: shape (2, 3), rows (value, rate) per axis. The textbook discrete white-noise
     acceleration model: F = [[1, h], [0, 1]], Q = q·[[h³/3, h²/2], [h²/2, h]], H = [1, 0].
     The symmetric covariance is kept as three scalars (p00, p01, p11): at three filters
     per body and two frames per tick, numpy's per-call cost on 2×2 matrices dominated.
@@ -128,12 +128,12 @@ class _ConstantVelocityAxes:
     def __init__(self, accel_psd: float, noise_std: float, rate_std: float) -> None:
         self.q = accel_psd
         self.r = noise_std**2
-        self.x = np.zeros((2, 3))
+        self.mean = np.zeros((2, 3))
         self.p00, self.p01, self.p11 = self.r, 0.0, rate_std**2
 
     def predict(self, h: float) -> None:
         q = self.q
-        self.x[0] += h * self.x[1]
+        self.mean[0] += h * self.mean[1]
         p00, p01, p11 = self.p00, self.p01, self.p11
         self.p00 = p00 + 2.0 * h * p01 + h * h * p11 + q * h**3 / 3.0
         self.p01 = p01 + h * p11 + q * h * h / 2.0
@@ -147,7 +147,7 @@ class _ConstantVelocityAxes:
         correction = np.empty((2, 3))
         correction[0] = k0 * innovation
         correction[1] = k1 * innovation
-        self.x += correction
+        self.mean += correction
         self.p00, self.p01, self.p11 = p00 - k0 * p00, p01 - k0 * p01, p11 - k1 * p01
         return correction
 
@@ -210,11 +210,11 @@ class RigidBodyFilter:
         h = t_s - self._last_measurement_s
         self._translation.predict(h)
         self._rotation.predict(h)
-        omega = self._rotation.x[1]
+        omega = self._rotation.mean[1]
         q_pred = frames.quaternion_multiply(
             self._q, frames.quaternion_from_rotation_vector(omega * h)
         )
-        self._translation.update(pose.position_m - self._translation.x[0])
+        self._translation.update(pose.position_m - self._translation.mean[0])
         # Innovation: the rotation from the predicted to the measured attitude, body frame.
         innovation = frames.rotation_vector_from_quaternion(
             frames.quaternion_multiply(frames.quaternion_conjugate(q_pred), pose.quaternion)
@@ -224,7 +224,7 @@ class RigidBodyFilter:
             q_pred, frames.quaternion_from_rotation_vector(correction[0])
         )
         self._q = q_new / np.linalg.norm(q_new)
-        self._rotation.x[0] = 0.0  # the attitude error is now in the nominal quaternion
+        self._rotation.mean[0] = 0.0  # the attitude error is now in the nominal quaternion
         self._last_measurement_s = t_s
         return True
 
@@ -233,7 +233,7 @@ class RigidBodyFilter:
         self._translation = _ConstantVelocityAxes(
             c.position_accel_psd, c.position_noise_m, c.initial_velocity_std_mps
         )
-        self._translation.x[0] = pose.position_m
+        self._translation.mean[0] = pose.position_m
         self._rotation = _ConstantVelocityAxes(
             c.angular_accel_psd, c.attitude_noise_rad, c.initial_rate_std_radps
         )
@@ -254,9 +254,9 @@ class RigidBodyFilter:
         age = t_s - self._last_measurement_s
         limit = self.config.max_prediction_s
         h = min(max(age, -limit), limit)
-        position = self._translation.x[0] + h * self._translation.x[1]
-        velocity = self._translation.x[1].copy()
-        omega = self._rotation.x[1].copy()
+        position = self._translation.mean[0] + h * self._translation.mean[1]
+        velocity = self._translation.mean[1].copy()
+        omega = self._rotation.mean[1].copy()
         q = frames.quaternion_multiply(self._q, frames.quaternion_from_rotation_vector(omega * h))
         q = q / np.linalg.norm(q)
         if q[0] < 0.0:

@@ -38,7 +38,7 @@ from typing import Final, TypeAlias
 import numpy as np
 
 from geometry import frames
-from geometry.frames import FloatArray
+from geometry.arrays import FloatArray
 
 
 class QtmProtocolError(Exception):

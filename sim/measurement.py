@@ -21,11 +21,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from geometry.arrays import FloatArray
 from sim.plant import PlantTruth
-
-FloatArray = NDArray[np.float64]
 
 # Precedents for the defaults: Qualisys Miqus/Oqus systems track a well-marked rigid body
 # with sub-millimetre position noise and about 0.1° orientation noise; 100 Hz is the

@@ -29,9 +29,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import root
 
+from geometry.arrays import FloatArray
 from geometry.frames import (
     quaternion_from_rotation,
     rotation_from_euler_zyx,
@@ -41,7 +41,6 @@ from sim import plant_kernels as pk
 from sim.plant_params import ContactParams, PlantParams
 from sim.ports import AirframeState
 
-FloatArray = NDArray[np.float64]
 BodyName = Literal["uav1", "uav2", "bar"]
 BODY_NAMES: tuple[BodyName, BodyName, BodyName] = ("uav1", "uav2", "bar")
 BODY_INDEX: dict[str, int] = {name: i for i, name in enumerate(BODY_NAMES)}

@@ -24,9 +24,9 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from geometry.arrays import FloatArray
+
 _F = TypeVar("_F", bound=Callable[..., Any])
 
 

@@ -27,13 +27,12 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
-from numpy.typing import NDArray
 
+from geometry.arrays import FloatArray
 from geometry.frames import euler_zyx_from_quaternion, rotation_from_quaternion
 from sim.ports import AirframeState
 from sim.px4_control import HoldController, RateController
 
-FloatArray = NDArray[np.float64]
 FORCE_MAGIC = 21196
 
 

@@ -11,7 +11,6 @@ datagrams. ``handle_datagram`` is the whole receive path (also what the fuzzer d
 
 from __future__ import annotations
 
-import asyncio
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -29,6 +28,8 @@ from geometry.frames import (
 )
 from sim.ports import AirframePort, AirframeState
 from sim.px4 import Px4Model, Px4Params
+from supervisor.mavlink.codec import MavlinkCodec
+from supervisor.mavlink.transport import Address, UdpTransport
 
 API_CLIENT_PORT = 14540
 API_LOCAL_PORT = 14580
@@ -60,28 +61,6 @@ class EndpointCounters:
     per_type: dict[str, int] = field(default_factory=dict)
 
 
-class _Sink:
-    """File-like target for ``MAVLink.send``: the endpoint's UDP transport."""
-
-    def __init__(self) -> None:
-        self.transport: asyncio.DatagramTransport | None = None
-        self.address: tuple[str, int] | None = None
-
-    def write(self, data: bytes) -> None:
-        if self.transport is not None and self.address is not None:
-            self.transport.sendto(data, self.address)
-
-
-class _Protocol(asyncio.DatagramProtocol):
-    def __init__(self, endpoint: Px4Endpoint) -> None:
-        self.endpoint = endpoint
-
-    def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
-        if self.endpoint.handle_datagram(data, self.endpoint.clock_s()):
-            # Like PX4's UDP link, answer the client that talks to us.
-            self.endpoint.client_address = (str(addr[0]), int(addr[1]))
-
-
 class Px4Endpoint:
     """Vehicle ``instance`` (0-based): its model, its UDP socket, its airframe port."""
 
@@ -104,10 +83,9 @@ class Px4Endpoint:
         self.client_port = API_CLIENT_PORT + instance if client_port is None else client_port
         self.counters = EndpointCounters()
         self.texts_sent: deque[str] = deque(maxlen=64)
-        self._sink = _Sink()
-        self.mav = mavlink.MAVLink(self._sink, srcSystem=instance + 1, srcComponent=1)
-        self.mav.robust_parsing = True
-        self._transport: asyncio.DatagramTransport | None = None
+        self.codec = MavlinkCodec(system=instance + 1, component=1)
+        self._transport: UdpTransport | None = None
+        self._client_address: Address | None = None
         self._next_send_s = dict.fromkeys(STREAM_PERIODS_S, 0.0)
         self._now_s = 0.0
         self._battery_capacity_s = battery_capacity_s
@@ -115,20 +93,26 @@ class Px4Endpoint:
 
     # ---- lifecycle --------------------------------------------------------------------------
     async def start(self) -> None:
-        loop = asyncio.get_running_loop()
-        transport, _ = await loop.create_datagram_endpoint(
-            lambda: _Protocol(self), local_addr=(self.host, self.local_port)
+        self._client_address = (self.host, self.client_port)
+        self._transport = await UdpTransport.open(
+            (self.host, self.local_port), self._datagram_received, self._client_address
         )
-        self._transport = transport
-        self.local_port = int(transport.get_extra_info("sockname")[1])
-        self._sink.transport = transport
-        self._sink.address = (self.host, self.client_port)
+        self.local_port = self._transport.local_port
 
     async def close(self) -> None:
         if self._transport is not None:
             self._transport.close()
             self._transport = None
-            self._sink.transport = None
+
+    def _datagram_received(self, data: bytes, sender: Address) -> None:
+        if self.handle_datagram(data, self.clock_s()):
+            # Like PX4's UDP link, answer the client that talks to us.
+            self.client_address = sender
+
+    def _flush(self) -> None:
+        frames = self.codec.outgoing()
+        if self._transport is not None:
+            self._transport.send(frames)
 
     def describe(self) -> str:
         return f"{self.host}:{self.local_port}"
@@ -139,35 +123,24 @@ class Px4Endpoint:
 
     # ---- receive ------------------------------------------------------------------------------
     @property
-    def client_address(self) -> tuple[str, int] | None:
+    def client_address(self) -> Address | None:
         """Where telemetry goes: the configured client port until a client talks to us."""
-        return self._sink.address
+        return self._client_address
 
     @client_address.setter
-    def client_address(self, address: tuple[str, int]) -> None:
-        self._sink.address = address
+    def client_address(self, address: Address) -> None:
+        self._client_address = address
+        if self._transport is not None:
+            self._transport.peer = address
 
     def handle_datagram(self, data: bytes, now_s: float) -> bool:
         """Parse and act on one datagram; malformed input is counted, never raised.
         Returns whether it held at least one valid message."""
         self.counters.datagrams += 1
-        try:
-            messages = self.mav.parse_buffer(data) or []
-        except (mavlink.MAVError, ValueError, IndexError, TypeError, OverflowError):
-            self.counters.bad_data += 1
-            return False
-        finally:
-            # A datagram holds whole frames: what is left is garbage, not the start of the
-            # next datagram's frame (pymavlink's parser would prepend it).
-            self.mav.buf, self.mav.buf_index = bytearray(), 0
-            self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
-        valid = False
-        for message in messages:
+        decoded = self.codec.decode(data)
+        self.counters.bad_data += decoded.bad_data
+        for message in decoded.messages:
             kind = message.get_type()
-            if kind == "BAD_DATA":
-                self.counters.bad_data += 1
-                continue
-            valid = True
             self.counters.messages += 1
             self.counters.per_type[kind] = self.counters.per_type.get(kind, 0) + 1
             try:
@@ -179,7 +152,8 @@ class Px4Endpoint:
                 self.counters.handled += 1
             else:
                 self.counters.ignored += 1
-        return valid
+        self._flush()
+        return bool(decoded.messages)
 
     def _for_me(self, message: mavlink.MAVLink_message) -> bool:
         target = int(getattr(message, "target_system", 0))
@@ -231,7 +205,7 @@ class Px4Endpoint:
             raw = (message.param1, message.param2, message.param3, message.param4)
         params = tuple(float(p) if math.isfinite(p) else 0.0 for p in raw)
         result = self.model.command(message.command, params, now_s, self.airframe.state())
-        self.mav.command_ack_send(
+        self.codec.messages.command_ack_send(
             message.command, int(result), 0, 0, message.get_srcSystem(), message.get_srcComponent()
         )
         wants_version = message.command == 520 or (
@@ -243,7 +217,7 @@ class Px4Endpoint:
     # ---- send -----------------------------------------------------------------------------------
     def _send_version(self) -> None:
         version = (1 << 24) | (15 << 16) | (4 << 8) | 255  # 1.15.4, release
-        self.mav.autopilot_version_send(
+        self.codec.messages.autopilot_version_send(
             CAPABILITIES, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1000 + self.instance
         )
 
@@ -257,6 +231,7 @@ class Px4Endpoint:
         thrust_n, torque_nm = self.model.step(now_s, state)
         self.airframe.command(thrust_n, torque_nm)
         self._send_telemetry(now_s, state)
+        self._flush()
 
     def _due(self, stream: str, now_s: float) -> bool:
         if now_s < self._next_send_s[stream]:
@@ -269,14 +244,14 @@ class Px4Endpoint:
         time_ms = int(now_s * 1000) & 0xFFFFFFFF
         while model.status_texts:
             severity, text = model.status_texts.popleft()
-            self.mav.statustext_send(severity, text.encode()[:50])
+            self.codec.messages.statustext_send(severity, text.encode()[:50])
             self.texts_sent.append(text)
         if self._due("heartbeat", now_s):
             base_mode = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
             if model.armed:
                 base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
             status = mavlink.MAV_STATE_ACTIVE if model.armed else mavlink.MAV_STATE_STANDBY
-            self.mav.heartbeat_send(
+            self.codec.messages.heartbeat_send(
                 mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base_mode,
                 model.custom_mode, status,
             )  # fmt: skip
@@ -285,16 +260,16 @@ class Px4Endpoint:
             R = rotation_enu_flu_to_ned_frd(rotation_from_quaternion(state.quaternion))
             roll, pitch, yaw = euler_zyx_from_rotation(R)
             p, q, r = flu_to_frd(state.body_rates_radps)
-            self.mav.attitude_send(time_ms, roll, pitch, yaw, p, q, r)
+            self.codec.messages.attitude_send(time_ms, roll, pitch, yaw, p, q, r)
             quaternion = [float(v) for v in quaternion_from_rotation(R)]
-            self.mav.attitude_quaternion_send(time_ms, *quaternion, p, q, r, [0.0] * 4)
+            self.codec.messages.attitude_quaternion_send(time_ms, *quaternion, p, q, r, [0.0] * 4)
         if self._due("local_position", now_s):
             n, e, d = enu_to_ned(state.position_m)
             vn, ve, vd = enu_to_ned(state.velocity_mps)
-            self.mav.local_position_ned_send(time_ms, n, e, d, vn, ve, vd)
+            self.codec.messages.local_position_ned_send(time_ms, n, e, d, vn, ve, vd)
         if self._due("status", now_s):
             voltage_mv = int(self.battery_voltage() * 1000)
-            self.mav.sys_status_send(
+            self.codec.messages.sys_status_send(
                 0, 0, 0, 100, voltage_mv, -1, self.battery_percent(), 0, 0, 0, 0, 0, 0
             )
             landed = (
@@ -302,10 +277,12 @@ class Px4Endpoint:
                 if state.on_ground
                 else mavlink.MAV_LANDED_STATE_IN_AIR
             )
-            self.mav.extended_sys_state_send(0, landed)
+            self.codec.messages.extended_sys_state_send(0, landed)
         if self._due("battery", now_s):
             cells = [int(self.battery_voltage() / 4 * 1000)] * 4 + [65535] * 6
-            self.mav.battery_status_send(0, 0, 0, 32767, cells, -1, -1, -1, self.battery_percent())
+            self.codec.messages.battery_status_send(
+                0, 0, 0, 32767, cells, -1, -1, -1, self.battery_percent()
+            )
 
     def battery_voltage(self) -> float:
         """A 4S pack sagging linearly with flight time."""

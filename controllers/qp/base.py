@@ -16,10 +16,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
 
-import numpy as np
-from numpy.typing import NDArray
-
-FloatArray = NDArray[np.float64]
+from geometry.arrays import FloatArray
 
 
 class QpStatus(Enum):

@@ -16,7 +16,8 @@ from __future__ import annotations
 import daqp
 import numpy as np
 
-from controllers.qp.base import FloatArray, OcpQp, QpSolution, QpStatus
+from controllers.qp.base import OcpQp, QpSolution, QpStatus
+from geometry.arrays import FloatArray
 
 _DAQP_OPTIMAL = (1, 2)  # optimal, soft-optimal
 _DAQP_INFEASIBLE = (-1,)
@@ -128,12 +129,12 @@ class CondensedDaqpBackend:
             return self._failure(status, int(info.get("iterations", 0)))
         self._active = np.where(np.abs(info["lam"]) > 0.0, 1, 0).astype(np.int32)
         u = np.asarray(U).reshape(N, nu)
-        x = np.empty((N + 1, nx))
-        x[0] = qp.x0
+        trajectory = np.empty((N + 1, nx))
+        trajectory[0] = qp.x0
         for k in range(N):
-            x[k + 1] = qp.A @ x[k] + qp.B @ u[k]
+            trajectory[k + 1] = qp.A @ trajectory[k] + qp.B @ u[k]
         return QpSolution(
-            u=u, x=x, status=QpStatus.SOLVED, iterations=int(info.get("iterations", 0))
+            u=u, x=trajectory, status=QpStatus.SOLVED, iterations=int(info.get("iterations", 0))
         )
 
     def _failure(self, status: QpStatus, iterations: int = 0) -> QpSolution:

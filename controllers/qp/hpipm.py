@@ -34,10 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from controllers.qp.base import FloatArray, OcpQp, QpSolution, QpStatus
+from controllers.qp.base import OcpQp, QpSolution, QpStatus
 from controllers.qp.hpipm_library import library_folder
 from controllers.qp.partial_condensing import block_lengths, condense
 from controllers.qp.riccati import UnboxedSolutionMap, unboxed_solution_map
+from geometry.arrays import FloatArray
 
 DEFAULT_BLOCK_STAGES = 5  # fastest for the interior-point iterations in a sweep of 1–30
 _SPEED = 1  # enum hpipm_mode: SPEED_ABS, SPEED, BALANCE, ROBUST
@@ -431,8 +432,9 @@ class HpipmBackend:
         """``problem`` on this tick's model: (status, iterations, u (N, nu), x (N+1, nx))."""
         problem.set_model(*self._model_pointers)
         status, iterations = problem.solve()
-        problem.x[0] = x0
-        return status, iterations, problem.u[:-1].copy(), problem.x.copy()
+        trajectory = problem.x.copy()
+        trajectory[0] = x0
+        return status, iterations, problem.u[:-1].copy(), trajectory
 
     @staticmethod
     def _model(qp: OcpQp) -> tuple[FloatArray, ...]:
@@ -484,10 +486,10 @@ class HpipmBackend:
         return bool(np.any(u <= qp.u_lb + tolerance) or np.any(u >= qp.u_ub - tolerance))
 
     @staticmethod
-    def _within_boxes(qp: OcpQp, u: FloatArray, x: FloatArray) -> bool:
+    def _within_boxes(qp: OcpQp, u: FloatArray, trajectory: FloatArray) -> bool:
         if np.any(u < qp.u_lb) or np.any(u > qp.u_ub):
             return False
-        inner, last = x[1:-1], x[-1]
+        inner, last = trajectory[1:-1], trajectory[-1]
         for states, lower, upper in (
             (inner, qp.x_lb, qp.x_ub),
             (last, qp.x_terminal_lb, qp.x_terminal_ub),

@@ -12,7 +12,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from controllers.qp.base import FloatArray, OcpQp, QpSolution, QpStatus
+from controllers.qp.base import OcpQp, QpSolution, QpStatus
+from geometry.arrays import FloatArray
 
 _SOLVED = {"solved", "solved inaccurate"}
 _INFEASIBLE = {

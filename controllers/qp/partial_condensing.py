@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.qp.base import FloatArray
+from geometry.arrays import FloatArray
 
 
 def block_lengths(horizon: int, block_stages: int) -> tuple[int, ...]:

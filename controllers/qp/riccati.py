@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dpotrf, dpotrs
 
-from controllers.qp.base import FloatArray
 from controllers.qp.partial_condensing import CondensedBlock
+from geometry.arrays import FloatArray
 
 
 @dataclass(frozen=True)

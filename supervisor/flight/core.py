@@ -19,13 +19,30 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
 from controllers.equilibria import Reference, bar_equilibrium
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
 from controllers.params import BarSystemParams, Clock, MpcSettings
 from controllers.uav_pd import UavPdGains, uav_pd_control
+from geometry.arrays import FloatArray
 from geometry.frames import rotation_from_euler_zyx
+from geometry.state import (
+    BAR_INPUTS,
+    BAR_STATES,
+    W_I,
+    bar_axis,
+    bar_ends,
+    bar_position,
+    bar_velocity,
+    bar_yaw,
+    stacked_agent_slice,
+    thrust_index,
+    torque_slice,
+    uav_position,
+    uav_slices,
+    uav_velocity,
+    uav_yaws,
+)
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import FlightModes, Mode, Transition
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor
@@ -40,7 +57,6 @@ from supervisor.flight.setpoints import (
 from supervisor.flight.tick_record import TickRecord
 from supervisor.vehicles.types import UavCommand
 
-FloatArray = NDArray[np.float64]
 CONTROLLERS = ("centralized", "decentralized")
 NOTICES_KEPT = 20
 
@@ -119,7 +135,7 @@ class FlightCore:
         self._ground_uav_z = (0.0, 0.0)
         self._yaw_hold = (0.0, 0.0)
         self._pd_targets: list[FloatArray] = [np.zeros(3), np.zeros(3)]
-        self._last_u = np.zeros(8)
+        self._last_u = np.zeros(BAR_INPUTS)
         self._blend_from: FloatArray | None = None
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
@@ -180,8 +196,7 @@ class FlightCore:
         self._ground_bar_z = ground_z_m[0]
         self._ground_uav_z = (ground_z_m[1], ground_z_m[2])
         self._last_estimate = estimate
-        x = estimate.x
-        self._yaw_hold = (float(x[20]), float(x[32]))
+        self._yaw_hold = uav_yaws(estimate.x)
         self._entered(Mode.HOVER, now_s)
 
     def queue_setpoints(self, setpoints: list[Setpoint]) -> None:
@@ -259,7 +274,7 @@ class FlightCore:
         state_ref = (
             bar_equilibrium(self.params, reference).x
             if reference is not None
-            else np.full(36, np.nan)
+            else np.full(BAR_STATES, np.nan)
         )
         record = TickRecord(
             t_s=now_s,
@@ -315,48 +330,43 @@ class FlightCore:
     def _remember_ground(self, estimate: Estimate) -> None:
         x = estimate.x
         if np.all(np.isfinite(x)):
-            self._ground_bar_z = float(x[2])
-            self._ground_uav_z = (float(x[14]), float(x[26]))
-            self._yaw_hold = (float(x[20]), float(x[32]))
-
-    def _bar_ends(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        psi, theta = x[8], x[7]
-        n_b = np.array(
-            [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
-        )
-        return x[0:3] - self.params.d1_m * n_b, x[0:3] + self.params.d2_m * n_b, n_b
+            self._ground_bar_z = float(bar_position(x)[2])
+            self._ground_uav_z = (float(uav_position(x, 1)[2]), float(uav_position(x, 2)[2]))
+            self._yaw_hold = uav_yaws(x)
 
     def _set_climb_targets(self, x: FloatArray) -> None:
-        end_1, end_2, _ = self._bar_ends(x)
+        end_1, end_2 = bar_ends(x, self.params.arms_m)
         self._pd_targets = [
             end + np.array([0.0, 0.0, length + 0.02])
             for end, length in zip((end_1, end_2), self.params.cable_lengths_m, strict=True)
         ]
 
     def _set_descend_targets(self, x: FloatArray) -> None:
-        end_1, end_2, n_b = self._bar_ends(x)
+        end_1, end_2 = bar_ends(x, self.params.arms_m)
+        n_b = bar_axis(x)
         out = self.settings.landing_clearance_m
         self._pd_targets = [
-            np.array([*(end_1 - out * n_b)[0:2], x[14]]),
-            np.array([*(end_2 + out * n_b)[0:2], x[26]]),
+            np.array([*(end_1 - out * n_b)[0:2], uav_position(x, 1)[2]]),
+            np.array([*(end_2 + out * n_b)[0:2], uav_position(x, 2)[2]]),
         ]
 
     def _current_reference(self, x: FloatArray) -> Reference:
+        p_b = bar_position(x)
         return Reference(
-            (float(x[0]), float(x[1]), float(x[2])), float(x[8]), (float(x[20]), float(x[32])), 0.0
+            (float(p_b[0]), float(p_b[1]), float(p_b[2])), bar_yaw(x), uav_yaws(x), 0.0
         )
 
     def _pd_commands(
         self, x: FloatArray, extra_load: tuple[float, float]
     ) -> tuple[UavCommand, UavCommand]:
         commands = []
-        for k, offset in enumerate((12, 24)):
-            uav = self.params.uavs[k]
+        for k, uav in enumerate(self.params.uavs):
+            position, velocity, euler, rates_now = uav_slices(k + 1)
             thrust, torque, rates = uav_pd_control(
-                x[offset : offset + 3],
-                x[offset + 3 : offset + 6],
-                rotation_from_euler_zyx(*x[offset + 6 : offset + 9]),
-                x[offset + 9 : offset + 12],
+                x[position],
+                x[velocity],
+                rotation_from_euler_zyx(*x[euler]),
+                x[rates_now],
                 self._pd_targets[k],
                 self._yaw_hold[k],
                 uav.mass_kg,
@@ -382,12 +392,20 @@ class FlightCore:
         # it for about the MPC's own torque; the next step's rate would ask for a third.
         ahead = min(self.settings.rate_lookahead_steps, len(plan.x_pred) - 1)
         next_x = plan.x_pred[ahead]
-        rate_slices = (
-            ((21, 24), (33, 36)) if self.controller == "centralized" else ((9, 12), (27, 30))
-        )
+
+        def predicted_rates(i: int) -> FloatArray:
+            rates: FloatArray = (
+                next_x[uav_slices(i)[3]]
+                if self.controller == "centralized"
+                else next_x[stacked_agent_slice(i)][W_I]
+            )
+            return rates.copy()
+
         return tuple(  # type: ignore[return-value]
-            UavCommand(float(u[4 * k]), u[4 * k + 1 : 4 * k + 4].copy(), next_x[a:b].copy(), True)
-            for k, (a, b) in enumerate(rate_slices)
+            UavCommand(
+                float(u[thrust_index(i)]), u[torque_slice(i)].copy(), predicted_rates(i), True
+            )
+            for i in (1, 2)
         )
 
     def _mpc(
@@ -412,23 +430,24 @@ class FlightCore:
         x = estimate.x
         if self.phase == "climb":
             commands = self._pd_commands(x, (0.0, 0.0))
-            end_1, end_2, _ = self._bar_ends(x)
+            ends = bar_ends(x, self.params.arms_m)
             taut = all(
-                np.linalg.norm(x[o : o + 3] - end) >= length - 0.03
-                for o, end, length in zip(
-                    (12, 24), (end_1, end_2), self.params.cable_lengths_m, strict=True
-                )
+                np.linalg.norm(uav_position(x, i) - ends[i - 1])
+                >= self.params.cable_lengths_m[i - 1] - 0.03
+                for i in (1, 2)
             )
-            if taut and max(np.linalg.norm(x[15:18]), np.linalg.norm(x[27:30])) < 0.3:
+            speeds = [np.linalg.norm(uav_velocity(x, i)) for i in (1, 2)]
+            if taut and max(speeds) < 0.3:
                 self.phase = "lift"
                 self._shaper = ReferenceShaper(
                     self._current_reference(x), self.settings.takeoff_rates
                 )
             return commands, None, None
         assert self._shaper is not None
+        p_b = bar_position(x)
         target = Reference(
-            (float(x[0]), float(x[1]), self._ground_bar_z + self.settings.takeoff_height_m),
-            float(x[8]),
+            (float(p_b[0]), float(p_b[1]), self._ground_bar_z + self.settings.takeoff_height_m),
+            bar_yaw(x),
             self._yaw_hold,
             0.0,
         )
@@ -441,8 +460,8 @@ class FlightCore:
         return commands, plan, reference
 
     def _reached(self, x: FloatArray, reference: Reference) -> bool:
-        position_error = np.linalg.norm(x[0:3] - np.asarray(reference.bar_position_m))
-        yaw_error = abs(math.remainder(x[8] - reference.bar_yaw_rad, 2 * math.pi))
+        position_error = np.linalg.norm(bar_position(x) - np.asarray(reference.bar_position_m))
+        yaw_error = abs(math.remainder(bar_yaw(x) - reference.bar_yaw_rad, 2 * math.pi))
         return bool(
             position_error < self.settings.reached_position_m
             and yaw_error < self.settings.reached_yaw_rad
@@ -491,9 +510,10 @@ class FlightCore:
             )
             reference = self._shaper.update(target, now_s)
             commands, plan = self._mpc(now_s, x, reference)
-            if x[2] < self._ground_bar_z + 0.03 or (reference == target and abs(x[5]) < 0.05):
+            bar_z, bar_vz = bar_position(x)[2], bar_velocity(x)[2]
+            if bar_z < self._ground_bar_z + 0.03 or (reference == target and abs(bar_vz) < 0.05):
                 self.phase = "descend"
-                self._yaw_hold = (float(x[20]), float(x[32]))
+                self._yaw_hold = uav_yaws(x)
                 self._set_descend_targets(x)
             return commands, plan, reference
         dt_descend = self.settings.descend_speed_mps * self._dt_s
@@ -502,7 +522,7 @@ class FlightCore:
         commands = self._pd_commands(x, (0.0, 0.0))
         # Down once both have stayed at their ground height for a while: velocity
         # estimates are too noisy near zero to decide on one tick.
-        low = all(x[o + 2] < gz + 0.05 for o, gz in zip((12, 24), self._ground_uav_z, strict=True))
+        low = all(uav_position(x, i)[2] < self._ground_uav_z[i - 1] + 0.05 for i in (1, 2))
         if not low:
             self._low_since_s = None
         elif self._low_since_s is None:

@@ -12,12 +12,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
-from controllers.model import BAR_STATES
+from geometry.arrays import FloatArray
+from geometry.state import BAR_STATES, P_B, TH_B, V_B, W_B, bar_axis_from_angles, uav_slices
 from mocap.fusion import BodyState
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -57,19 +55,19 @@ def estimate_state(bodies: Mapping[str, BodyState], names: BodyNames = BodyNames
     """Assemble x ∈ R^36 from the fused bodies (NaN where a body was never measured)."""
     bar = bodies.get(names.bar) or _missing(names.bar)
     x = np.empty(BAR_STATES)
-    x[0:3] = bar.position_m
-    x[3:6] = bar.velocity_mps
-    x[6:9] = (0.0, bar.euler_zyx_rad[1], bar.euler_zyx_rad[2])
-    theta, psi = bar.euler_zyx_rad[1], bar.euler_zyx_rad[2]
-    n_b = np.array([np.cos(psi) * np.cos(theta), np.sin(psi) * np.cos(theta), -np.sin(theta)])
+    x[P_B] = bar.position_m
+    x[V_B] = bar.velocity_mps
+    x[TH_B] = (0.0, bar.euler_zyx_rad[1], bar.euler_zyx_rad[2])
+    n_b = bar_axis_from_angles(bar.euler_zyx_rad[1], bar.euler_zyx_rad[2])
     omega = bar.angular_velocity_world_radps
-    x[9:12] = omega - (omega @ n_b) * n_b
-    for offset, name in ((12, names.uav1), (24, names.uav2)):
+    x[W_B] = omega - (omega @ n_b) * n_b
+    for i, name in ((1, names.uav1), (2, names.uav2)):
         uav = bodies.get(name) or _missing(name)
-        x[offset : offset + 3] = uav.position_m
-        x[offset + 3 : offset + 6] = uav.velocity_mps
-        x[offset + 6 : offset + 9] = uav.euler_zyx_rad
-        x[offset + 9 : offset + 12] = uav.body_rates_radps
+        position, velocity, euler, rates = uav_slices(i)
+        x[position] = uav.position_m
+        x[velocity] = uav.velocity_mps
+        x[euler] = uav.euler_zyx_rad
+        x[rates] = uav.body_rates_radps
     states = [bodies.get(n) for n in names.all()]
     unhealthy = tuple(
         n for n, s in zip(names.all(), states, strict=True) if s is None or not s.healthy

@@ -16,6 +16,7 @@ import numpy as np
 from controllers.mpc import PlanStatus
 from controllers.params import BarSystemParams
 from geometry.frames import rotation_from_euler_zyx
+from geometry.state import bar_ends, bar_position, bar_yaw, uav_euler, uav_position
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Mode
 from supervisor.flight.setpoints import Arena
@@ -109,15 +110,19 @@ class SafetyMonitor:
         return faults
 
     def _geofence(self, x: np.ndarray, faults: list[Fault]) -> None:
-        for name, offset in (("bar", 0), ("UAV 1", 12), ("UAV 2", 24)):
-            if not self.arena.contains(x[offset : offset + 3], margin_m=0.0):
+        bodies = (
+            ("bar", bar_position(x)),
+            ("UAV 1", uav_position(x, 1)),
+            ("UAV 2", uav_position(x, 2)),
+        )
+        for name, position in bodies:
+            if not self.arena.contains(position, margin_m=0.0):
                 faults.append(Fault("geofence", f"{name} left the arena", Response.ABORT))
 
     def _tilt(self, x: np.ndarray, faults: list[Fault]) -> None:
-        for i, offset in ((1, 18), (2, 30)):
-            tilt = math.acos(
-                max(-1.0, min(1.0, float(rotation_from_euler_zyx(*x[offset : offset + 3])[2, 2])))
-            )
+        for i in (1, 2):
+            z_axis_z = float(rotation_from_euler_zyx(*uav_euler(x, i))[2, 2])
+            tilt = math.acos(max(-1.0, min(1.0, z_axis_z)))
             if tilt > self.limits.max_tilt_rad:
                 faults.append(
                     Fault("tilt", f"UAV {i} tilted {math.degrees(tilt):.0f}°", Response.ABORT)
@@ -128,14 +133,11 @@ class SafetyMonitor:
         if mode not in (Mode.HOVER, Mode.TRACKING):
             self._slack_since_s = None
             return
-        psi, theta = x[8], x[7]
-        n_b = np.array(
-            [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
-        )
-        ends = (x[0:3] - self.params.d1_m * n_b, x[0:3] + self.params.d2_m * n_b)
+        ends = bar_ends(x, self.params.arms_m)
         slack = [
-            np.linalg.norm(x[o : o + 3] - end) < length - self.limits.slack_margin_m
-            for o, end, length in zip((12, 24), ends, self.params.cable_lengths_m, strict=True)
+            np.linalg.norm(uav_position(x, i) - ends[i - 1])
+            < self.params.cable_lengths_m[i - 1] - self.limits.slack_margin_m
+            for i in (1, 2)
         ]
         if not any(slack):
             self._slack_since_s = None
@@ -150,7 +152,7 @@ class SafetyMonitor:
         limit = self.limits.max_bar_yaw_error_rad
         if limit <= 0.0 or mode not in (Mode.HOVER, Mode.TRACKING):
             return
-        error = math.remainder(float(x[8]) - reference_rad, math.tau)
+        error = math.remainder(bar_yaw(x) - reference_rad, math.tau)
         if abs(error) > limit:
             faults.append(
                 Fault(

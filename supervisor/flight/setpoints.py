@@ -15,12 +15,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
 from controllers.params import BarSystemParams
-
-FloatArray = NDArray[np.float64]
+from geometry.arrays import FloatArray
+from geometry.state import bar_position
 
 
 class SetpointError(ValueError):
@@ -100,7 +99,7 @@ def validate_setpoint(setpoint: Setpoint, params: BarSystemParams, arena: Arena)
     except EquilibriumError as error:
         raise SetpointError(str(error)) from error
     points = {
-        "bar centre": eq.x[0:3],
+        "bar centre": bar_position(eq.x),
         "bar end 1": eq.bar_ends_m[0],
         "bar end 2": eq.bar_ends_m[1],
         "UAV 1": eq.uav_position(1),

@@ -13,6 +13,15 @@ from typing import Any
 import numpy as np
 
 from controllers.equilibria import bar_equilibrium
+from geometry.state import (
+    BAR_STATES,
+    bar_ends,
+    bar_position,
+    bar_velocity,
+    bar_yaw,
+    uav_euler,
+    uav_position,
+)
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.operator_requests import setpoint_json
@@ -33,15 +42,6 @@ def _floats(values: Any) -> list[float | None]:
     return [float(v) if math.isfinite(v) else None for v in np.asarray(values, dtype=float)]
 
 
-def _bar_ends(x: np.ndarray, arms_m: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """Cable attachment points: p_b ∓ d_i n_b, n_b from the bar's pitch and yaw (5)."""
-    theta, psi = x[7], x[8]
-    n_b = np.array(
-        [math.cos(psi) * math.cos(theta), math.sin(psi) * math.cos(theta), -math.sin(theta)]
-    )
-    return x[0:3] - arms_m[0] * n_b, x[0:3] + arms_m[1] * n_b
-
-
 def build_telemetry(
     core: FlightCore,
     estimate: Estimate | None,
@@ -52,7 +52,7 @@ def build_telemetry(
     now_s: float,
 ) -> dict[str, Any]:
     """The status/telemetry message at ``now_s`` (monotonic seconds of the flight process)."""
-    x = estimate.x if estimate is not None else np.full(36, math.nan)
+    x = estimate.x if estimate is not None else np.full(BAR_STATES, math.nan)
     reference = last_tick.reference if last_tick is not None else None
     plan = last_tick.plan if last_tick is not None else None
     reference_json = None
@@ -67,7 +67,7 @@ def build_telemetry(
             "bar_ends": [_floats(end) for end in eq.bar_ends_m],
         }
     bar_error = (
-        float(np.linalg.norm(x[0:3] - np.asarray(reference.bar_position_m)))
+        float(np.linalg.norm(bar_position(x) - np.asarray(reference.bar_position_m)))
         if reference is not None
         else None
     )
@@ -80,23 +80,23 @@ def build_telemetry(
         "armed": [v.armed for v in vehicles],
         "arena": {"min": list(core.arena.min_m), "max": list(core.arena.max_m)},
         "bar": {
-            "position": _floats(x[0:3]),
-            "ends": [_floats(end) for end in _bar_ends(x, core.params.arms_m)],
-            "yaw": _floats(x[8:9])[0],
-            "velocity": _floats(x[3:6]),
+            "position": _floats(bar_position(x)),
+            "ends": [_floats(end) for end in bar_ends(x, core.params.arms_m)],
+            "yaw": _floats([bar_yaw(x)])[0],
+            "velocity": _floats(bar_velocity(x)),
             "error_m": bar_error,
         },
         "uavs": [
             {
-                "position": _floats(x[o : o + 3]),
-                "yaw": _floats(x[o + 8 : o + 9])[0],
-                "attitude": _floats(x[o + 6 : o + 9]),
+                "position": _floats(uav_position(x, i)),
+                "yaw": _floats(uav_euler(x, i)[2:])[0],
+                "attitude": _floats(uav_euler(x, i)),
                 "connected": v.connected,
                 "px4_mode": v.px4_mode,
                 "battery_v": v.battery_v if math.isfinite(v.battery_v) else None,
                 "status_text": v.status_text,
             }
-            for o, v in zip((12, 24), vehicles, strict=True)
+            for i, v in enumerate(vehicles, start=1)
         ],
         "reference": reference_json,
         "mocap": {

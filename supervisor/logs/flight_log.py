@@ -18,11 +18,9 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from geometry.arrays import FloatArray
 from supervisor.flight.tick_record import TickRecord
-
-FloatArray = NDArray[np.float64]
 
 FSYNC_INTERVAL_S = 1.0
 

@@ -1,4 +1,5 @@
-"""The supervisor's MAVLink 2 link to one PX4 (pymavlink codec, asyncio UDP).
+"""The supervisor's MAVLink 2 link to one PX4: the asyncio shell around the sans-IO codec
+(``codec``) and session (``session``), over the shared UDP transport (``transport``).
 
 Like a MAVLink client on PX4's offboard/API link (protocols.md §2–4): it listens on a local
 UDP port (14540+i by default; PX4 sends there) and answers the address the vehicle's
@@ -21,14 +22,14 @@ import asyncio
 import contextlib
 import math
 import time
-from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 from pymavlink.dialects.v20 import common as mavlink
 
+from geometry.arrays import FloatArray
 from geometry.frames import (
     enu_to_ned,
     euler_zyx_from_rotation,
@@ -37,40 +38,12 @@ from geometry.frames import (
     rotation_enu_flu_to_ned_frd,
     rotation_from_quaternion,
 )
+from supervisor.mavlink.codec import MavlinkCodec
+from supervisor.mavlink.session import CommandAck, VehicleSession
+from supervisor.mavlink.transport import Address, UdpTransport
 from supervisor.vehicles.types import UavCommand, VehicleCommandError, VehicleView
 
-FloatArray = NDArray[np.float64]
 FORCE_MAGIC = 21196
-RESULT_NAMES = {
-    0: "accepted",
-    1: "temporarily rejected",
-    2: "denied",
-    3: "unsupported",
-    4: "failed",
-    5: "in progress",
-    6: "cancelled",
-}
-PX4_MAIN_MODES = {
-    1: "MANUAL",
-    2: "ALTCTL",
-    3: "POSCTL",
-    4: "AUTO",
-    5: "ACRO",
-    6: "OFFBOARD",
-    7: "STABILIZED",
-    8: "RATTITUDE",
-}
-PX4_AUTO_MODES = {1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND"}
-
-
-def px4_mode_name(custom_mode: int) -> str:
-    """PX4's mode from a heartbeat's custom_mode: main in bits 16–23, sub in 24–31."""
-    main = (custom_mode >> 16) & 0xFF
-    sub = (custom_mode >> 24) & 0xFF
-    name = PX4_MAIN_MODES.get(main, f"MODE{main}")
-    if main == 4 and sub:
-        return f"AUTO.{PX4_AUTO_MODES.get(sub, sub)}"
-    return name
 
 
 @dataclass(frozen=True)
@@ -107,57 +80,27 @@ class LinkCounters:
     mocap_sent: int = 0
 
 
-class _Sink:
-    def __init__(self) -> None:
-        self.transport: asyncio.DatagramTransport | None = None
-        self.address: tuple[str, int] | None = None
-
-    def write(self, data: bytes) -> None:
-        if self.transport is not None and self.address is not None:
-            self.transport.sendto(data, self.address)
-
-
-class _Protocol(asyncio.DatagramProtocol):
-    def __init__(self, link: MavlinkLink) -> None:
-        self.link = link
-
-    def datagram_received(self, data: bytes, addr: tuple[str | int, ...]) -> None:
-        self.link.handle_datagram(data, (str(addr[0]), int(addr[1])))
-
-
 class MavlinkLink:
     """``supervisor.vehicles.link.VehicleLink`` over MAVLink 2 / UDP."""
 
-    def __init__(self, config: LinkConfig) -> None:
+    def __init__(self, config: LinkConfig, clock: Callable[[], float] = time.monotonic) -> None:
         self.config = config
         self.counters = LinkCounters()
-        self._clock = time.monotonic
-        self._sink = _Sink()
-        self._sink.address = config.vehicle_address
-        self.mav = mavlink.MAVLink(
-            self._sink, srcSystem=config.source_system, srcComponent=config.source_component
-        )
-        self.mav.robust_parsing = True
-        self._transport: asyncio.DatagramTransport | None = None
+        self._clock = clock
+        self.codec = MavlinkCodec(config.source_system, config.source_component)
+        self.session = VehicleSession(config.system_id, config.link_loss_s, clock())
+        self._transport: UdpTransport | None = None
+        self._peer: Address | None = config.vehicle_address
         self._tasks: list[asyncio.Task[None]] = []
-        self._acks: dict[int, asyncio.Future[int]] = {}
-        self._last_heartbeat_s = -math.inf
-        self.armed = False
-        self.custom_mode = 0
-        self.battery_v = math.nan
-        self.status_texts: deque[str] = deque(maxlen=20)
-        self.attitude_rad: tuple[float, float, float] | None = None
-        self._boot_s = self._clock()
+        self._acks: dict[int, asyncio.Future[CommandAck]] = {}
 
     # ---- lifecycle ----------------------------------------------------------------------------
     async def start(self) -> None:
-        loop = asyncio.get_running_loop()
         c = self.config
-        transport, _ = await loop.create_datagram_endpoint(
-            lambda: _Protocol(self), local_addr=(c.local_host, c.local_port)
+        self._transport = await UdpTransport.open(
+            (c.local_host, c.local_port), self.handle_datagram, self._peer
         )
-        self._transport = transport
-        self._sink.transport = transport
+        loop = asyncio.get_running_loop()
         self._tasks.append(loop.create_task(self._heartbeats(), name=f"mavlink-hb-{c.system_id}"))
 
     async def close(self) -> None:
@@ -170,113 +113,90 @@ class MavlinkLink:
         if self._transport is not None:
             self._transport.close()
             self._transport = None
-            self._sink.transport = None
 
     @property
     def local_port(self) -> int:
         if self._transport is None:
             return self.config.local_port
-        return int(self._transport.get_extra_info("sockname")[1])
+        return self._transport.local_port
+
+    def _flush(self) -> None:
+        frames = self.codec.outgoing()
+        if self._transport is not None:
+            self._transport.send(frames)
 
     async def _heartbeats(self) -> None:
         while True:
-            self.mav.heartbeat_send(
-                mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
-                mavlink.MAV_STATE_ACTIVE,
-            )  # fmt: skip
-            await asyncio.sleep(1.0)
+            if self.session.heartbeat_due(self._clock()):
+                self.codec.messages.heartbeat_send(
+                    mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                    mavlink.MAV_STATE_ACTIVE,
+                )  # fmt: skip
+                self._flush()
+            await asyncio.sleep(max(0.0, self.session.next_heartbeat_s - self._clock()))
 
     # ---- receive ------------------------------------------------------------------------------
     def handle_datagram(self, data: bytes, sender: tuple[str, int]) -> None:
         """Decode and apply one datagram; bad data is counted, never raised."""
+        now_s = self._clock()
         self.counters.datagrams += 1
-        try:
-            messages = self.mav.parse_buffer(data) or []
-        except (mavlink.MAVError, ValueError, IndexError, TypeError, OverflowError):
-            self.counters.bad_data += 1
-            return
-        finally:
-            # A datagram holds whole frames: what is left is garbage, not the start of the
-            # next datagram's frame (pymavlink's parser would prepend it).
-            self.mav.buf, self.mav.buf_index = bytearray(), 0
-            self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
-        for message in messages:
-            if message.get_type() == "BAD_DATA":
-                self.counters.bad_data += 1
-                continue
-            if message.get_srcSystem() != self.config.system_id:
+        decoded = self.codec.decode(data)
+        self.counters.bad_data += decoded.bad_data
+        for message in decoded.messages:
+            if not self.session.is_from_vehicle(message):
                 self.counters.foreign += 1
                 continue
             self.counters.messages += 1
-            if self._sink.address is None or self.config.vehicle_address is None:
-                self._sink.address = sender  # answer where the vehicle talks from
-            self._apply(message)
-
-    def _apply(self, message: mavlink.MAVLink_message) -> None:
-        kind = message.get_type()
-        if kind == "HEARTBEAT" and message.get_srcComponent() == 1:
-            self._last_heartbeat_s = self._clock()
-            self.armed = bool(message.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            self.custom_mode = int(message.custom_mode)
-        elif kind == "COMMAND_ACK":
-            future = self._acks.get(int(message.command))
-            if future is not None and not future.done() and message.result != 5:
-                future.set_result(int(message.result))
-        elif kind == "STATUSTEXT":
-            text = (
-                message.text.decode(errors="replace")
-                if isinstance(message.text, bytes)
-                else str(message.text)
-            )
-            self.status_texts.append(text.rstrip("\x00"))
-        elif kind == "SYS_STATUS" and message.voltage_battery not in (0, 65535):
-            self.battery_v = message.voltage_battery / 1000.0
-        elif kind == "ATTITUDE":
-            self.attitude_rad = (float(message.roll), float(message.pitch), float(message.yaw))
+            ack = self.session.receive(message, now_s)
+            if self.config.vehicle_address is None:
+                self._peer = sender  # answer where the vehicle talks from
+                if self._transport is not None:
+                    self._transport.peer = sender
+            if ack is not None:
+                future = self._acks.get(ack.command)
+                if future is not None and not future.done():
+                    future.set_result(ack)
 
     # ---- state --------------------------------------------------------------------------------
     @property
     def connected(self) -> bool:
-        return self._clock() - self._last_heartbeat_s <= self.config.link_loss_s
+        return self.session.connected(self._clock())
 
     @property
     def px4_mode(self) -> str:
-        return px4_mode_name(self.custom_mode) if self.connected else "unknown"
+        return self.session.px4_mode(self._clock())
 
     def view(self) -> VehicleView:
-        return VehicleView(
-            connected=self.connected,
-            armed=self.armed and self.connected,
-            px4_mode=self.px4_mode,
-            battery_v=self.battery_v,
-            status_text=self.status_texts[-1] if self.status_texts else "",
-        )
+        return self.session.view(self._clock())
 
     # ---- commands -------------------------------------------------------------------------------
     async def command(self, command: int, *params: float) -> None:
         """COMMAND_LONG until acknowledged (``retries`` tries of ``ack_timeout_s``); raises
         ``VehicleCommandError`` naming the result, or the silence."""
         c = self.config
-        if self._sink.address is None:
+        if self._peer is None:
             raise VehicleCommandError("no link to the vehicle yet")
         padded = (*params, *([0.0] * (7 - len(params))))
         loop = asyncio.get_running_loop()
-        for attempt in range(c.retries):
-            future: asyncio.Future[int] = loop.create_future()
-            self._acks[command] = future
-            try:
-                self.mav.command_long_send(c.system_id, 1, command, attempt, *padded)
-                async with asyncio.timeout(c.ack_timeout_s):
-                    result = await future
-            except TimeoutError:
-                continue
-            finally:
-                self._acks.pop(command, None)
-            if result == 0:
-                return
-            reason = RESULT_NAMES.get(result, f"result {result}")
-            said = f" ({self.status_texts[-1]})" if self.status_texts else ""
-            raise VehicleCommandError(f"command {command} {reason}{said}")
+        self.session.await_ack(command)
+        try:
+            for attempt in range(c.retries):
+                future: asyncio.Future[CommandAck] = loop.create_future()
+                self._acks[command] = future
+                try:
+                    self.codec.messages.command_long_send(c.system_id, 1, command, attempt, *padded)
+                    self._flush()
+                    async with asyncio.timeout(c.ack_timeout_s):
+                        ack = await future
+                except TimeoutError:
+                    continue
+                finally:
+                    self._acks.pop(command, None)
+                if ack.accepted:
+                    return
+                raise VehicleCommandError(self.session.refusal(ack))
+        finally:
+            self.session.forget_ack(command)
         raise VehicleCommandError(f"command {command}: no acknowledgement after {c.retries} tries")
 
     async def arm(self) -> None:
@@ -295,9 +215,6 @@ class MavlinkLink:
         await self.command(176, 1.0, 4.0, 3.0)  # AUTO.LOITER, as MAVSDK's offboard.stop()
 
     # ---- streams --------------------------------------------------------------------------------
-    def _time_boot_ms(self) -> int:
-        return int((self._clock() - self._boot_s) * 1000) & 0xFFFFFFFF
-
     def normalized_thrust(self, thrust_n: float) -> float:
         """Thrust [N] as PX4's normalized [0, 1], by this vehicle's calibration."""
         value = thrust_n / self.config.thrust_max_n
@@ -330,17 +247,18 @@ class MavlinkLink:
                 0.0,
                 0.0,
             ]
-            self.mav.set_actuator_control_target_send(
-                self._time_boot_ms() * 1000, 0, c.system_id, 1, controls
+            self.codec.messages.set_actuator_control_target_send(
+                self.session.time_boot_ms(self._clock()) * 1000, 0, c.system_id, 1, controls
             )
         else:
             rates = flu_to_frd(command.body_rates_radps) if command.motors_on else np.zeros(3)
             if not np.all(np.isfinite(rates)):
                 rates = np.zeros(3)
-            self.mav.set_attitude_target_send(
-                self._time_boot_ms(), c.system_id, 1, 128, [1.0, 0.0, 0.0, 0.0],
+            self.codec.messages.set_attitude_target_send(
+                self.session.time_boot_ms(self._clock()), c.system_id, 1, 128, [1.0, 0.0, 0.0, 0.0],
                 float(rates[0]), float(rates[1]), float(rates[2]), thrust,
             )  # fmt: skip
+        self._flush()
         self.counters.setpoints_sent += 1
 
     def send_mocap(self, position_m: FloatArray, quaternion: FloatArray, time_s: float) -> None:
@@ -352,13 +270,16 @@ class MavlinkLink:
         usec = int(time_s * 1e6)
         if self.config.mocap_message == "vision_position_estimate":
             roll, pitch, yaw = euler_zyx_from_rotation(R)
-            self.mav.vision_position_estimate_send(usec, north, east, down, roll, pitch, yaw)
+            self.codec.messages.vision_position_estimate_send(
+                usec, north, east, down, roll, pitch, yaw
+            )
         else:
             q = [float(v) for v in quaternion_from_rotation(R)]
             nan21 = [math.nan] * 21
-            self.mav.odometry_send(
+            self.codec.messages.odometry_send(
                 usec, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
                 north, east, down, q, math.nan, math.nan, math.nan,
                 math.nan, math.nan, math.nan, nan21, nan21,
             )  # fmt: skip
+        self._flush()
         self.counters.mocap_sent += 1

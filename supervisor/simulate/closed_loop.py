@@ -21,6 +21,7 @@ import numpy as np
 
 from controllers.equilibria import Reference, bar_equilibrium
 from geometry.frames import euler_zyx_from_quaternion
+from geometry.state import uav_position
 from mocap.qtm_protocol import BodyPose
 from mocap.qtm_protocol import MocapFrame as QtmFrame
 from sim.measurement import MocapFrame as SimFrame
@@ -214,7 +215,7 @@ class ClosedLoop:
         else:
             reference = Reference((position[0], position[1], position[2]), yaw, (yaw, yaw), 0.0)
             x = bar_equilibrium(self.config.system.to_params(), reference).x
-            self.plant.place_hanging((x[12:15], x[24:27]), (yaw, yaw))
+            self.plant.place_hanging((uav_position(x, 1), uav_position(x, 2)), (yaw, yaw))
 
     def resting_heights(self) -> tuple[float, float, float]:
         """Heights of the bar's and the UAVs' centres [m] when all rest on the ground."""

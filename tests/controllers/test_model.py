@@ -8,17 +8,10 @@ from collections.abc import Callable
 import numpy as np
 
 from controllers.equilibria import Reference, bar_equilibrium
-from controllers.model import (
-    P_B,
-    TH_B,
-    V_B,
-    W_B,
-    BarSystemModel,
-    PayloadModel,
-    uav_slices,
-)
+from controllers.model import BarSystemModel, PayloadModel
 from controllers.params import BarSystemParams, UavParams
 from geometry.frames import rotation_from_euler_zyx
+from geometry.state import P_B, TH_B, V_B, W_B, uav_slices
 from tests.conftest import uneven_params
 
 Vector = np.ndarray

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from geometry import frames
-from geometry.frames import FloatArray
+from geometry.arrays import FloatArray
 from mocap.client import FrameReceiver, MocapSource, QtmClient
 from mocap.qtm_protocol import (
     GREETING,

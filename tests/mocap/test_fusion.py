@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from geometry import frames
-from geometry.frames import FloatArray
+from geometry.arrays import FloatArray
 from mocap.fusion import CaptureClock, FusionConfig, MocapFusion, RigidBodyFilter
 from mocap.qtm_protocol import BodyPose, MocapFrame
 

@@ -27,6 +27,6 @@ def test_a_truncated_datagram_does_not_spoil_the_next_one() -> None:
     px4 = Px4Endpoint(0, _RestingAirframe(), local_port=0, client_port=0)
     link.handle_datagram(frame[:7], ("127.0.0.1", 1))
     link.handle_datagram(frame, ("127.0.0.1", 1))
-    assert link.counters.messages == 1 and link.armed
+    assert link.counters.messages == 1 and link.session.armed
     px4.handle_datagram(frame[:9], 0.0)
     assert px4.handle_datagram(frame, 0.0)
