@@ -11,10 +11,13 @@ from __future__ import annotations
 import contextlib
 import math
 import secrets
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
+import pydantic_core
 from fastapi import (
+    APIRouter,
     Depends,
     FastAPI,
     Header,
@@ -24,21 +27,44 @@ from fastapi import (
     WebSocket,
     WebSocketDisconnect,
 )
+from fastapi import params as fastapi_params
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
-from api.models import KillRequest, ModeRequest, SetpointBody
+from api.models import KillRequest, ModeBody, SetpointBody
 from controllers.equilibria import EquilibriumError
 from controllers.params import BarSystemParams
 from supervisor.flight.equilibrium_summary import equilibrium_summary
-from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoint
-from supervisor.ipc.client import FlightClient, Reply
-from supervisor.logs.flight_log import finite_or_none
+from supervisor.flight.operator_requests import (
+    ClearSetpointsRequest,
+    ControllerRequest,
+    ModeRequest,
+    OperatorEvent,
+    Outcome,
+    QueueRequest,
+    Reply,
+    SetpointsQuery,
+)
+from supervisor.ipc.client import FlightClient
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-HTTP_STATUS = {"ok": 200, "refused": 409, "invalid": 422, "unavailable": 503}
+HTTP_STATUS = {
+    Outcome.OK: 200,
+    Outcome.REFUSED: 409,
+    Outcome.INVALID: 422,
+    Outcome.UNAVAILABLE: 503,
+}
 TELEMETRY_STALE_S = 0.5
+
+
+def _json_text(value: Any) -> str:
+    """JSON without NaN (JSON has none): non-finite numbers become null."""
+    return pydantic_core.to_json(value, inf_nan_mode="null").decode()
+
+
+def _without_nan(value: Any) -> Any:
+    return pydantic_core.from_json(_json_text(value))
 
 
 def _answer(reply: Reply) -> JSONResponse:
@@ -46,17 +72,13 @@ def _answer(reply: Reply) -> JSONResponse:
         return JSONResponse({"accepted": True, **reply.data})
     return JSONResponse(
         {"accepted": False, "detail": reply.reason, **reply.data},
-        status_code=HTTP_STATUS.get(reply.outcome, 503),
+        status_code=HTTP_STATUS[reply.outcome],
     )
 
 
-def create_app(
-    flight: FlightClient,
-    params: BarSystemParams,
-    arena: Arena,
-    token: str,
-) -> FastAPI:
-    """The FastAPI application serving ``flight``."""
+def create_app(flight: FlightClient, params: BarSystemParams, token: str) -> FastAPI:
+    """The FastAPI application serving ``flight`` (``params``: the system, for the
+    equilibria it reports)."""
     app = FastAPI(
         title="uavbar-supervisor",
         summary="Two PX4 quadrotors carrying a bar under MPC: arm, fly, queue setpoints, abort.",
@@ -71,7 +93,20 @@ def create_app(
             {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
             for e in error.errors()
         ]
-        return JSONResponse({"detail": finite_or_none(problems)}, status_code=422)
+        return JSONResponse({"detail": _without_nan(problems)}, status_code=422)
+
+    auth = Depends(_bearer_check(token))
+    app.include_router(_status_routes(flight, params))
+    app.include_router(_operator_routes(flight), dependencies=[auth])
+    app.include_router(_setpoint_routes(flight, auth))
+    app.include_router(_telemetry_route(flight))
+    if STATIC_DIR.is_dir():
+        app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")
+    return app
+
+
+def _bearer_check(token: str) -> Callable[[str | None], None]:
+    """The dependency that refuses a request without ``Authorization: Bearer token``."""
 
     def authorized(authorization: Annotated[str | None, Header()] = None) -> None:
         scheme, _, presented = (authorization or "").partition(" ")
@@ -84,81 +119,22 @@ def create_app(
                 headers={"WWW-Authenticate": "Bearer"},
             )
 
-    Auth = Depends(authorized)
+    return authorized
 
-    @app.get("/api/status")
+
+def _status_routes(flight: FlightClient, params: BarSystemParams) -> APIRouter:
+    router = APIRouter()
+
+    @router.get("/api/status")
     async def status() -> JSONResponse:
         """Mode, controller, vehicles, bar, mocap health, setpoints and tick timing."""
         if flight.latest is None:
             return JSONResponse({"detail": "no telemetry from the flight process yet"}, 503)
-        body = {k: v for k, v in flight.latest.items() if k != "kind"}
+        body = dict(flight.latest)
         body["stale"] = flight.telemetry_age_s > TELEMETRY_STALE_S or not flight.connected
         return JSONResponse(body)
 
-    async def operator(kind: str) -> JSONResponse:
-        return _answer(await flight.request(kind))
-
-    @app.post("/api/arm", dependencies=[Auth])
-    async def arm() -> JSONResponse:
-        """Arm both vehicles (motors idle on the ground)."""
-        return await operator("arm")
-
-    @app.post("/api/takeoff", dependencies=[Auth])
-    async def takeoff() -> JSONResponse:
-        """Lift the bar to the take-off height and hover."""
-        return await operator("takeoff")
-
-    @app.post("/api/land", dependencies=[Auth])
-    async def land() -> JSONResponse:
-        """Set the bar down, land both UAVs and disarm."""
-        return await operator("land")
-
-    @app.post("/api/abort", dependencies=[Auth])
-    async def abort() -> JSONResponse:
-        """Coordinated landing from any airborne mode, now. Always accepted."""
-        return await operator("abort")
-
-    @app.post("/api/disarm", dependencies=[Auth])
-    async def disarm() -> JSONResponse:
-        """Disarm on the ground."""
-        return await operator("disarm")
-
-    @app.post("/api/kill", dependencies=[Auth])
-    async def kill(body: KillRequest) -> JSONResponse:
-        """Force-disarm both vehicles at once, in the air too: they fall."""
-        return await operator("kill")
-
-    @app.post("/api/mode", dependencies=[Auth])
-    async def mode(body: ModeRequest) -> JSONResponse:
-        """Switch the controller (bumpless in flight)."""
-        return _answer(await flight.request("controller", controller=body.controller))
-
-    @app.get("/api/setpoints")
-    async def get_setpoints() -> JSONResponse:
-        """The active setpoint and the queue."""
-        return _answer(await flight.request("setpoints"))
-
-    @app.post("/api/setpoints", dependencies=[Auth])
-    async def post_setpoints(body: SetpointBody | list[SetpointBody]) -> JSONResponse:
-        """Queue one setpoint or a list, all or none, each validated against the arena and
-        equilibrium feasibility first."""
-        entries = body if isinstance(body, list) else [body]
-        if not entries:
-            raise HTTPException(422, "an empty list queues nothing")
-        for index, entry in enumerate(entries):
-            try:
-                validate_setpoint(entry.to_setpoint(), params, arena)
-            except SetpointError as error:
-                where = f"setpoint {index}: " if len(entries) > 1 else ""
-                raise HTTPException(422, f"{where}{error}") from None
-        return _answer(await flight.request("queue", setpoints=[e.model_dump() for e in entries]))
-
-    @app.delete("/api/setpoints", dependencies=[Auth])
-    async def delete_setpoints() -> JSONResponse:
-        """Drop the queue and the active setpoint: the bar holds where its reference is."""
-        return _answer(await flight.request("clear_setpoints"))
-
-    @app.get("/api/equilibria")
+    @router.get("/api/equilibria")
     async def equilibria(
         theta_l: Annotated[float, Query(description="cable angle θ_l [rad], in [0, π/2)")],
     ) -> dict[str, Any]:
@@ -170,7 +146,84 @@ def create_app(
         except EquilibriumError as error:
             raise HTTPException(422, str(error)) from None
 
-    @app.websocket("/api/telemetry")
+    return router
+
+
+def _operator_routes(flight: FlightClient) -> APIRouter:
+    """The mode requests and the controller switch (all need the token)."""
+    router = APIRouter()
+
+    async def operator(kind: OperatorEvent) -> JSONResponse:
+        return _answer(await flight.request(ModeRequest(kind=kind)))
+
+    @router.post("/api/arm")
+    async def arm() -> JSONResponse:
+        """Arm both vehicles (motors idle on the ground)."""
+        return await operator("arm")
+
+    @router.post("/api/takeoff")
+    async def takeoff() -> JSONResponse:
+        """Lift the bar to the take-off height and hover."""
+        return await operator("takeoff")
+
+    @router.post("/api/land")
+    async def land() -> JSONResponse:
+        """Set the bar down, land both UAVs and disarm."""
+        return await operator("land")
+
+    @router.post("/api/abort")
+    async def abort() -> JSONResponse:
+        """Coordinated landing from any airborne mode, now. Always accepted."""
+        return await operator("abort")
+
+    @router.post("/api/disarm")
+    async def disarm() -> JSONResponse:
+        """Disarm on the ground."""
+        return await operator("disarm")
+
+    @router.post("/api/kill")
+    async def kill(body: KillRequest) -> JSONResponse:
+        """Force-disarm both vehicles at once, in the air too: they fall."""
+        return await operator("kill")
+
+    @router.post("/api/mode")
+    async def mode(body: ModeBody) -> JSONResponse:
+        """Switch the controller (bumpless in flight)."""
+        return _answer(await flight.request(ControllerRequest(controller=body.controller)))
+
+    return router
+
+
+def _setpoint_routes(flight: FlightClient, auth: fastapi_params.Depends) -> APIRouter:
+    """Reading the queue is open; changing it needs the token (``auth``)."""
+    router = APIRouter()
+
+    @router.get("/api/setpoints")
+    async def get_setpoints() -> JSONResponse:
+        """The active setpoint and the queue."""
+        return _answer(await flight.request(SetpointsQuery()))
+
+    @router.post("/api/setpoints", dependencies=[auth])
+    async def post_setpoints(body: SetpointBody | list[SetpointBody]) -> JSONResponse:
+        """Queue one setpoint or a list, all or none, each validated against the arena and
+        equilibrium feasibility (by the flight process, once)."""
+        entries = body if isinstance(body, list) else [body]
+        if not entries:
+            raise HTTPException(422, "an empty list queues nothing")
+        return _answer(await flight.request(QueueRequest(setpoints=entries)))
+
+    @router.delete("/api/setpoints", dependencies=[auth])
+    async def delete_setpoints() -> JSONResponse:
+        """Drop the queue and the active setpoint: the bar holds where its reference is."""
+        return _answer(await flight.request(ClearSetpointsRequest()))
+
+    return router
+
+
+def _telemetry_route(flight: FlightClient) -> APIRouter:
+    router = APIRouter()
+
+    @router.websocket("/api/telemetry")
     async def telemetry(websocket: WebSocket) -> None:
         """Telemetry messages as JSON, at the flight process's rate (25 Hz)."""
         await websocket.accept()
@@ -179,7 +232,7 @@ def create_app(
             # A pause in telemetry keeps the socket open: the page marks its data stale.
             while True:
                 message = await subscription.next()
-                await websocket.send_json({k: v for k, v in message.items() if k != "kind"})
+                await websocket.send_text(_json_text(message))
         except WebSocketDisconnect:
             pass
         finally:
@@ -187,6 +240,4 @@ def create_app(
             with contextlib.suppress(RuntimeError):
                 await websocket.close()
 
-    if STATIC_DIR.is_dir():
-        app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")
-    return app
+    return router

@@ -35,6 +35,7 @@ from controllers.params import (
     UavParams,
 )
 from controllers.qp.registry import BACKEND_NAMES
+from supervisor.errors import OperatorError
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -48,7 +49,7 @@ CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 TOKEN_ENV = "UAVBAR_TOKEN"
 
 
-class ConfigError(Exception):
+class ConfigError(OperatorError):
     """A setup that cannot be used: unreadable file, unknown key, wrong type or value."""
 
 

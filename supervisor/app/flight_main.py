@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import signal
 import socket
 import time
@@ -21,9 +22,12 @@ from supervisor.app.assembly import (
 )
 from supervisor.app.config import Config
 from supervisor.ipc.channel import Channel
+from supervisor.logs.logging_setup import queued_logging
 from supervisor.mavlink.link import MavlinkLink
 from supervisor.runtime.cpu import raise_priority, single_threaded_blas
 from supervisor.runtime.flight_process import FlightProcess, FlightSettings
+
+log = logging.getLogger(__name__)
 
 
 def _host_port(address: str) -> tuple[str, int]:
@@ -70,7 +74,6 @@ def run_flight_process(
 ) -> None:
     """Child-process entry of ``serve``."""
     single_threaded_blas()
-    print(f"flight process: {raise_priority()}", flush=True)
 
     async def main() -> None:
         command_channel = await Channel.open(commands)
@@ -82,4 +85,6 @@ def run_flight_process(
                 with contextlib.suppress(Exception):
                     await channel.close()
 
-    asyncio.run(main())
+    with queued_logging():
+        log.info("flight process: %s", raise_priority())
+        asyncio.run(main())

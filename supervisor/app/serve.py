@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import multiprocessing
 import multiprocessing.connection
 import os
 import secrets
 import signal
 import socket
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing.process import BaseProcess
@@ -26,11 +26,13 @@ from typing import Any
 
 from api.app import create_app
 from api.server import HttpServer, bind
-from supervisor.app.assembly import arena_from_config
 from supervisor.app.config import TOKEN_ENV, Config, load_config
+from supervisor.flight.operator_requests import ShutdownRequest
 from supervisor.ipc.channel import Channel
 from supervisor.ipc.client import FlightClient
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
+
+log = logging.getLogger(__name__)
 
 SPAWN = multiprocessing.get_context("spawn")
 WORLD_START_TIMEOUT_S = 60.0
@@ -109,7 +111,7 @@ async def serve(setup: Setup) -> int:
     world_pipe: multiprocessing.connection.Connection | None = None
     if config.sim.embedded:
         world, world_pipe, started = await asyncio.to_thread(_start_world, setup)
-        print(f"simulated world: QTM {started['qtm']}, PX4s {', '.join(started['vehicles'])}")
+        log.info("simulated world: QTM %s, PX4s %s", started["qtm"], ", ".join(started["vehicles"]))
         world_addresses = started
     pairs = [socket.socketpair() for _ in range(2)]
     flight = SPAWN.Process(
@@ -125,13 +127,12 @@ async def serve(setup: Setup) -> int:
     os.nice(API_NICENESS)
     commands, urgent = [await Channel.open(parent_end) for parent_end, _ in pairs]
     client = FlightClient(commands, urgent)
-    app = create_app(client, config.system.to_params(), arena_from_config(config), token)
+    app = create_app(client, config.system.to_params(), token)
     http = HttpServer(app, http_socket)
     host = config.api.host
-    print(f"uavbar-supervisor serving http://{host}:{http.port}/ (setup {config.name})")
+    log.info("uavbar-supervisor serving http://%s:%d/ (setup %s)", host, http.port, config.name)
     if generated:
-        print(f"API token (generated; set {TOKEN_ENV} or api.token to choose one): {token}")
-    sys.stdout.flush()
+        log.info("API token (generated; set %s or api.token to choose one): %s", TOKEN_ENV, token)
 
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
@@ -144,7 +145,7 @@ async def serve(setup: Setup) -> int:
             stopper = group.create_task(stop.wait())
             await asyncio.wait({flight_link, stopper}, return_when=asyncio.FIRST_COMPLETED)
             if not flight_link.done():
-                await client.request("shutdown")
+                await client.request(ShutdownRequest())
                 with contextlib.suppress(TimeoutError):
                     async with asyncio.timeout(LANDING_TIMEOUT_S + 10.0):
                         await flight_link

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import signal
 from collections.abc import Callable
 from multiprocessing.connection import Connection
@@ -21,7 +22,10 @@ from supervisor.app.assembly import (
     px4_params_from_config,
 )
 from supervisor.app.config import Config
+from supervisor.logs.logging_setup import configure_logging
 from supervisor.runtime.cpu import single_threaded_blas
+
+log = logging.getLogger(__name__)
 
 
 def build_world(
@@ -79,6 +83,7 @@ async def run_world(
 def run_world_process(config: Config, ready: Connection) -> None:
     """Child-process entry of ``serve``: free ports, report them on ``ready``, run until
     SIGTERM or until the parent closes its end of ``ready``."""
+    configure_logging()
     single_threaded_blas()
 
     async def main() -> None:
@@ -102,11 +107,18 @@ def run_sitl(config: Config) -> int:
     """``uavbar-supervisor sitl``: the world on the conventional ports, in the foreground."""
 
     def show(addresses: dict[str, Any]) -> None:
-        print(f"QTM RT server   tcp {addresses['qtm']} (bodies: {', '.join(config.mocap.bodies)})")
+        bodies = ", ".join(config.mocap.bodies)
+        log.info("QTM RT server   tcp %s (bodies: %s)", addresses["qtm"], bodies)
         for i, vehicle in enumerate(addresses["vehicles"]):
             port = config.vehicles.ports[i] or 14540 + i
-            print(f"PX4 vehicle {i + 1}   udp {vehicle} -> 127.0.0.1:{port} (system id {i + 1})")
-        print("running in real time; Ctrl-C stops", flush=True)
+            log.info(
+                "PX4 vehicle %d   udp %s -> 127.0.0.1:%d (system id %d)",
+                i + 1,
+                vehicle,
+                port,
+                i + 1,
+            )
+        log.info("running in real time; Ctrl-C stops")
 
     async def main() -> None:
         stop = asyncio.Event()

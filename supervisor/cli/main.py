@@ -15,6 +15,8 @@ import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import pydantic_core
+
 from benchmarks.mpc import add_arguments as _bench_arguments
 from benchmarks.mpc import run as run_mpc_benchmark
 from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
@@ -24,7 +26,8 @@ from supervisor.cli.console import SimulationProgress, format_summary
 from supervisor.cli.usage import UsageError
 from supervisor.flight.core import CONTROLLERS
 from supervisor.flight.equilibrium_summary import equilibrium_summary
-from supervisor.logs.flight_log import finite_or_none, read_flight_log
+from supervisor.logs.flight_log import read_flight_log
+from supervisor.logs.logging_setup import configure_logging
 from supervisor.logs.report import summarize, write_report
 from supervisor.runtime.cpu import single_threaded_blas
 from supervisor.simulate.closed_loop import result_summary, run_scenario
@@ -105,7 +108,7 @@ def _simulate(config: Config, args: argparse.Namespace) -> int:
         if args.log is not None:
             summary["log"] = str(result.log_path)
     if args.json:
-        print(json.dumps(finite_or_none(summary), allow_nan=False))
+        print(pydantic_core.to_json(summary, inf_nan_mode="null").decode())
     else:
         print(format_summary(summary))
     return 0 if result.completed else 1
@@ -204,6 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    configure_logging()
     try:
         config = load_config(args.config, args.overrides)
         handler: Handler = args.handler

@@ -4,12 +4,8 @@ No I/O and no clock of its own: the asyncio service calls ``tick`` on the wall c
 fast simulator calls the very same object against the physics plant. Operator requests
 (``request``, ``set_controller``, ``queue_setpoints``) are applied between ticks.
 
-Flight phases inside the modes:
-* takeoff — ``climb``: each UAV flies alone (``uav_pd``) to just above its bar end until
-  the cables are taut; ``lift``: the MPC raises the bar to the take-off height.
-* hover / tracking — the MPC regulates to the rate-limited reference.
-* landing / abort — ``lower``: the MPC sets the bar down; ``descend``: each UAV flies alone,
-  moves clear of its bar end and descends; motors stop on the ground.
+Inside the modes (``supervisor.flight.modes``) the core moves through flight phases
+(``supervisor.flight.phases``). What a safety monitor forced is kept as a ``Notice``.
 """
 
 from __future__ import annotations
@@ -17,6 +13,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
 
@@ -44,13 +41,14 @@ from geometry.state import (
     uav_yaws,
 )
 from supervisor.flight.estimation import Estimate
-from supervisor.flight.modes import FlightModes, Mode, Transition
-from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor
+from supervisor.flight.modes import Event, FlightModes, Mode, Transition
+from supervisor.flight.phases import Phase, next_phase
+from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
+from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
 from supervisor.flight.setpoints import (
     Arena,
-    RateLimits,
-    ReferenceShaper,
     Setpoint,
+    SetpointError,
     SetpointQueue,
     validate_setpoint,
 )
@@ -81,18 +79,36 @@ class CoreSettings:
     pd_gains: UavPdGains = field(default_factory=UavPdGains)
 
 
+class NoticeKind(StrEnum):
+    ABORT = "abort"  # the monitors started a coordinated landing
+    SWING = "swing"  # the decentralized MPC handed the bar to the centralized one
+
+
+@dataclass(frozen=True)
+class Notice:
+    """A decision the safety monitors forced, in words an operator reads."""
+
+    kind: NoticeKind
+    text: str
+
+    def __str__(self) -> str:
+        return f"{self.kind.value}: {self.text}"
+
+
 @dataclass(frozen=True)
 class TickResult:
-    """Everything one tick decided."""
+    """Everything one tick decided: ``events`` moved the mode, ``notices`` are what the
+    safety monitors forced."""
 
     commands: tuple[UavCommand, UavCommand]
     mode: Mode
-    phase: str
+    phase: Phase
     plan: Plan | None
     reference: Reference | None
     faults: list[Fault]
     record: TickRecord
-    events: list[str] = field(default_factory=list)
+    events: list[Event] = field(default_factory=list)
+    notices: list[Notice] = field(default_factory=list)
 
 
 class FlightCore:
@@ -124,10 +140,10 @@ class FlightCore:
         self.modes = FlightModes()
         self.queue = SetpointQueue()
         self.safety = SafetyMonitor(params, arena, safety or SafetyLimits())
-        self.notices: deque[tuple[float, str]] = deque(maxlen=NOTICES_KEPT)
+        self.notices: deque[tuple[float, Notice]] = deque(maxlen=NOTICES_KEPT)
         """The latest decisions the safety monitors forced (time, what and why), oldest
         first: what an operator must be told even if no screen was watching."""
-        self.phase = "ground"
+        self.phase = Phase.GROUND
         self._limits = mpc_settings["centralized"].limits
         self._shaper: ReferenceShaper | None = None
         self._hold_target: Reference | None = None
@@ -147,9 +163,9 @@ class FlightCore:
         self._low_since_s: float | None = None
 
     # ---- operator interface -------------------------------------------------------------
-    def request(self, event: str, now_s: float) -> Transition:
+    def request(self, event: Event, now_s: float) -> Transition:
         """An operator request (arm, disarm, takeoff, land, abort, kill)."""
-        if event == "takeoff" and self.modes.mode is Mode.ARMED and not self._mocap_fresh():
+        if event is Event.TAKEOFF and self.modes.mode is Mode.ARMED and not self._mocap_fresh():
             return Transition(
                 False,
                 self.modes.mode,
@@ -200,10 +216,17 @@ class FlightCore:
         self._entered(Mode.HOVER, now_s)
 
     def queue_setpoints(self, setpoints: list[Setpoint]) -> None:
-        """Queue setpoints, all or none: each is validated against the arena and
-        equilibrium feasibility, and they must fit the queue (raises ``SetpointError``)."""
-        for setpoint in setpoints:
-            validate_setpoint(setpoint, self.params, self.arena)
+        """Queue setpoints, all or none: they must fit the queue (checked first, raises
+        ``SetpointQueueFullError``) and each is validated against the arena and equilibrium
+        feasibility (raises ``SetpointError`` naming which one)."""
+        self.queue.check_room(len(setpoints))
+        for index, setpoint in enumerate(setpoints):
+            try:
+                validate_setpoint(setpoint, self.params, self.arena)
+            except SetpointError as error:
+                if len(setpoints) == 1:
+                    raise
+                raise SetpointError(f"setpoint {index}: {error}") from None
         self.queue.extend(setpoints)
 
     def clear_setpoints(self) -> None:
@@ -227,7 +250,7 @@ class FlightCore:
         self._last_estimate = estimate
         self._mpc_reference = None
         self.mpc_was_prepared = None
-        events: list[str] = []
+        events: list[Event] = []
         mode = self.modes.mode
         plan: Plan | None = None
         reference: Reference | None = None
@@ -249,26 +272,17 @@ class FlightCore:
             links_connected,
             reference.bar_yaw_rad if reference is not None else None,
         )
-        swings = [f.message for f in faults if f.response is Response.CENTRALIZE]
-        if swings and self.controller == "decentralized":
-            self.set_controller("centralized", now_s)
-            events.append(f"swing: {swings[0]}; switched to the centralized MPC")
-        serious = any(f.response in (Response.ABORT, Response.LAND_OTHER) for f in faults)
-        if serious and self.modes.mode.airborne and self.modes.mode is not Mode.ABORT:
-            self.modes.handle("fault", now_s)
-            self._entered(Mode.ABORT, now_s)
-            events.append("abort: " + "; ".join(f.message for f in faults))
-        self.notices.extend((now_s, e) for e in events if e.startswith(("abort:", "swing:")))
+        notices = self._respond(faults, now_s)
+        self.notices.extend((now_s, notice) for notice in notices)
         # A vehicle whose link is lost is left to its own failsafe: it gets no commands.
         commands = (
             commands[0] if links_connected[0] else UavCommand.off(),
             commands[1] if links_connected[1] else UavCommand.off(),
         )
         for event in events:
-            if event in ("airborne", "track", "hold", "landed"):
-                before = self.modes.mode
-                if self.modes.handle(event, now_s).accepted and self.modes.mode is not before:
-                    self._entered(self.modes.mode, now_s)
+            before = self.modes.mode
+            if self.modes.handle(event, now_s).accepted and self.modes.mode is not before:
+                self._entered(self.modes.mode, now_s)
         u = np.array([v for c in commands for v in (c.thrust_n, *c.torque_nm)])
         self._last_u = u
         state_ref = (
@@ -290,35 +304,53 @@ class FlightCore:
             mocap_age_ms=estimate.age_s * 1e3,
         )
         return TickResult(
-            commands, self.modes.mode, self.phase, plan, reference, faults, record, events
+            commands, self.modes.mode, self.phase, plan, reference, faults, record, events, notices
         )
+
+    def _respond(self, faults: list[Fault], now_s: float) -> list[Notice]:
+        """Carry out the one response the faults call for (``chosen_response``)."""
+        response = chosen_response(faults)
+        if response is Response.CENTRALIZE and self.controller == "decentralized":
+            self.set_controller("centralized", now_s)
+            swing = next(f for f in faults if f.response is Response.CENTRALIZE)
+            return [Notice(NoticeKind.SWING, f"{swing.message}; switched to the centralized MPC")]
+        airborne = self.modes.mode.airborne and self.modes.mode is not Mode.ABORT
+        if response is Response.ABORT and airborne:
+            self.modes.handle(Event.FAULT, now_s)
+            self._entered(Mode.ABORT, now_s)
+            return [Notice(NoticeKind.ABORT, "; ".join(f.message for f in faults))]
+        return []
 
     # ---- phases ---------------------------------------------------------------------------
     def _entered(self, mode: Mode, now_s: float) -> None:
         x = self._last_estimate.x if self._last_estimate is not None else None
         if mode is Mode.TAKEOFF and x is not None and self._last_estimate is not None:
             self._remember_ground(self._last_estimate)
-            self.phase = "climb"
+            self._enter_phase(Phase.CLIMB)
             self._set_climb_targets(x)
         elif mode in (Mode.LANDING, Mode.ABORT):
-            self.phase = "lower" if self.phase not in ("climb", "descend") else "descend"
-            if self.phase == "descend" and x is not None:
+            flying_alone = self.phase in (Phase.CLIMB, Phase.DESCEND)
+            self._enter_phase(Phase.DESCEND if flying_alone else Phase.LOWER)
+            if self.phase is Phase.DESCEND and x is not None:
                 self._set_descend_targets(x)
             self.queue.clear()
             if x is not None:
                 self._shaper = ReferenceShaper(self._current_reference(x), self._rates(mode))
         elif mode is Mode.HOVER:
-            self.phase = "hover"
+            self._enter_phase(Phase.HOVER)
             if self._shaper is not None:
                 self._hold_target = self._shaper.current
         elif mode is Mode.TRACKING:
-            self.phase = "tracking"
+            self._enter_phase(Phase.TRACKING)
         elif mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
-            self.phase = "ground"
+            self._enter_phase(Phase.GROUND)
             self._shaper = None
             self._hold_target = None
             for c in self.controllers.values():
                 c.reset()
+
+    def _enter_phase(self, phase: Phase) -> None:
+        self.phase = next_phase(self.phase, phase)
 
     def _rates(self, mode: Mode) -> RateLimits:
         if mode is Mode.ABORT:
@@ -425,10 +457,10 @@ class FlightCore:
             controller.prepare(self._last_estimate.x, self._mpc_reference)
 
     def _takeoff(
-        self, now_s: float, estimate: Estimate, events: list[str]
+        self, now_s: float, estimate: Estimate, events: list[Event]
     ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
         x = estimate.x
-        if self.phase == "climb":
+        if self.phase is Phase.CLIMB:
             commands = self._pd_commands(x, (0.0, 0.0))
             ends = bar_ends(x, self.params.arms_m)
             taut = all(
@@ -438,7 +470,7 @@ class FlightCore:
             )
             speeds = [np.linalg.norm(uav_velocity(x, i)) for i in (1, 2)]
             if taut and max(speeds) < 0.3:
-                self.phase = "lift"
+                self._enter_phase(Phase.LIFT)
                 self._shaper = ReferenceShaper(
                     self._current_reference(x), self.settings.takeoff_rates
                 )
@@ -456,7 +488,7 @@ class FlightCore:
         reference = self._shaper.update(self._hold_target, now_s)
         commands, plan = self._mpc(now_s, x, reference)
         if reference == self._hold_target and self._reached(x, reference):
-            events.append("airborne")
+            events.append(Event.AIRBORNE)
         return commands, plan, reference
 
     def _reached(self, x: FloatArray, reference: Reference) -> bool:
@@ -468,7 +500,7 @@ class FlightCore:
         )
 
     def _fly(
-        self, now_s: float, estimate: Estimate, events: list[str]
+        self, now_s: float, estimate: Estimate, events: list[Event]
     ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
         x = estimate.x
         if self._shaper is None:
@@ -484,19 +516,19 @@ class FlightCore:
         if setpoint is not None:
             target = setpoint.reference()
             if self.modes.mode is Mode.HOVER:
-                events.append("track")
+                events.append(Event.TRACK)
         elif self.modes.mode is Mode.TRACKING:
             self._hold_target = target
-            events.append("hold")
+            events.append(Event.HOLD)
         reference = self._shaper.update(target, now_s)
         commands, plan = self._mpc(now_s, x, reference)
         return commands, plan, reference
 
     def _land(
-        self, now_s: float, estimate: Estimate, events: list[str]
+        self, now_s: float, estimate: Estimate, events: list[Event]
     ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
         x = estimate.x
-        if self.phase == "lower":
+        if self.phase is Phase.LOWER:
             if self._shaper is None:
                 self._shaper = ReferenceShaper(
                     self._current_reference(x), self._rates(self.modes.mode)
@@ -512,7 +544,7 @@ class FlightCore:
             commands, plan = self._mpc(now_s, x, reference)
             bar_z, bar_vz = bar_position(x)[2], bar_velocity(x)[2]
             if bar_z < self._ground_bar_z + 0.03 or (reference == target and abs(bar_vz) < 0.05):
-                self.phase = "descend"
+                self._enter_phase(Phase.DESCEND)
                 self._yaw_hold = uav_yaws(x)
                 self._set_descend_targets(x)
             return commands, plan, reference
@@ -529,6 +561,6 @@ class FlightCore:
             self._low_since_s = now_s
         settled_since = self._low_since_s
         if settled_since is not None and now_s - settled_since >= self.settings.settle_on_ground_s:
-            events.append("landed")
+            events.append(Event.LANDED)
             return (UavCommand.off(), UavCommand.off()), None, None
         return commands, None, None

@@ -10,7 +10,7 @@ anything unexpected goes to the safe state). ``abort`` and ``kill`` are always a
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
+from enum import Enum, StrEnum
 
 
 class Mode(Enum):
@@ -30,41 +30,65 @@ class Mode(Enum):
 
 AIRBORNE = frozenset({Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING, Mode.LANDING, Mode.ABORT})
 
-OPERATOR_REQUESTS = ("arm", "disarm", "takeoff", "land", "abort", "kill")
 
-TRANSITIONS: dict[tuple[Mode, str], Mode] = {
-    (Mode.DISARMED, "arm"): Mode.ARMED,
-    (Mode.ARMED, "disarm"): Mode.DISARMED,
-    (Mode.ARMED, "takeoff"): Mode.TAKEOFF,
-    (Mode.TAKEOFF, "airborne"): Mode.HOVER,
-    (Mode.HOVER, "track"): Mode.TRACKING,
-    (Mode.TRACKING, "hold"): Mode.HOVER,
-    (Mode.TAKEOFF, "land"): Mode.LANDING,
-    (Mode.HOVER, "land"): Mode.LANDING,
-    (Mode.TRACKING, "land"): Mode.LANDING,
-    (Mode.LANDING, "landed"): Mode.DISARMED,
-    (Mode.ABORT, "landed"): Mode.DISARMED,
-    (Mode.KILLED, "disarm"): Mode.DISARMED,
+class Event(StrEnum):
+    """What moves the mode: the operator's requests, then the tick core's own events."""
+
+    ARM = "arm"
+    DISARM = "disarm"
+    TAKEOFF = "takeoff"
+    LAND = "land"
+    ABORT = "abort"
+    KILL = "kill"
+    AIRBORNE = "airborne"  # take-off reached its height
+    TRACK = "track"  # a setpoint became active
+    HOLD = "hold"  # the queue ran empty
+    LANDED = "landed"  # motors stopped on the ground
+    FAULT = "fault"  # a safety monitor asked for a landing
+
+
+OPERATOR_REQUESTS = (
+    Event.ARM,
+    Event.DISARM,
+    Event.TAKEOFF,
+    Event.LAND,
+    Event.ABORT,
+    Event.KILL,
+)
+
+TRANSITIONS: dict[tuple[Mode, Event], Mode] = {
+    (Mode.DISARMED, Event.ARM): Mode.ARMED,
+    (Mode.ARMED, Event.DISARM): Mode.DISARMED,
+    (Mode.ARMED, Event.TAKEOFF): Mode.TAKEOFF,
+    (Mode.TAKEOFF, Event.AIRBORNE): Mode.HOVER,
+    (Mode.HOVER, Event.TRACK): Mode.TRACKING,
+    (Mode.TRACKING, Event.HOLD): Mode.HOVER,
+    (Mode.TAKEOFF, Event.LAND): Mode.LANDING,
+    (Mode.HOVER, Event.LAND): Mode.LANDING,
+    (Mode.TRACKING, Event.LAND): Mode.LANDING,
+    (Mode.LANDING, Event.LANDED): Mode.DISARMED,
+    (Mode.ABORT, Event.LANDED): Mode.DISARMED,
+    (Mode.KILLED, Event.DISARM): Mode.DISARMED,
     # abort: a coordinated landing from any airborne mode; on the ground it disarms.
-    (Mode.DISARMED, "abort"): Mode.DISARMED,
-    (Mode.ARMED, "abort"): Mode.DISARMED,
-    (Mode.TAKEOFF, "abort"): Mode.ABORT,
-    (Mode.HOVER, "abort"): Mode.ABORT,
-    (Mode.TRACKING, "abort"): Mode.ABORT,
-    (Mode.LANDING, "abort"): Mode.ABORT,
-    (Mode.ABORT, "abort"): Mode.ABORT,
-    (Mode.KILLED, "abort"): Mode.KILLED,
+    (Mode.DISARMED, Event.ABORT): Mode.DISARMED,
+    (Mode.ARMED, Event.ABORT): Mode.DISARMED,
+    (Mode.TAKEOFF, Event.ABORT): Mode.ABORT,
+    (Mode.HOVER, Event.ABORT): Mode.ABORT,
+    (Mode.TRACKING, Event.ABORT): Mode.ABORT,
+    (Mode.LANDING, Event.ABORT): Mode.ABORT,
+    (Mode.ABORT, Event.ABORT): Mode.ABORT,
+    (Mode.KILLED, Event.ABORT): Mode.KILLED,
     # faults detected by the safety monitors
-    (Mode.ARMED, "fault"): Mode.DISARMED,
-    (Mode.DISARMED, "fault"): Mode.DISARMED,
-    (Mode.KILLED, "fault"): Mode.KILLED,
+    (Mode.ARMED, Event.FAULT): Mode.DISARMED,
+    (Mode.DISARMED, Event.FAULT): Mode.DISARMED,
+    (Mode.KILLED, Event.FAULT): Mode.KILLED,
 }
 
 _HINTS = {
-    "takeoff": "arm first",
-    "land": "only an airborne system can land",
-    "disarm": "land first (or kill in an emergency)",
-    "arm": "only a disarmed system can be armed",
+    Event.TAKEOFF: "arm first",
+    Event.LAND: "only an airborne system can land",
+    Event.DISARM: "land first (or kill in an emergency)",
+    Event.ARM: "only a disarmed system can be armed",
 }
 
 
@@ -84,18 +108,18 @@ class FlightModes:
         self.mode = mode
         self.changed_at_s = 0.0
 
-    def handle(self, event: str, now_s: float) -> Transition:
+    def handle(self, event: Event, now_s: float) -> Transition:
         """Apply ``event``; ``kill`` goes to KILLED from anywhere, a fault outside the table
         to ABORT, anything else outside the table is refused."""
-        if event == "kill":
+        if event is Event.KILL:
             target: Mode | None = Mode.KILLED
-        elif event == "fault" and (self.mode, event) not in TRANSITIONS:
+        elif event is Event.FAULT and (self.mode, event) not in TRANSITIONS:
             target = Mode.ABORT
         else:
             target = TRANSITIONS.get((self.mode, event))
         if target is None:
             hint = _HINTS.get(event)
-            reason = f"'{event}' is not allowed in mode '{self.mode.value}'" + (
+            reason = f"'{event.value}' is not allowed in mode '{self.mode.value}'" + (
                 f": {hint}" if hint else ""
             )
             return Transition(False, self.mode, reason)

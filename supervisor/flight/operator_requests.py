@@ -1,68 +1,175 @@
-"""Operator requests (from the API channel) applied to the tick core, between ticks.
+"""Operator requests, typed, and how the tick core answers them (between ticks).
 
-Pure: a request message in, a reply message out (``{"id", "outcome", "reason", "data"}``
-with outcome ``ok``, ``refused`` or ``invalid``). The tick core's own checks decide; this
-module only translates.
+Pure: a request in, a ``Reply`` out. The requests are pydantic models discriminated on
+``kind``, so the REST body, the message between the processes and what the core receives
+are one parse of one type; a setpoint is validated (arena, equilibrium) once, by the core.
+The tick core's own checks decide; this module only translates.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from enum import StrEnum
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.flight.core import FlightCore
-from supervisor.flight.modes import OPERATOR_REQUESTS
-from supervisor.flight.setpoints import Setpoint, SetpointError
+from supervisor.flight.modes import Event
+from supervisor.flight.setpoints import Setpoint, SetpointError, SetpointQueueFullError
 
-REQUEST_KINDS = (*OPERATOR_REQUESTS, "controller", "queue", "clear_setpoints", "setpoints")
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+
+
+class _Message(BaseModel):
+    # NaN/inf never reach JSON: the serializer writes them as null.
+    model_config = ConfigDict(extra="forbid", frozen=True, ser_json_inf_nan="null")
+
+
+class SetpointFields(_Message):
+    """One setpoint: bar centre [m, arena frame], bar yaw [rad], UAV yaws [rad] (default:
+    the bar yaw), cable angle θ_l [rad], hold time [s] once reached, and how long to wait
+    for it to be reached before the queue moves on anyway [s] (default: no limit)."""
+
+    bar_position: Annotated[list[Finite], Field(min_length=3, max_length=3)]
+    bar_yaw: Finite = 0.0
+    uav_yaw: Annotated[list[Finite], Field(min_length=2, max_length=2)] | None = None
+    theta_l: Finite = 0.0
+    hold_s: NonNegative = 5.0
+    timeout_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] | None = None
+
+    def to_setpoint(self) -> Setpoint:
+        p = self.bar_position
+        yaws = (self.uav_yaw[0], self.uav_yaw[1]) if self.uav_yaw is not None else None
+        return Setpoint(
+            (p[0], p[1], p[2]), self.bar_yaw, yaws, self.theta_l, self.hold_s, self.timeout_s
+        )
+
+    @classmethod
+    def of(cls, setpoint: Setpoint) -> SetpointFields:
+        """A setpoint as the API shows it (the UAV yaws filled in)."""
+        return cls(
+            bar_position=list(setpoint.bar_position_m),
+            bar_yaw=setpoint.bar_yaw_rad,
+            uav_yaw=list(setpoint.reference().uav_yaw_rad),
+            theta_l=setpoint.theta_l_rad,
+            hold_s=setpoint.hold_s,
+            timeout_s=setpoint.timeout_s,
+        )
+
+
+OperatorEvent = Literal["arm", "disarm", "takeoff", "land", "abort", "kill"]
+URGENT_EVENTS = frozenset({"abort", "kill"})
+
+
+class ModeRequest(_Message):
+    """A flight-mode request of the operator (the mode table decides)."""
+
+    kind: OperatorEvent
+
+
+class ControllerRequest(_Message):
+    """Which MPC flies the bar (bumpless in flight)."""
+
+    kind: Literal["controller"] = "controller"
+    controller: Literal["centralized", "decentralized"]
+
+
+class QueueRequest(_Message):
+    """Queue setpoints, all or none."""
+
+    kind: Literal["queue"] = "queue"
+    setpoints: Annotated[list[SetpointFields], Field(min_length=1)]
+
+
+class ClearSetpointsRequest(_Message):
+    """Drop the queue and the active setpoint."""
+
+    kind: Literal["clear_setpoints"] = "clear_setpoints"
+
+
+class SetpointsQuery(_Message):
+    """The active setpoint and the queue."""
+
+    kind: Literal["setpoints"] = "setpoints"
+
+
+class ShutdownRequest(_Message):
+    """Land what is airborne, disarm and stop the flight process."""
+
+    kind: Literal["shutdown"] = "shutdown"
+
+
+Request = Annotated[
+    ModeRequest
+    | ControllerRequest
+    | QueueRequest
+    | ClearSetpointsRequest
+    | SetpointsQuery
+    | ShutdownRequest,
+    Field(discriminator="kind"),
+]
+
+
+class Outcome(StrEnum):
+    """How a request ended: ``ok``; ``refused`` (the mode table or the queue said no: HTTP
+    409); ``invalid`` (bad data: 422); ``unavailable`` (no flight process answering: 503)."""
+
+    OK = "ok"
+    REFUSED = "refused"
+    INVALID = "invalid"
+    UNAVAILABLE = "unavailable"
+
+
+class Reply(_Message):
+    """The answer to a request: its outcome, why (when not ok) and what it returns."""
+
+    outcome: Outcome
+    reason: str = ""
+    data: dict[str, Any] = Field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome is Outcome.OK
+
+
+def is_urgent(request: Request) -> bool:
+    """Abort and kill: they never wait behind anything else."""
+    return isinstance(request, ModeRequest) and request.kind in URGENT_EVENTS
 
 
 def setpoint_json(setpoint: Setpoint | None) -> dict[str, Any] | None:
     """A setpoint as the API shows it (radians, metres, seconds)."""
-    if setpoint is None:
-        return None
-    return {
-        "bar_position": list(setpoint.bar_position_m),
-        "bar_yaw": setpoint.bar_yaw_rad,
-        "uav_yaw": list(setpoint.reference().uav_yaw_rad),
-        "theta_l": setpoint.theta_l_rad,
-        "hold_s": setpoint.hold_s,
-    }
+    return None if setpoint is None else SetpointFields.of(setpoint).model_dump()
 
 
-def handle_request(core: FlightCore, message: dict[str, Any], now_s: float) -> dict[str, Any]:
-    """Apply one request message to ``core``; returns the reply message."""
-    kind = message.get("kind")
-    reply: dict[str, Any] = {"id": message.get("id"), "outcome": "ok", "reason": "", "data": {}}
-
-    def refuse(reason: str, outcome: str = "refused") -> dict[str, Any]:
-        return {**reply, "outcome": outcome, "reason": reason}
-
-    if kind in OPERATOR_REQUESTS:
-        transition = core.request(str(kind), now_s)
-        reply["data"] = {"mode": transition.mode.value}
-        return reply if transition.accepted else refuse(transition.reason)
-    if kind == "controller":
-        transition = core.set_controller(str(message.get("controller")), now_s)
-        reply["data"] = {"controller": core.controller, "mode": core.modes.mode.value}
-        return reply if transition.accepted else refuse(transition.reason, "invalid")
-    if kind == "queue":
+def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
+    """Apply one request to ``core``; returns the reply (shutdown is the shell's)."""
+    if isinstance(request, ModeRequest):
+        transition = core.request(Event(request.kind), now_s)
+        data = {"mode": transition.mode.value}
+        if transition.accepted:
+            return Reply(outcome=Outcome.OK, data=data)
+        return Reply(outcome=Outcome.REFUSED, reason=transition.reason, data=data)
+    if isinstance(request, ControllerRequest):
+        transition = core.set_controller(request.controller, now_s)
+        data = {"controller": core.controller, "mode": core.modes.mode.value}
+        if transition.accepted:
+            return Reply(outcome=Outcome.OK, data=data)
+        return Reply(outcome=Outcome.INVALID, reason=transition.reason, data=data)
+    if isinstance(request, QueueRequest):
         try:
-            setpoints = [Setpoint.from_json(entry) for entry in message.get("setpoints", [])]
+            core.queue_setpoints([entry.to_setpoint() for entry in request.setpoints])
+        except SetpointQueueFullError as error:
+            return Reply(outcome=Outcome.REFUSED, reason=str(error))
         except SetpointError as error:
-            return refuse(str(error), "invalid")
-        try:
-            core.queue_setpoints(setpoints)
-        except SetpointError as error:
-            return refuse(str(error))
-        reply["data"] = {"queued": len(core.queue.queued)}
-        return reply
-    if kind == "clear_setpoints":
+            return Reply(outcome=Outcome.INVALID, reason=str(error))
+        return Reply(outcome=Outcome.OK, data={"queued": len(core.queue.queued)})
+    if isinstance(request, ClearSetpointsRequest):
         core.clear_setpoints()
-        return reply
-    if kind == "setpoints":
-        reply["data"] = {
-            "active": setpoint_json(core.queue.active),
-            "queued": [setpoint_json(s) for s in core.queue.queued],
-        }
-        return reply
-    return refuse(f"unknown request {kind!r}", "invalid")
+        return Reply(outcome=Outcome.OK)
+    if isinstance(request, SetpointsQuery):
+        active = setpoint_json(core.queue.active)
+        queued = [setpoint_json(s) for s in core.queue.queued]
+        return Reply(outcome=Outcome.OK, data={"active": active, "queued": queued})
+    return Reply(outcome=Outcome.INVALID, reason=f"{request.kind!r} is not for the tick core")

@@ -24,9 +24,13 @@ from supervisor.flight.setpoints import Arena
 
 class Response(Enum):
     COAST = "coast"  # keep flying on the prediction / shifted plan, report
-    ABORT = "abort"  # coordinated landing
-    LAND_OTHER = "land_other"  # one vehicle lost: the other sets the bar down
     CENTRALIZE = "centralize"  # the decentralized MPC hands the bar to the centralized one
+    ABORT = "abort"  # coordinated landing
+
+
+# When monitors disagree the most severe response wins, as in PX4's failsafe framework,
+# which takes the most severe of the actions its checks ask for.
+SEVERITY = {Response.COAST: 0, Response.CENTRALIZE: 1, Response.ABORT: 2}
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,11 @@ class SafetyLimits:
     slack_margin_m: float = 0.05
     slack_time_s: float = 0.5
     max_bar_yaw_error_rad: float = math.radians(20.0)  # 0: no hand-over
+
+
+def chosen_response(faults: list[Fault]) -> Response | None:
+    """The one response to this tick's faults (None: no fault)."""
+    return max((f.response for f in faults), key=SEVERITY.__getitem__, default=None)
 
 
 class SafetyMonitor:
@@ -93,7 +102,7 @@ class SafetyMonitor:
             faults.append(Fault("numeric", "NaN or inf in the estimated state", Response.ABORT))
         for i, connected in enumerate(links_connected, start=1):
             if not connected:
-                faults.append(Fault("link", f"vehicle {i} link lost", Response.LAND_OTHER))
+                faults.append(Fault("link", f"vehicle {i} link lost", Response.ABORT))
         x = estimate.x
         if np.all(np.isfinite(x)):
             self._geofence(x, faults)

@@ -72,7 +72,6 @@ def build_telemetry(
         else None
     )
     return {
-        "kind": "telemetry",
         "time_s": now_s,
         "mode": core.modes.mode.value,
         "phase": core.phase,
@@ -120,6 +119,6 @@ def build_telemetry(
             "thrust_n": [c.thrust_n for c in last_tick.commands] if last_tick else None,
         },
         "faults": [f.message for f in last_tick.faults] if last_tick is not None else [],
-        "notices": [{"age_s": now_s - t_s, "message": message} for t_s, message in core.notices],
+        "notices": [{"age_s": now_s - t_s, "message": str(notice)} for t_s, notice in core.notices],
         "tick": tick_summary,
     }

@@ -1,33 +1,34 @@
-"""Messages between the API process and the flight process: length-prefixed JSON over a
-local stream socket (a ``socketpair`` made by ``serve``).
-
-Each message is a 4-byte big-endian length and a UTF-8 JSON object. Requests carry an
-``id`` that the reply repeats; the flight process also pushes telemetry (``{"kind":
-"telemetry", ...}``) unprompted. JSON cannot carry NaN: non-finite numbers travel as null.
+"""The stream between the API process and the flight process: length-prefixed JSON
+messages (``supervisor.ipc.messages``) over a local stream socket (a ``socketpair`` made by
+``serve``). Each frame is a 4-byte big-endian length and one UTF-8 JSON object.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import socket
 import struct
-from typing import Any
 
-from supervisor.logs.flight_log import finite_or_none
+from pydantic import ValidationError
+
+from supervisor.errors import RemoteError
+from supervisor.ipc.messages import CHANNEL_MESSAGE, ReplyMessage, RequestMessage, TelemetryMessage
 
 HEADER = struct.Struct(">I")
 MAX_MESSAGE_BYTES = 1 << 20
 
 
-class ChannelClosedError(ConnectionError):
+Message = RequestMessage | ReplyMessage | TelemetryMessage
+
+
+class ChannelClosedError(RemoteError, ConnectionError):
     """The other process closed its end (or it sent something that is not a message)."""
 
 
-def encode(message: dict[str, Any]) -> bytes:
+def encode(message: Message) -> bytes:
     """One framed message."""
-    body = json.dumps(finite_or_none(message), separators=(",", ":"), allow_nan=False).encode()
+    body = message.model_dump_json().encode()
     if len(body) > MAX_MESSAGE_BYTES:
         raise ValueError(f"message of {len(body)} bytes exceeds {MAX_MESSAGE_BYTES}")
     return HEADER.pack(len(body)) + body
@@ -46,7 +47,7 @@ class Channel:
         reader, writer = await asyncio.open_connection(sock=sock, limit=MAX_MESSAGE_BYTES + 8)
         return cls(reader, writer)
 
-    async def receive(self) -> dict[str, Any]:
+    async def receive(self) -> Message:
         """The next message; raises ``ChannelClosedError`` at the end of the stream."""
         try:
             header = await self._reader.readexactly(HEADER.size)
@@ -57,14 +58,11 @@ class Channel:
         except (asyncio.IncompleteReadError, ConnectionError) as error:
             raise ChannelClosedError(str(error)) from error
         try:
-            message = json.loads(body)
-        except ValueError as error:
-            raise ChannelClosedError(f"not a JSON message: {error}") from error
-        if not isinstance(message, dict):
-            raise ChannelClosedError("a message must be a JSON object")
-        return message
+            return CHANNEL_MESSAGE.validate_json(body)
+        except ValidationError as error:
+            raise ChannelClosedError(f"not a channel message: {error}") from error
 
-    def send(self, message: dict[str, Any]) -> None:
+    def send(self, message: Message) -> None:
         """Queue a message for sending (never blocks; see ``drain``)."""
         if self._writer.is_closing():
             raise ChannelClosedError("channel is closed")

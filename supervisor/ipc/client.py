@@ -11,27 +11,15 @@ import asyncio
 import contextlib
 import itertools
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
+from supervisor.flight.operator_requests import Outcome, Reply, Request, is_urgent
 from supervisor.ipc.channel import Channel, ChannelClosedError
+from supervisor.ipc.messages import ReplyMessage, RequestMessage, TelemetryMessage
 
-URGENT = ("abort", "kill")
 
-
-@dataclass(frozen=True)
-class Reply:
-    """The flight process's answer. ``outcome`` is ``ok``, ``refused`` (the mode table or
-    the queue said no: HTTP 409), ``invalid`` (bad data: 422) or ``unavailable`` (no flight
-    process answering: 503)."""
-
-    outcome: str
-    reason: str = ""
-    data: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def ok(self) -> bool:
-        return self.outcome == "ok"
+def _unavailable(reason: str) -> Reply:
+    return Reply(outcome=Outcome.UNAVAILABLE, reason=reason)
 
 
 class TelemetrySubscription:
@@ -63,7 +51,7 @@ class FlightClient:
         self._channels = {"commands": commands, "urgent": urgent}
         self._timeout_s = timeout_s
         self._ids = itertools.count(1)
-        self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}
+        self._pending: dict[int, asyncio.Future[Reply]] = {}
         self._subscribers: set[TelemetrySubscription] = set()
         self.latest: dict[str, Any] | None = None
         self.latest_at_s = -float("inf")
@@ -90,39 +78,34 @@ class FlightClient:
     async def _receive(self, channel: Channel) -> None:
         while True:
             message = await channel.receive()
-            if message.get("kind") == "telemetry":
-                self.latest = message
+            if isinstance(message, TelemetryMessage):
+                self.latest = message.status
                 self.latest_at_s = time.monotonic()
                 for subscriber in list(self._subscribers):
-                    subscriber.offer(message)
-                continue
-            future = self._pending.pop(int(message.get("id", -1)), None)
-            if future is not None and not future.done():
-                future.set_result(message)
+                    subscriber.offer(message.status)
+            elif isinstance(message, ReplyMessage):
+                future = self._pending.pop(message.id, None)
+                if future is not None and not future.done():
+                    future.set_result(message.reply)
 
-    async def request(self, kind: str, **data: Any) -> Reply:
+    async def request(self, request: Request) -> Reply:
         """Send a request and wait for its reply (abort and kill take the urgent channel)."""
         if not self.connected:
-            return Reply("unavailable", "the flight process is not running")
+            return _unavailable("the flight process is not running")
         request_id = next(self._ids)
-        future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
         self._pending[request_id] = future
-        channel = self._channels["urgent" if kind in URGENT else "commands"]
+        channel = self._channels["urgent" if is_urgent(request) else "commands"]
         try:
-            channel.send({"kind": kind, "id": request_id, **data})
+            channel.send(RequestMessage(id=request_id, request=request))
             async with asyncio.timeout(self._timeout_s):
-                answer = await future
+                return await future
         except TimeoutError:
-            return Reply("unavailable", f"no answer from the flight process in {self._timeout_s} s")
+            return _unavailable(f"no answer from the flight process in {self._timeout_s} s")
         except ChannelClosedError:
-            return Reply("unavailable", "the flight process is not running")
+            return _unavailable("the flight process is not running")
         finally:
             self._pending.pop(request_id, None)
-        return Reply(
-            str(answer.get("outcome", "unavailable")),
-            str(answer.get("reason", "")),
-            dict(answer.get("data") or {}),
-        )
 
     def subscribe(self, depth: int = 8) -> TelemetrySubscription:
         subscription = TelemetrySubscription(self, depth)

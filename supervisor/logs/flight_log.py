@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+import pydantic_core
 
 from geometry.arrays import FloatArray
 from supervisor.flight.tick_record import TickRecord
@@ -26,17 +27,6 @@ FSYNC_INTERVAL_S = 1.0
 
 
 _TICK_FIELDS = tuple(f.name for f in fields(TickRecord))
-
-
-def finite_or_none(value: Any) -> Any:
-    """JSON has no NaN: non-finite floats (in lists and dicts too) become None (null)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, list):
-        return [finite_or_none(v) for v in value]
-    if isinstance(value, dict):
-        return {k: finite_or_none(v) for k, v in value.items()}
-    return value
 
 
 def _new_log_path(folder: Path, started: datetime) -> Path:
@@ -73,10 +63,8 @@ class FlightLogWriter:
         self._sync()
 
     def _write(self, payload: dict[str, Any]) -> None:
-        try:
-            line = json.dumps(payload, separators=(",", ":"), allow_nan=False)
-        except ValueError:  # a NaN or inf somewhere: the rare path pays for the walk
-            line = json.dumps(finite_or_none(payload), separators=(",", ":"))
+        # JSON has no NaN: the serializer writes non-finite numbers as null.
+        line = pydantic_core.to_json(payload, inf_nan_mode="null").decode()
         self._file.write(line + "\n")
         self._file.flush()
 

@@ -28,10 +28,18 @@ from mocap.fusion import MocapFusion
 from mocap.qtm_protocol import MocapFrame
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import BodyNames, Estimate, estimate_state
-from supervisor.flight.modes import TRANSITIONS, Mode
-from supervisor.flight.operator_requests import handle_request
+from supervisor.flight.modes import TRANSITIONS, Event, Mode
+from supervisor.flight.operator_requests import (
+    ModeRequest,
+    Outcome,
+    Reply,
+    Request,
+    ShutdownRequest,
+    handle_request,
+)
 from supervisor.flight.telemetry import MocapView, build_telemetry
 from supervisor.ipc.channel import Channel, ChannelClosedError
+from supervisor.ipc.messages import TelemetryMessage
 from supervisor.ipc.server import serve_requests
 from supervisor.logs.flight_log import FlightLogWriter
 from supervisor.runtime.phase_lock import MocapPhaseLock
@@ -136,12 +144,12 @@ class FlightProcess:
     async def _land_if_airborne(self) -> None:
         now = self.clock()
         if self.core.modes.mode.airborne:
-            self.core.request("land", now)
+            self.core.request(Event.LAND, now)
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(LANDING_TIMEOUT_S):
                     await self._on_ground.wait()
         if self.core.modes.mode is Mode.ARMED:
-            self.core.request("disarm", self.clock())
+            self.core.request(Event.DISARM, self.clock())
         if self.streaming:
             await disarm_all(self.links)
             self.streaming = False
@@ -257,49 +265,46 @@ class FlightProcess:
         self._close_log()
 
     # ---- requests ---------------------------------------------------------------------------
-    async def handle(self, message: dict[str, Any]) -> dict[str, Any]:
+    async def handle(self, request: Request) -> Reply:
         """Apply one operator request (the channels call this); returns the reply."""
-        kind = message.get("kind")
-        if kind == "shutdown":
+        if isinstance(request, ShutdownRequest):
             self.stop()
-            return {"id": message.get("id"), "outcome": "ok", "reason": "", "data": {}}
-        if kind == "arm":
-            return await self._arm(message)
-        if kind == "kill":
-            reply = handle_request(self.core, message, self.clock())
+            return Reply(outcome=Outcome.OK)
+        if not isinstance(request, ModeRequest):
+            return handle_request(self.core, request, self.clock())
+        event = Event(request.kind)
+        if event is Event.ARM:
+            return await self._arm(request)
+        reply = handle_request(self.core, request, self.clock())
+        if event is Event.KILL:
             failures = await kill_all(self.links)
             self.streaming = False
             self._close_log()
             if failures:
-                reply["reason"] = "; ".join(failures)
+                reply = reply.model_copy(update={"reason": "; ".join(failures)})
             return reply
-        reply = handle_request(self.core, message, self.clock())
         on_ground = self.core.modes.mode is Mode.DISARMED
-        if kind in ("disarm", "abort") and on_ground and self.streaming:
+        if event in (Event.DISARM, Event.ABORT) and on_ground and self.streaming:
             await self._disarm_vehicles()
         return reply
 
-    async def _arm(self, message: dict[str, Any]) -> dict[str, Any]:
-        mode = self.core.modes.mode
-        if (mode, "arm") not in TRANSITIONS:
-            return handle_request(self.core, message, self.clock())  # the table's refusal
+    async def _arm(self, request: ModeRequest) -> Reply:
+        if (self.core.modes.mode, Event.ARM) not in TRANSITIONS:
+            return handle_request(self.core, request, self.clock())  # the table's refusal
         self.streaming = True  # idle setpoints: PX4's proof of life before offboard
         failures = await arm_for_offboard(self.links, self.proof_of_life_s)
         if failures:
             self.streaming = False
-            return {
-                "id": message.get("id"),
-                "outcome": "refused",
-                "reason": "arming failed: " + "; ".join(failures),
-                "data": {"mode": self.core.modes.mode.value},
-            }
-        reply = handle_request(self.core, message, self.clock())
-        if reply["outcome"] == "ok" and self.log_folder is not None:
-            self._close_log()
-            self._log = FlightLogWriter(
-                self.log_folder,
-                {"setup": self.settings.setup_name, "controller": self.core.controller},
+            return Reply(
+                outcome=Outcome.REFUSED,
+                reason="arming failed: " + "; ".join(failures),
+                data={"mode": self.core.modes.mode.value},
             )
+        reply = handle_request(self.core, request, self.clock())
+        if reply.ok and self.log_folder is not None:
+            self._close_log()
+            header = {"setup": self.settings.setup_name, "controller": self.core.controller}
+            self._log = FlightLogWriter(self.log_folder, header)
         return reply
 
     def _close_log(self) -> None:
@@ -334,7 +339,7 @@ class FlightProcess:
             async for _ in ticker:
                 if channel.buffered_bytes < TELEMETRY_BACKLOG_BYTES:  # a stuck reader: skip
                     try:
-                        channel.send(self.telemetry())
+                        channel.send(TelemetryMessage(status=self.telemetry()))
                     except ChannelClosedError:
                         return
         finally:

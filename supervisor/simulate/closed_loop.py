@@ -37,7 +37,7 @@ from supervisor.app.assembly import (
 from supervisor.app.config import Config
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate, estimate_state
-from supervisor.flight.modes import Mode
+from supervisor.flight.modes import Event, Mode
 from supervisor.logs.flight_log import FlightLogWriter
 from supervisor.simulate.scenarios import Scenario, Step
 
@@ -167,13 +167,13 @@ class ScenarioScript:
                 setpoints.append(self.steps[self.index].setpoint())
             core.queue_setpoints(setpoints)
         elif step.action == "takeoff":
-            for request in ("arm", "takeoff"):
+            for request in (Event.ARM, Event.TAKEOFF):
                 result = core.request(request, now_s)
                 if not result.accepted:
-                    self._fail(f"{request} refused: {result.reason}")
+                    self._fail(f"{request.value} refused: {result.reason}")
                     return
         elif step.action in ("land", "abort"):
-            result = core.request(step.action, now_s)
+            result = core.request(Event(step.action), now_s)
             if not result.accepted:
                 self._fail(f"{step.action} refused: {result.reason}")
 
@@ -275,7 +275,7 @@ def run_scenario(
             loop.apply(result)
             if log is not None:
                 log.append(result.record)
-            script.messages.extend(e for e in result.events if e.startswith(("abort", "swing")))
+            script.messages.extend(str(notice) for notice in result.notices)
             script.advance(loop.core, loop.now_s)
             loop.core.prepare_next()  # as the service does between ticks
             truth.update(loop.plant, loop.core.modes.mode.airborne)

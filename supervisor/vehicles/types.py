@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry.arrays import FloatArray
+from supervisor.errors import RemoteError
 
 
 @dataclass(frozen=True)
@@ -36,5 +37,5 @@ class VehicleView:
     status_text: str = ""
 
 
-class VehicleCommandError(Exception):
+class VehicleCommandError(RemoteError):
     """A vehicle refused a command or did not acknowledge it."""

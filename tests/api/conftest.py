@@ -16,13 +16,14 @@ import pytest
 
 from api.app import create_app
 from api.server import HttpServer, bind
-from supervisor.app.assembly import arena_from_config, flight_core_from_config
+from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.core import FlightCore
-from supervisor.flight.operator_requests import handle_request
+from supervisor.flight.operator_requests import Reply, Request, handle_request
 from supervisor.flight.telemetry import MocapView, build_telemetry
 from supervisor.ipc.channel import Channel
 from supervisor.ipc.client import FlightClient
+from supervisor.ipc.messages import TelemetryMessage
 from supervisor.ipc.server import serve_requests
 from supervisor.vehicles.types import VehicleView
 from tests.conftest import CONFIGS
@@ -51,8 +52,8 @@ async def api() -> AsyncIterator[ApiUnderTest]:
     commands, urgent = [await Channel.open(a) for a, _ in pairs]
     flight = FlightClient(commands, urgent)
 
-    async def handle(message: dict[str, Any]) -> dict[str, Any]:
-        return handle_request(core, message, time.monotonic())
+    async def handle(request: Request) -> Reply:
+        return handle_request(core, request, time.monotonic())
 
     async def publish() -> None:
         vehicle = VehicleView(connected=True, armed=False, px4_mode="POSCTL")
@@ -61,10 +62,10 @@ async def api() -> AsyncIterator[ApiUnderTest]:
             message = build_telemetry(
                 core, None, None, (vehicle, vehicle), mocap, {"count": 0}, time.monotonic()
             )
-            flight_side[0].send(message)
+            flight_side[0].send(TelemetryMessage(status=message))
             await asyncio.sleep(0.04)
 
-    app = create_app(flight, config.system.to_params(), arena_from_config(config), TOKEN)
+    app = create_app(flight, config.system.to_params(), TOKEN)
     server = HttpServer(app, bind("127.0.0.1", 0))
     async with asyncio.TaskGroup() as group:
         tasks = [

@@ -6,26 +6,26 @@ import itertools
 
 import pytest
 
-from supervisor.flight.modes import OPERATOR_REQUESTS, TRANSITIONS, FlightModes, Mode
+from supervisor.flight.modes import OPERATOR_REQUESTS, TRANSITIONS, Event, FlightModes, Mode
 
 
 def test_nominal_flight() -> None:
     modes = FlightModes()
     for event, expected in [
-        ("arm", Mode.ARMED),
-        ("takeoff", Mode.TAKEOFF),
-        ("airborne", Mode.HOVER),
-        ("track", Mode.TRACKING),
-        ("hold", Mode.HOVER),
-        ("land", Mode.LANDING),
-        ("landed", Mode.DISARMED),
+        (Event.ARM, Mode.ARMED),
+        (Event.TAKEOFF, Mode.TAKEOFF),
+        (Event.AIRBORNE, Mode.HOVER),
+        (Event.TRACK, Mode.TRACKING),
+        (Event.HOLD, Mode.HOVER),
+        (Event.LAND, Mode.LANDING),
+        (Event.LANDED, Mode.DISARMED),
     ]:
         result = modes.handle(event, 1.0)
         assert result.accepted and modes.mode is expected
 
 
 @pytest.mark.parametrize(("mode", "event"), list(itertools.product(Mode, OPERATOR_REQUESTS)))
-def test_every_request_in_every_mode(mode: Mode, event: str) -> None:
+def test_every_request_in_every_mode(mode: Mode, event: Event) -> None:
     modes = FlightModes(mode)
     result = modes.handle(event, 2.0)
     if event in ("abort", "kill"):
@@ -42,12 +42,12 @@ def test_every_request_in_every_mode(mode: Mode, event: str) -> None:
 @pytest.mark.parametrize("mode", list(Mode))
 def test_a_fault_always_ends_in_a_safe_mode(mode: Mode) -> None:
     modes = FlightModes(mode)
-    assert modes.handle("fault", 3.0).accepted
+    assert modes.handle(Event.FAULT, 3.0).accepted
     assert modes.mode in (Mode.ABORT, Mode.DISARMED, Mode.KILLED)
     if mode.airborne:
         assert modes.mode is Mode.ABORT
 
 
 def test_takeoff_refusal_says_why() -> None:
-    result = FlightModes().handle("takeoff", 0.0)
+    result = FlightModes().handle(Event.TAKEOFF, 0.0)
     assert not result.accepted and "arm first" in result.reason

@@ -16,6 +16,7 @@ from supervisor.app.assembly import (
     safety_limits_from_config,
 )
 from supervisor.app.config import ConfigError, load_config
+from supervisor.flight.core import NoticeKind
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Mode
 from supervisor.flight.safety import Response, SafetyLimits, SafetyMonitor
@@ -71,20 +72,20 @@ def test_a_swing_hands_the_decentralized_bar_to_the_centralized_mpc() -> None:
     core = flight_core_from_config(CONFIG, "decentralized", clock=time.thread_time)
     still = Estimate(hovering_state(0.0), 0.01, ())
     core.start_in_hover(still, 0.0, (0.05, 0.1, 0.1))
-    assert "swing" not in " ".join(core.tick(0.02, still).events)
+    assert not core.tick(0.02, still).notices
     assert core.controller == "decentralized"
     swung = Estimate(hovering_state(math.radians(30.0)), 0.01, ())
     result = core.tick(0.04, swung)
     assert core.controller == "centralized"
-    assert [e for e in result.events if e.startswith("swing")] == [
+    assert [str(n) for n in result.notices if n.kind is NoticeKind.SWING] == [
         "swing: bar yaw +30.0° off its reference; switched to the centralized MPC"
     ]
     assert result.mode is Mode.HOVER  # it keeps flying: no abort
-    assert list(core.notices) == [(0.04, result.events[-1])]
+    assert list(core.notices) == [(0.04, result.notices[-1])]
     # The centralized MPC meets the same swing with the fault reported, nothing switched.
     again = core.tick(0.06, swung)
     assert [f.monitor for f in again.faults] == ["swing"] and core.controller == "centralized"
-    assert not [e for e in again.events if e.startswith("swing")]
+    assert not again.notices
 
 
 def test_the_hand_over_angle_is_a_setting() -> None:
@@ -105,4 +106,5 @@ def test_a_forced_abort_is_kept_as_a_notice() -> None:
     result = core.tick(0.02, Estimate(outside, 0.01, ()))
     assert result.mode is Mode.ABORT
     [(when, notice)] = core.notices
-    assert when == 0.02 and notice.startswith("abort: ") and "bar left the arena" in notice
+    assert when == 0.02 and notice.kind is NoticeKind.ABORT
+    assert str(notice).startswith("abort: ") and "bar left the arena" in str(notice)

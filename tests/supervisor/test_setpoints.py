@@ -9,10 +9,9 @@ import pytest
 
 from controllers.equilibria import Reference
 from controllers.params import BarSystemParams
+from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
 from supervisor.flight.setpoints import (
     Arena,
-    RateLimits,
-    ReferenceShaper,
     Setpoint,
     SetpointError,
     SetpointQueue,
