@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: serve equilibria test lint browser
+.PHONY: serve equilibria test test-fast lint browser
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -34,3 +34,7 @@ browser:
 
 test: lint browser
 	$(BIN)/pytest
+
+# The quick loop while editing: lint, then the tests not marked slow (about 2 minutes).
+test-fast: lint
+	$(BIN)/pytest -m "not slow" -x -q

@@ -26,6 +26,7 @@ from supervisor.logs.logging_setup import queued_logging
 from supervisor.mavlink.link import MavlinkLink
 from supervisor.runtime.cpu import raise_priority, single_threaded_blas
 from supervisor.runtime.flight_process import FlightProcess, FlightSettings
+from supervisor.runtime.tick_driver import TickDriver
 
 log = logging.getLogger(__name__)
 
@@ -53,9 +54,11 @@ async def fly(
         async with QtmClient(qtm_host, qtm_port) as mocap:
             process = FlightProcess(
                 FlightSettings(config.mpc.dt_s, config.mocap.phase_lock, config.name),
-                flight_core_from_config(config, clock=time.perf_counter),
-                fusion_from_config(config),
-                body_names_from_config(config),
+                TickDriver(
+                    flight_core_from_config(config, clock=time.perf_counter),
+                    fusion_from_config(config),
+                    body_names_from_config(config),
+                ),
                 mocap,
                 links,
                 Path(config.log.folder),

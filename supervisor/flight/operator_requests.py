@@ -17,8 +17,9 @@ from supervisor.flight.core import FlightCore
 from supervisor.flight.modes import Event
 from supervisor.flight.setpoints import Setpoint, SetpointError, SetpointQueueFullError
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+# strict: a JSON true is not a number of metres (ints are still numbers).
+Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False, strict=True)]
 
 
 class _Message(BaseModel):

@@ -24,10 +24,8 @@ from typing import Any
 import numpy as np
 
 from mocap.client import MocapSource
-from mocap.fusion import MocapFusion
 from mocap.qtm_protocol import MocapFrame
-from supervisor.flight.core import FlightCore, TickResult
-from supervisor.flight.estimation import BodyNames, Estimate, estimate_state
+from supervisor.flight.core import TickResult
 from supervisor.flight.modes import TRANSITIONS, Event, Mode
 from supervisor.flight.operator_requests import (
     ModeRequest,
@@ -44,6 +42,7 @@ from supervisor.ipc.server import serve_requests
 from supervisor.logs.flight_log import FlightLogWriter
 from supervisor.runtime.phase_lock import MocapPhaseLock
 from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
+from supervisor.runtime.tick_driver import TickDriver
 from supervisor.vehicles.link import VehicleLink
 from supervisor.vehicles.sequences import PROOF_OF_LIFE_S, arm_for_offboard, disarm_all, kill_all
 
@@ -71,16 +70,14 @@ def _percentiles(values: deque[float]) -> tuple[float, float]:
 
 
 class FlightProcess:
-    """Everything that flies, on one event loop: the tick ``core`` (built for ``settings``),
-    the rigid-body ``fusion`` of the bodies ``names`` names, and ``mocap`` and ``links``,
-    already running. ``run`` returns when ``stop`` has landed what was airborne."""
+    """Everything that flies, on one event loop: the tick ``driver`` (its core built for
+    ``settings``), and ``mocap`` and ``links``, already running. ``run`` returns when
+    ``stop`` has landed what was airborne."""
 
     def __init__(
         self,
         settings: FlightSettings,
-        core: FlightCore,
-        fusion: MocapFusion,
-        names: BodyNames,
+        driver: TickDriver,
         mocap: MocapSource,
         links: tuple[VehicleLink, VehicleLink],
         log_folder: Path | None,
@@ -93,16 +90,13 @@ class FlightProcess:
         self.log_folder = log_folder
         self.clock = clock
         self.proof_of_life_s = proof_of_life_s
-        self.core = core
-        self.fusion = fusion
-        self.names = names
+        self.driver = driver
+        self.core = driver.core
         self.stats = TimingStats()
         self.streaming = False
-        self.estimate: Estimate | None = None
         self.last_tick: TickResult | None = None
         self.latency_ms: deque[float] = deque(maxlen=3000)
         self.phase_lock = MocapPhaseLock(settings.dt_s) if settings.phase_lock else None
-        self._log: FlightLogWriter | None = None
         self._stopping = asyncio.Event()
         self._on_ground = asyncio.Event()
         self._sequences: set[asyncio.Task[None]] = set()
@@ -185,7 +179,7 @@ class FlightProcess:
     def _fuse(self, frames: list[MocapFrame]) -> None:
         """Fuse frames as they come; the tick reads the newest since the last tick."""
         for frame in frames:
-            self.fusion.update(frame)
+            self.driver.fusion.update(frame)
         if frames:
             self._frames_since_tick += len(frames)
             self._newest_frame = frames[-1]
@@ -198,10 +192,9 @@ class FlightProcess:
         newest = self._newest_frame if self._frames_since_tick else None
         self._count_frames(self._frames_since_tick, started)
         self._frames_since_tick = 0
-        self.estimate = estimate_state(self.fusion.states(started), self.names)
         before = self.core.modes.mode
         connected = (self.links[0].connected, self.links[1].connected)
-        result = self.core.tick(started, self.estimate, connected, timing.lateness_s)
+        result = self.driver.decide(started, connected, timing.lateness_s)
         latency_ms = wait_ms = math.nan
         if self.streaming:
             for link, command in zip(self.links, result.commands, strict=True):
@@ -218,18 +211,15 @@ class FlightProcess:
             self._on_ground.clear()
         else:
             self._on_ground.set()
-        if self._log is not None:
-            record = result.record
-            record.extra.update(
-                compute_total_ms=compute_s * 1e3,
-                latency_ms=latency_ms,
-                mocap_wait_ms=wait_ms,
-                skipped=timing.skipped,
-                mpc_prepared=self.core.mpc_was_prepared,
-            )
-            self._log.append(record)
         self._react(before, result.mode)
-        self.core.prepare_next()  # the next tick's model, while no frame waits
+        self.driver.finish(  # logs, then the next tick's model while no frame waits
+            result,
+            compute_total_ms=compute_s * 1e3,
+            latency_ms=latency_ms,
+            mocap_wait_ms=wait_ms,
+            skipped=timing.skipped,
+            mpc_prepared=self.core.mpc_was_prepared,
+        )
 
     def _count_frames(self, new_frames: int, now_s: float) -> None:
         frames, since, rate = self._mocap_rate
@@ -242,7 +232,8 @@ class FlightProcess:
         frame = self.mocap.latest()
         if frame is None:
             return
-        for link, name in zip(self.links, (self.names.uav1, self.names.uav2), strict=True):
+        names = self.driver.names
+        for link, name in zip(self.links, (names.uav1, names.uav2), strict=True):
             pose = frame.bodies.get(name)
             if pose is not None and pose.tracked:
                 link.send_mocap(pose.position_m, pose.quaternion, frame.receive_time_s)
@@ -304,13 +295,13 @@ class FlightProcess:
         if reply.ok and self.log_folder is not None:
             self._close_log()
             header = {"setup": self.settings.setup_name, "controller": self.core.controller}
-            self._log = FlightLogWriter(self.log_folder, header)
+            self.driver.log = FlightLogWriter(self.log_folder, header)
         return reply
 
     def _close_log(self) -> None:
-        if self._log is not None:
-            self._log.close()
-            self._log = None
+        if self.driver.log is not None:
+            self.driver.log.close()
+            self.driver.log = None
 
     # ---- telemetry ----------------------------------------------------------------------------
     def telemetry(self) -> dict[str, Any]:
@@ -322,7 +313,7 @@ class FlightProcess:
         summary["latency_ms_p50"], summary["latency_ms_p99"] = p50, p99
         message = build_telemetry(
             self.core,
-            self.estimate,
+            self.driver.estimate,
             self.last_tick,
             (self.links[0].view(), self.links[1].view()),
             mocap,
@@ -330,7 +321,7 @@ class FlightProcess:
             self.clock(),
         )
         message["streaming"] = self.streaming
-        message["log"] = str(self._log.path) if self._log is not None else None
+        message["log"] = str(self.driver.log.path) if self.driver.log is not None else None
         return message
 
     async def _publish(self, channel: Channel) -> None:

@@ -36,9 +36,10 @@ from supervisor.app.assembly import (
 )
 from supervisor.app.config import Config
 from supervisor.flight.core import FlightCore, TickResult
-from supervisor.flight.estimation import Estimate, estimate_state
+from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
 from supervisor.logs.flight_log import FlightLogWriter
+from supervisor.runtime.tick_driver import TickDriver
 from supervisor.simulate.scenarios import Scenario, Step
 
 TICK_S = 0.02
@@ -201,9 +202,12 @@ class ClosedLoop:
         self.config = config
         self.plant = Plant(plant_params_from_config(config))
         self.mocap = MocapModel(mocap_params_from_config(config, seed))
-        self.fusion = fusion_from_config(config)
-        self.body_names = body_names_from_config(config)
-        self.core = flight_core_from_config(config, controller, clock=time.thread_time)
+        self.driver = TickDriver(
+            flight_core_from_config(config, controller, clock=time.thread_time),
+            fusion_from_config(config),
+            body_names_from_config(config),
+        )
+        self.core = self.driver.core
         self.now_s = 0.0
 
     def place(self, scenario: Scenario) -> None:
@@ -225,9 +229,17 @@ class ClosedLoop:
 
     def estimate(self) -> Estimate:
         """Advance the mocap pipeline to ``now_s`` and estimate the state there."""
+        self._fuse_frames()
+        return self.driver.estimate_at(self.now_s)
+
+    def decide(self) -> TickResult:
+        """The tick at ``now_s`` on the frames delivered by then."""
+        self._fuse_frames()
+        return self.driver.decide(self.now_s)
+
+    def _fuse_frames(self) -> None:
         for frame in self.mocap.poll(self.now_s):
-            self.fusion.update(qtm_frame(frame))
-        return estimate_state(self.fusion.states(self.now_s), self.body_names)
+            self.driver.fusion.update(qtm_frame(frame))
 
     def advance_plant(self, until_s: float) -> None:
         """Step the plant to ``until_s``, capturing mocap frames when they are due."""
@@ -262,6 +274,7 @@ def run_scenario(
     truth = TruthStats(loop.resting_heights()[0])
     header = {"setup": config.name, "scenario": scenario.name, "controller": controller}
     log = FlightLogWriter(log_path, header) if log_path is not None else None
+    loop.driver.log = log
     started = time.perf_counter()
     # Let the filters converge on a still system before anyone acts.
     loop.advance_plant(0.2)
@@ -270,14 +283,11 @@ def run_scenario(
     last_progress = 0.0
     try:
         while True:
-            estimate = loop.estimate()
-            result = loop.core.tick(loop.now_s, estimate)
+            result = loop.decide()
             loop.apply(result)
-            if log is not None:
-                log.append(result.record)
             script.messages.extend(str(notice) for notice in result.notices)
             script.advance(loop.core, loop.now_s)
-            loop.core.prepare_next()  # as the service does between ticks
+            loop.driver.finish(result)  # as the service does after a tick
             truth.update(loop.plant, loop.core.modes.mode.airborne)
             if script.done:
                 break

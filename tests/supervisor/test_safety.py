@@ -19,7 +19,7 @@ from supervisor.app.config import ConfigError, load_config
 from supervisor.flight.core import NoticeKind
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Mode
-from supervisor.flight.safety import Response, SafetyLimits, SafetyMonitor
+from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
 from tests.conftest import CONFIGS
 
 CONFIG = load_config(CONFIGS / "sim.toml")
@@ -108,3 +108,13 @@ def test_a_forced_abort_is_kept_as_a_notice() -> None:
     [(when, notice)] = core.notices
     assert when == 0.02 and notice.kind is NoticeKind.ABORT
     assert str(notice).startswith("abort: ") and "bar left the arena" in str(notice)
+
+
+def test_the_most_severe_response_is_chosen() -> None:
+    coast = Fault("mocap", "uav1 stale", Response.COAST)
+    swing = Fault("swing", "bar yaw +30°", Response.CENTRALIZE)
+    fence = Fault("geofence", "bar left the arena", Response.ABORT)
+    assert chosen_response([]) is None
+    assert chosen_response([coast]) is Response.COAST
+    assert chosen_response([coast, swing]) is Response.CENTRALIZE
+    assert chosen_response([swing, fence, coast]) is Response.ABORT
