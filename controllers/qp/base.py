@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Protocol
 
+import numpy as np
+
 from geometry.arrays import FloatArray
 
 
@@ -63,6 +65,14 @@ class QpSolution:
     x: FloatArray
     status: QpStatus
     iterations: int
+
+    @staticmethod
+    def failed(qp: OcpQp, status: QpStatus, iterations: int = 0) -> QpSolution:
+        """No applicable solution: NaN trajectories of ``qp``'s shape, and why."""
+        N = qp.horizon
+        return QpSolution(
+            np.full((N, qp.nu), np.nan), np.full((N + 1, qp.nx), np.nan), status, iterations
+        )
 
 
 class QpBackend(Protocol):

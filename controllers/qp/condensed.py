@@ -112,7 +112,7 @@ class CondensedDaqpBackend:
         """Condense, solve warm-started from the last active set, expand the states."""
         nx, nu, N = self._dims
         if not all(np.all(np.isfinite(a)) for a in (qp.A, qp.B, qp.x0)):
-            return self._failure(QpStatus.NUMERICAL_ERROR)
+            return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
         H, g, AB, free = self.condense(qp)
         G, g_lo, g_hi = self._state_rows(qp, AB, free)
         upper = np.concatenate([np.tile(qp.u_ub, N), g_hi])
@@ -126,7 +126,7 @@ class CondensedDaqpBackend:
             status = (
                 QpStatus.INFEASIBLE if exitflag in _DAQP_INFEASIBLE else QpStatus.NUMERICAL_ERROR
             )
-            return self._failure(status, int(info.get("iterations", 0)))
+            return QpSolution.failed(qp, status, int(info.get("iterations", 0)))
         self._active = np.where(np.abs(info["lam"]) > 0.0, 1, 0).astype(np.int32)
         u = np.asarray(U).reshape(N, nu)
         trajectory = np.empty((N + 1, nx))
@@ -135,13 +135,4 @@ class CondensedDaqpBackend:
             trajectory[k + 1] = qp.A @ trajectory[k] + qp.B @ u[k]
         return QpSolution(
             u=u, x=trajectory, status=QpStatus.SOLVED, iterations=int(info.get("iterations", 0))
-        )
-
-    def _failure(self, status: QpStatus, iterations: int = 0) -> QpSolution:
-        nx, nu, N = self._dims
-        return QpSolution(
-            u=np.full((N, nu), np.nan),
-            x=np.full((N + 1, nx), np.nan),
-            status=status,
-            iterations=iterations,
         )

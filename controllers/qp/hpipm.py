@@ -28,7 +28,6 @@ and the solve is then two matrix–vector products.
 from __future__ import annotations
 
 import ctypes
-import math
 from ctypes import POINTER, c_double, c_int, c_size_t, c_void_p
 from typing import Any
 
@@ -391,9 +390,9 @@ class HpipmBackend:
         HPIPM; never raises."""
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
         if not all(np.isfinite(a).all() for a in data):
-            return self._failure(QpStatus.NUMERICAL_ERROR)
+            return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
         if self._boxes_empty(qp):
-            return self._failure(QpStatus.INFEASIBLE)
+            return QpSolution.failed(qp, QpStatus.INFEASIBLE)
         self.last_was_prepared = len(self._prepared_model) == 5 and all(
             np.array_equal(a, b) for a, b in zip(self._model(qp), self._prepared_model, strict=True)
         )
@@ -505,12 +504,3 @@ class HpipmBackend:
         """A box with lower > upper: no input sequence can meet it."""
         boxes = [(qp.u_lb, qp.u_ub), (qp.x_lb, qp.x_ub), (qp.x_terminal_lb, qp.x_terminal_ub)]
         return any(lo is not None and hi is not None and bool(np.any(lo > hi)) for lo, hi in boxes)
-
-    def _failure(self, status: QpStatus) -> QpSolution:
-        nx, nu, N = self._dims
-        return QpSolution(
-            np.full((N, nu), math.nan),
-            np.full((N + 1, nx), math.nan),
-            status,
-            0,
-        )

@@ -182,7 +182,7 @@ class OsqpBackend:
         if not (
             np.all(np.isfinite(qp.A)) and np.all(np.isfinite(qp.B)) and np.all(np.isfinite(qp.x0))
         ):
-            return self._failure(QpStatus.NUMERICAL_ERROR)
+            return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
         self._matrix_data[self._value_slots] = self._dynamics_values(qp)
         key = self._weights_key(qp)
         if key != self._cost_key:
@@ -193,20 +193,11 @@ class OsqpBackend:
         status_text = result.info.status
         if status_text not in _SOLVED:
             status = QpStatus.INFEASIBLE if status_text in _INFEASIBLE else QpStatus.MAX_ITERATIONS
-            return self._failure(status, int(result.info.iter))
+            return QpSolution.failed(qp, status, int(result.info.iter))
         z = result.x
         return QpSolution(
             u=z[(N + 1) * nx :].reshape(N, nu).copy(),
             x=z[: (N + 1) * nx].reshape(N + 1, nx).copy(),
             status=QpStatus.SOLVED,
             iterations=int(result.info.iter),
-        )
-
-    def _failure(self, status: QpStatus, iterations: int = 0) -> QpSolution:
-        nx, nu, N = self._dims
-        return QpSolution(
-            u=np.full((N, nu), np.nan),
-            x=np.full((N + 1, nx), np.nan),
-            status=status,
-            iterations=iterations,
         )
