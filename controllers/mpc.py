@@ -346,10 +346,6 @@ class CentralizedMpc:
             settings, lambda turned: (self._linearize(turned),), (self._mpc,)
         )
 
-    @property
-    def backend_name(self) -> str:
-        return self._mpc.backend.name
-
     def reset(self) -> None:
         """Forget the previous plan (e.g. after a controller switch)."""
         self._plans.previous = None
@@ -442,15 +438,6 @@ def agent_state(state: FloatArray, params: BarSystemParams, i: int) -> FloatArra
     return x_i
 
 
-def bar_from_ends(
-    end_1: FloatArray, end_2: FloatArray, params: BarSystemParams
-) -> tuple[FloatArray, float]:
-    """Bar centre and yaw estimated from its two ends (Section VII-B, with d1 ≠ d2)."""
-    d1, d2 = params.arms_m
-    centre = end_1 + d1 / (d1 + d2) * (end_2 - end_1)
-    return centre, math.atan2(end_2[1] - end_1[1], end_2[0] - end_1[0])
-
-
 # The yaw lead fades out towards θ_l = 45°: the bar's yaw swing quickens with θ_l (0.86 Hz
 # hovering, 1.43 Hz at 45°), a fixed lead then overshoots in phase, and from about 45° on
 # the agents damp that swing on their own (benchmarks/modes.py).
@@ -537,10 +524,6 @@ class DecentralizedMpc:
         self._preparation = _ModelPreparation(
             settings, self._linearize, tuple(agent.mpc for agent in self.agents)
         )
-
-    @property
-    def backend_name(self) -> str:
-        return self.agents[0].mpc.backend.name
 
     def reset(self) -> None:
         """Forget the previous plan (e.g. after a controller switch)."""

@@ -139,12 +139,6 @@ def rotation_enu_flu_to_ned_frd(R_enu_flu: FloatArray) -> FloatArray:
     return result
 
 
-def rotation_ned_frd_to_enu_flu(R_ned_frd: FloatArray) -> FloatArray:
-    """Inverse of ``rotation_enu_flu_to_ned_frd``."""
-    result: FloatArray = ENU_TO_NED @ np.asarray(R_ned_frd, dtype=float) @ FLU_TO_FRD
-    return result
-
-
 def wrap_angle(angle_rad: float) -> float:
     """An angle wrapped to (−π, π]."""
     wrapped = math.remainder(angle_rad, 2.0 * math.pi)

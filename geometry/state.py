@@ -30,7 +30,7 @@ PAYLOAD_INPUTS = 4
 
 # The bar's block of the 36-state.
 P_B, V_B, TH_B, W_B = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
-BAR_ROLL, BAR_PITCH, BAR_YAW = 6, 7, 8
+BAR_PITCH, BAR_YAW = 7, 8
 UAV_OFFSETS = (12, 24)
 _UAV_SIZE = 12
 _YAW_IN_BLOCK = 8  # ψ within a (p, v, Θ, ω) block

@@ -289,11 +289,6 @@ class CaptureClock:
         self._last_capture_s = -math.inf
         self._last_receive_s = -math.inf
 
-    @property
-    def offset_s(self) -> float | None:
-        """Current estimate of local time − capture time [s] (None before any sample)."""
-        return self._offset_s
-
     def to_local(self, timestamp_us: int, receive_time_s: float) -> float:
         """The local time [s] at which the frame stamped ``timestamp_us`` was captured."""
         capture_s = timestamp_us * 1e-6

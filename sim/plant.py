@@ -175,12 +175,6 @@ class BodyTruth:
         """Rotation matrix body → ENU, shape (3, 3)."""
         return rotation_from_quaternion(self.quaternion)
 
-    @property
-    def angular_velocity_enu_radps(self) -> FloatArray:
-        """Angular velocity in the arena frame [rad/s], shape (3,)."""
-        result: FloatArray = self.rotation @ self.body_rates_radps
-        return result
-
 
 @dataclass(frozen=True)
 class PlantTruth:

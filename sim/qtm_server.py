@@ -214,11 +214,6 @@ class QtmServer:
         if self.rate_hz is None:
             self._emit_frame()
 
-    def send_event(self, event: QtmEvent | int) -> None:
-        """Send an Event packet to every TCP client (QTM does, at any time, §1.3)."""
-        for connection in self._connections:
-            connection.send(EventPacket(int(event)))
-
     async def _tick_forever(self, rate_hz: float) -> None:
         loop = asyncio.get_running_loop()
         period = 1.0 / rate_hz
