@@ -17,7 +17,7 @@ case goes to
 
 Anything else raised is *escaped*; a whole/chunked disagreement is *inconsistent*. The
 script exits with status 1 if either count is non-zero. The core, ``run_fuzz``, is what
-the test suite calls with a few thousand cases (protocols.md §1.4 for the layouts).
+the test suite calls with a few thousand cases (docs/reference/qtm-rt.md §1.4 for the layouts).
 """
 
 from __future__ import annotations

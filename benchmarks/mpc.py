@@ -201,7 +201,8 @@ def run(config_path: Path, ticks: int, backends_csv: str, as_json: bool) -> int:
     if unknown or ticks < 1:
         print(f"bench: unknown back-end(s) {unknown} or --ticks < 1", file=sys.stderr)
         return 2
-    # BLAS pinned to one thread (qp-solvers.md: 10x slower p50 otherwise on two cores).
+    # BLAS pinned to one thread (docs/reference/qp-solvers.md: 10x slower p50 otherwise on
+    # two cores).
     with threadpool_limits(limits=1):
         result = run_benchmark(config_path, ticks, backends, progress=not as_json)
     if as_json:

@@ -57,7 +57,7 @@ class RunningService:
                 if condition(last):
                     return last
             await asyncio.sleep(0.1)
-        brief = {k: last.get(k) for k in ("mode", "phase", "bar", "setpoints", "faults")}
+        brief = {k: last.get(k) for k in ("mode", "phase", "bar", "setpoints", "faults", "notices")}
         raise TimeoutError(f"timed out after {timeout_s} s waiting for {what}; last: {brief}")
 
 

@@ -145,15 +145,15 @@ def wrap_angle(angle_rad: float) -> float:
     return math.pi if wrapped == -math.pi else wrapped
 
 
-# --- QTM rotation conventions (docs: protocols.md §1.4 "Units and conventions") --------------
+# --- QTM rotation conventions (docs/reference/qtm-rt.md §1.4) ------------------------------------
 
 
 def rotation_from_qtm_matrix(matrix: Sequence[float]) -> FloatArray:
     """The 3×3 rotation (rigid body → QTM global) of QTM's 9 rotation floats, shape (3, 3).
 
     QTM sends the matrix column-major: R = [[m0, m3, m6], [m1, m4, m7], [m2, m5, m8]]
-    (Qualisys' own ``qfly/pose.py``; protocols.md §1.4). No orthonormalization: the caller
-    decides what to do with a non-finite or degenerate matrix.
+    (Qualisys' own ``qfly/pose.py``; docs/reference/qtm-rt.md §1.4). No orthonormalization:
+    the caller decides what to do with a non-finite or degenerate matrix.
     """
     m = np.asarray(matrix, dtype=float)
     if m.shape != (9,):
@@ -172,7 +172,7 @@ def rotation_from_qtm_euler_deg(roll_deg: float, pitch_deg: float, yaw_deg: floa
 
     The standard applies roll (about x), then pitch (about the rotated y′), then yaw (about
     the twice-rotated z″), all right-handed, in degrees: R = Rx(roll)·Ry(pitch)·Rz(yaw)
-    (docs.qualisys.com "Rotation angles in QTM"; protocols.md §1.4). This is *not* the
+    (docs.qualisys.com "Rotation angles in QTM"; docs/reference/qtm-rt.md §1.4). This is *not* the
     paper's Z-Y-X convention of ``rotation_from_euler_zyx`` and only holds while QTM's Euler
     definition is left at its default.
     """

@@ -1,4 +1,4 @@
-"""Asyncio QTM RT client: commands over TCP, 6D frames over UDP (protocols.md §1).
+"""Asyncio QTM RT client: commands over TCP, 6D frames over UDP (docs/reference/qtm-rt.md §1).
 
 Two layers, as in aioquic:
 

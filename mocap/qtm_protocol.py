@@ -1,6 +1,6 @@
 """QTM real-time (RT) protocol core: packets as values, bytes in and out, no I/O.
 
-Everything here follows ``/work/shared/reference/protocols.md`` §1 (the Qualisys "QTM
+Everything here follows ``docs/reference/qtm-rt.md`` §1 (the Qualisys "QTM
 Real-time Server Protocol Documentation", protocol 1.20, plus the 1.21–1.25 changes seen in
 the Qualisys SDKs). Only the little-endian port (base + 1, default 22223) is spoken, and only
 protocol ≥ 1.8, where 6D records are float32 (§1.2).
@@ -52,7 +52,7 @@ class QtmProtocolError(Exception):
     packets: tuple[Packet, ...] = ()
 
 
-# --- Constants (protocols.md §1.1, §1.4) -----------------------------------------------------
+# --- Constants (docs/reference/qtm-rt.md §1.1, §1.4) ---------------------------------------
 
 LITTLE_ENDIAN_PORT: Final = 22223
 """Default QTM RT port for little-endian clients, protocol ≥ 1.1 (§1.1)."""

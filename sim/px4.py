@@ -1,5 +1,5 @@
 """The simulated PX4's behaviour, without I/O: modes, arming, offboard rules, failsafes,
-and the setpoint paths (protocols.md §2, px4-observed.md). Time is an argument.
+and the setpoint paths (docs/reference/px4-offboard.md §2 and §5). Time is an argument.
 
 * Modes are PX4's (main, sub) custom modes; it starts disarmed in POSCTL.
 * Offboard: any setpoint counts as proof of life; offboard can be entered when armed only

@@ -1,8 +1,9 @@
 """A simulated PX4's MAVLink 2 endpoint on UDP, driving one airframe of the plant.
 
-PX4 SITL's conventions (px4-observed.md): instance i (0-based) sends from UDP 14580+i to the
-offboard/API client at 14540+i; system id i+1, component 1 (autopilot). It streams HEARTBEAT
-(1 Hz), ATTITUDE and ATTITUDE_QUATERNION (50 Hz), LOCAL_POSITION_NED (30 Hz, NED),
+PX4 SITL's conventions (docs/reference/px4-offboard.md §5): instance i (0-based) sends from
+UDP 14580+i to the offboard/API client at 14540+i; system id i+1, component 1 (autopilot).
+It streams HEARTBEAT (1 Hz), ATTITUDE and ATTITUDE_QUATERNION (50 Hz), LOCAL_POSITION_NED
+(30 Hz, NED),
 SYS_STATUS and EXTENDED_SYS_STATE (5 Hz), BATTERY_STATUS (1 Hz), STATUSTEXT as events
 happen; answers every COMMAND_LONG with COMMAND_ACK (3 UNSUPPORTED when unknown) and
 AUTOPILOT_VERSION when asked. The ``Px4Model`` holds the behaviour; this module only moves

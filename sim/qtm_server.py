@@ -1,6 +1,6 @@
 """Simulated Qualisys QTM real-time server (asyncio), speaking the RT protocol on loopback.
 
-What it implements (protocols.md §1; byte layouts from ``mocap.qtm_protocol``):
+What it implements (docs/reference/qtm-rt.md §1; byte layouts from ``mocap.qtm_protocol``):
 
 * TCP on the little-endian port (default 22223; port 0 picks a free one, see ``port``), the
   greeting ``"QTM RT Interface connected"`` (exactly: qtm-rt compares the whole string),

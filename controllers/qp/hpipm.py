@@ -2,7 +2,7 @@
 
 The libraries come from hpipm_library.py (an AVX2 build when installed, else the generic
 one inside the casadi wheel); CasADi's own ``hpipm`` plugin costs ~6 ms per call here
-(qp-solvers.md), the library itself a fraction of that. HPIPM builds its objects in
+(docs/reference/qp-solvers.md), the library itself a fraction of that. HPIPM builds its objects in
 caller-provided memory sized by ``*_memsize``, so every buffer lives in this object,
 allocated once; what changes rarely (weights, bound indices, boxes) is handed over only
 when it changes, and a tick hands the library pointers to numpy arrays holding A, B and

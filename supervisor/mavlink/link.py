@@ -1,9 +1,9 @@
 """The supervisor's MAVLink 2 link to one PX4: the asyncio shell around the sans-IO codec
 (``codec``) and session (``session``), over the shared UDP transport (``transport``).
 
-Like a MAVLink client on PX4's offboard/API link (protocols.md §2–4): it listens on a local
-UDP port (14540+i by default; PX4 sends there) and answers the address the vehicle's
-datagrams come from; given the vehicle's address it also announces itself first (the
+Like a MAVLink client on PX4's offboard/API link (docs/reference/px4-offboard.md §2–4): it
+listens on a local UDP port (14540+i by default; PX4 sends there) and answers the address
+the vehicle's datagrams come from; given the vehicle's address it also announces itself first (the
 embedded simulator, whose ports are picked at run time). It sends a HEARTBEAT at 1 Hz,
 detects link loss when the vehicle's heartbeats stop, sends commands and waits for their
 COMMAND_ACK (with retries), and sends exactly the setpoints the control loop hands it —

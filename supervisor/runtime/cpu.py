@@ -2,8 +2,8 @@
 BLAS on one thread.
 
 A tick's matrices are small; a second BLAS thread only adds a hand-over per call, and that
-helper thread is an ordinary thread that the API's load can keep waiting (qp-solvers.md
-measures ~10× slower p50 on two cores with BLAS threads left on).
+helper thread is an ordinary thread that the API's load can keep waiting
+(docs/reference/qp-solvers.md measures ~10× slower p50 on two cores with BLAS threads left on).
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 after a landing, killing.
 
 PX4 enters offboard only after setpoints have streamed for more than a second at more than
-2 Hz (protocols.md §2.3), so arming starts the idle stream first, waits out that proof of
-life, then selects offboard and arms each vehicle, checking every acknowledgement. A
+2 Hz (docs/reference/px4-offboard.md §2.3), so arming starts the idle stream first, waits out
+that proof of life, then selects offboard and arms each vehicle, checking every acknowledgement. A
 vehicle that refuses leaves both disarmed.
 """
 

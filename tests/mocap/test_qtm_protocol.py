@@ -136,7 +136,7 @@ packets: st.SearchStrategy[Packet] = st.one_of(
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
-# --- The documented layout (protocols.md §1.4), built by hand --------------------------------
+# --- The documented layout (docs/reference/qtm-rt.md §1.4), built by hand ----------------------
 
 
 def test_hand_built_6deuler_packet_from_the_documented_layout() -> None:
