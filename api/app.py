@@ -46,6 +46,7 @@ from supervisor.flight.operator_requests import (
     Reply,
     SetpointsQuery,
 )
+from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoints
 from supervisor.ipc.client import FlightClient
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
@@ -76,9 +77,9 @@ def _answer(reply: Reply) -> JSONResponse:
     )
 
 
-def create_app(flight: FlightClient, params: BarSystemParams, token: str) -> FastAPI:
-    """The FastAPI application serving ``flight`` (``params``: the system, for the
-    equilibria it reports)."""
+def create_app(flight: FlightClient, params: BarSystemParams, arena: Arena, token: str) -> FastAPI:
+    """The FastAPI application serving ``flight`` (``params`` and ``arena``: the system and
+    its flight volume, for the equilibria it reports and the setpoints it checks)."""
     app = FastAPI(
         title="uavbar-supervisor",
         summary="Two PX4 quadrotors carrying a bar under MPC: arm, fly, queue setpoints, abort.",
@@ -98,7 +99,7 @@ def create_app(flight: FlightClient, params: BarSystemParams, token: str) -> Fas
     auth = Depends(_bearer_check(token))
     app.include_router(_status_routes(flight, params))
     app.include_router(_operator_routes(flight), dependencies=[auth])
-    app.include_router(_setpoint_routes(flight, auth))
+    app.include_router(_setpoint_routes(flight, params, arena, auth))
     app.include_router(_telemetry_route(flight))
     if STATIC_DIR.is_dir():
         app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")
@@ -194,7 +195,9 @@ def _operator_routes(flight: FlightClient) -> APIRouter:
     return router
 
 
-def _setpoint_routes(flight: FlightClient, auth: fastapi_params.Depends) -> APIRouter:
+def _setpoint_routes(
+    flight: FlightClient, params: BarSystemParams, arena: Arena, auth: fastapi_params.Depends
+) -> APIRouter:
     """Reading the queue is open; changing it needs the token (``auth``)."""
     router = APIRouter()
 
@@ -206,10 +209,16 @@ def _setpoint_routes(flight: FlightClient, auth: fastapi_params.Depends) -> APIR
     @router.post("/api/setpoints", dependencies=[auth])
     async def post_setpoints(body: SetpointBody | list[SetpointBody]) -> JSONResponse:
         """Queue one setpoint or a list, all or none, each validated against the arena and
-        equilibrium feasibility (by the flight process, once)."""
+        equilibrium feasibility. Checked here first, so that a flood of setpoints no vehicle
+        can fly never reaches the flight process; the tick core checks again as the
+        authority for every way in (the simulator's scripts too)."""
         entries = body if isinstance(body, list) else [body]
         if not entries:
             raise HTTPException(422, "an empty list queues nothing")
+        try:
+            validate_setpoints([e.to_setpoint() for e in entries], params, arena)
+        except SetpointError as error:
+            raise HTTPException(422, str(error)) from None
         return _answer(await flight.request(QueueRequest(setpoints=entries)))
 
     @router.delete("/api/setpoints", dependencies=[auth])

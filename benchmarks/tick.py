@@ -121,7 +121,8 @@ async def fly(service: RunningService, duration_s: float) -> str:
         if landing.status_code != 200:
             status = await service.status(http)
             raise RuntimeError(
-                f"the flight did not last: {landing.text}; faults {status['faults']}"
+                f"the flight did not last: {landing.text}; faults {status['faults']};"
+                f" notices {status.get('notices')}"
             )
         await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landing")
         return log

@@ -26,6 +26,7 @@ from typing import Any
 
 from api.app import create_app
 from api.server import HttpServer, bind
+from supervisor.app.assembly import arena_from_config
 from supervisor.app.config import TOKEN_ENV, Config, load_config
 from supervisor.flight.operator_requests import ShutdownRequest
 from supervisor.ipc.channel import Channel
@@ -127,7 +128,7 @@ async def serve(setup: Setup) -> int:
     os.nice(API_NICENESS)
     commands, urgent = [await Channel.open(parent_end) for parent_end, _ in pairs]
     client = FlightClient(commands, urgent)
-    app = create_app(client, config.system.to_params(), token)
+    app = create_app(client, config.system.to_params(), arena_from_config(config), token)
     http = HttpServer(app, http_socket)
     host = config.api.host
     log.info("uavbar-supervisor serving http://%s:%d/ (setup %s)", host, http.port, config.name)

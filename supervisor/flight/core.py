@@ -48,9 +48,8 @@ from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonito
 from supervisor.flight.setpoints import (
     Arena,
     Setpoint,
-    SetpointError,
     SetpointQueue,
-    validate_setpoint,
+    validate_setpoints,
 )
 from supervisor.flight.tick_record import TickRecord
 from supervisor.vehicles.types import UavCommand
@@ -220,13 +219,7 @@ class FlightCore:
         ``SetpointQueueFullError``) and each is validated against the arena and equilibrium
         feasibility (raises ``SetpointError`` naming which one)."""
         self.queue.check_room(len(setpoints))
-        for index, setpoint in enumerate(setpoints):
-            try:
-                validate_setpoint(setpoint, self.params, self.arena)
-            except SetpointError as error:
-                if len(setpoints) == 1:
-                    raise
-                raise SetpointError(f"setpoint {index}: {error}") from None
+        validate_setpoints(setpoints, self.params, self.arena)
         self.queue.extend(setpoints)
 
     def clear_setpoints(self) -> None:

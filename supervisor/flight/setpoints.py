@@ -95,6 +95,17 @@ def validate_setpoint(setpoint: Setpoint, params: BarSystemParams, arena: Arena)
             )
 
 
+def validate_setpoints(setpoints: list[Setpoint], params: BarSystemParams, arena: Arena) -> None:
+    """``validate_setpoint`` on each; the error names which one when there are several."""
+    for index, setpoint in enumerate(setpoints):
+        try:
+            validate_setpoint(setpoint, params, arena)
+        except SetpointError as error:
+            if len(setpoints) == 1:
+                raise
+            raise SetpointError(f"setpoint {index}: {error}") from None
+
+
 class SetpointQueue:
     """Bounded FIFO of validated setpoints with the active one and its hold timer."""
 

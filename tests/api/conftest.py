@@ -16,7 +16,7 @@ import pytest
 
 from api.app import create_app
 from api.server import HttpServer, bind
-from supervisor.app.assembly import flight_core_from_config
+from supervisor.app.assembly import arena_from_config, flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.core import FlightCore
 from supervisor.flight.operator_requests import Reply, Request, handle_request
@@ -65,7 +65,7 @@ async def api() -> AsyncIterator[ApiUnderTest]:
             flight_side[0].send(TelemetryMessage(status=message))
             await asyncio.sleep(0.04)
 
-    app = create_app(flight, config.system.to_params(), TOKEN)
+    app = create_app(flight, config.system.to_params(), arena_from_config(config), TOKEN)
     server = HttpServer(app, bind("127.0.0.1", 0))
     async with asyncio.TaskGroup() as group:
         tasks = [
