@@ -13,20 +13,17 @@ import struct
 from pydantic import ValidationError
 
 from supervisor.errors import RemoteError
-from supervisor.ipc.messages import CHANNEL_MESSAGE, ReplyMessage, RequestMessage, TelemetryMessage
+from supervisor.ipc.messages import CHANNEL_MESSAGE, ChannelMessage
 
 HEADER = struct.Struct(">I")
 MAX_MESSAGE_BYTES = 1 << 20
-
-
-Message = RequestMessage | ReplyMessage | TelemetryMessage
 
 
 class ChannelClosedError(RemoteError, ConnectionError):
     """The other process closed its end (or it sent something that is not a message)."""
 
 
-def encode(message: Message) -> bytes:
+def encode(message: ChannelMessage) -> bytes:
     """One framed message."""
     body = message.model_dump_json().encode()
     if len(body) > MAX_MESSAGE_BYTES:
@@ -47,7 +44,7 @@ class Channel:
         reader, writer = await asyncio.open_connection(sock=sock, limit=MAX_MESSAGE_BYTES + 8)
         return cls(reader, writer)
 
-    async def receive(self) -> Message:
+    async def receive(self) -> ChannelMessage:
         """The next message; raises ``ChannelClosedError`` at the end of the stream."""
         try:
             header = await self._reader.readexactly(HEADER.size)
@@ -62,7 +59,7 @@ class Channel:
         except ValidationError as error:
             raise ChannelClosedError(f"not a channel message: {error}") from error
 
-    def send(self, message: Message) -> None:
+    def send(self, message: ChannelMessage) -> None:
         """Queue a message for sending (never blocks; see ``drain``)."""
         if self._writer.is_closing():
             raise ChannelClosedError("channel is closed")

@@ -35,9 +35,7 @@ class TelemetryMessage(_Envelope):
     status: dict[str, Any]
 
 
-ChannelMessage = Annotated[
-    RequestMessage | ReplyMessage | TelemetryMessage, Field(discriminator="type")
-]
-CHANNEL_MESSAGE: TypeAdapter[RequestMessage | ReplyMessage | TelemetryMessage] = TypeAdapter(
-    ChannelMessage
+ChannelMessage = RequestMessage | ReplyMessage | TelemetryMessage
+CHANNEL_MESSAGE: TypeAdapter[ChannelMessage] = TypeAdapter(
+    Annotated[ChannelMessage, Field(discriminator="type")]
 )
