@@ -29,7 +29,7 @@ from fastapi import (
 )
 from fastapi import params as fastapi_params
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from api.models import KillRequest, ModeBody, SetpointBody
@@ -64,10 +64,6 @@ def _json_text(value: Any) -> str:
     return pydantic_core.to_json(value, inf_nan_mode="null").decode()
 
 
-def _without_nan(value: Any) -> Any:
-    return pydantic_core.from_json(_json_text(value))
-
-
 def _answer(reply: Reply) -> JSONResponse:
     if reply.ok:
         return JSONResponse({"accepted": True, **reply.data})
@@ -87,14 +83,16 @@ def create_app(flight: FlightClient, params: BarSystemParams, arena: Arena, toke
     )
 
     @app.exception_handler(RequestValidationError)
-    async def invalid_body(request: Request, error: RequestValidationError) -> JSONResponse:
+    async def invalid_body(request: Request, error: RequestValidationError) -> Response:
         # FastAPI's own handler echoes the input back, and JSON has no NaN: a body with
         # NaN in it would turn a 422 into a 500.
         problems = [
             {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
             for e in error.errors()
         ]
-        return JSONResponse({"detail": _without_nan(problems)}, status_code=422)
+        return Response(
+            _json_text({"detail": problems}), status_code=422, media_type="application/json"
+        )
 
     auth = Depends(_bearer_check(token))
     app.include_router(_status_routes(flight, params))

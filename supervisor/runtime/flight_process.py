@@ -25,7 +25,7 @@ import numpy as np
 
 from mocap.client import MocapSource
 from mocap.qtm_protocol import MocapFrame
-from supervisor.flight.core import TickResult
+from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.modes import TRANSITIONS, Event, Mode
 from supervisor.flight.operator_requests import (
     ModeRequest,
@@ -91,7 +91,6 @@ class FlightProcess:
         self.clock = clock
         self.proof_of_life_s = proof_of_life_s
         self.driver = driver
-        self.core = driver.core
         self.stats = TimingStats()
         self.streaming = False
         self.last_tick: TickResult | None = None
@@ -103,6 +102,11 @@ class FlightProcess:
         self._mocap_rate = (0, clock(), 0.0)  # frames, since, rate
         self._frames_since_tick = 0
         self._newest_frame: MocapFrame | None = None
+
+    @property
+    def core(self) -> FlightCore:
+        """The tick core the driver runs."""
+        return self.driver.core
 
     # ---- lifecycle ------------------------------------------------------------------------
     async def run(self, commands: Channel, urgent: Channel) -> None:

@@ -207,8 +207,12 @@ class ClosedLoop:
             fusion_from_config(config),
             body_names_from_config(config),
         )
-        self.core = self.driver.core
         self.now_s = 0.0
+
+    @property
+    def core(self) -> FlightCore:
+        """The tick core the driver runs."""
+        return self.driver.core
 
     def place(self, scenario: Scenario) -> None:
         """Put the plant where the scenario starts (hanging equilibrium, or on the ground)."""
