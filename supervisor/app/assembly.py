@@ -74,18 +74,26 @@ def body_names_from_config(config: Config) -> BodyNames:
     return BodyNames(bar, uav1, uav2)
 
 
-def plant_params_from_config(config: Config) -> PlantParams:
-    """The simulator's plant: the configured system, then the ``sim`` mismatch."""
+def plant_params_from_config(
+    config: Config, rotor_limits: tuple[float, tuple[float, float, float]] | None = None
+) -> PlantParams:
+    """The simulator's plant: the configured system, then the ``sim`` mismatch.
+    ``rotor_limits`` (thrust [N], torque per axis [N m]) replace the configured actuator
+    limits when real rotors are mixed (PX4 SITL allocates to four motors itself)."""
     params = config.system.to_params()
     sim = config.sim
+    thrust_max, torque_max = rotor_limits or (
+        sim.uav_thrust_max_n,
+        (config.mpc.torque_max_nm,) * 3,
+    )
     uavs = tuple(
         UavBodyParams(
             mass_kg=uav.mass_kg,
             inertia_kgm2=diagonal(uav.inertia_kgm2),
             thrust_time_constant_s=sim.motor_time_constant_s,
             torque_time_constant_s=sim.motor_time_constant_s,
-            thrust_max_n=sim.uav_thrust_max_n,
-            torque_max_nm=(config.mpc.torque_max_nm,) * 3,
+            thrust_max_n=thrust_max,
+            torque_max_nm=torque_max,
             drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
         )
         for uav in params.uavs

@@ -286,6 +286,12 @@ class SimSection(_Section):
     # true: `serve` starts the simulated world (plant, PX4s, QTM) in its own process and
     # connects to it on loopback; false: it connects to the lab's real QTM and PX4s.
     embedded: bool = False
+    # The world's flight controllers: "simulated" (our PX4 model, fast, no firmware) or
+    # "px4_sitl" (one real PX4 v1.15.4 SITL process per UAV, driven by the plant).
+    vehicles: Literal["simulated", "px4_sitl"] = "simulated"
+    # An extracted PX4 SITL install (bin/px4, etc/); the env var UAVBAR_PX4_DIR overrides;
+    # unset: the cache, filled from the project's firmware archive on first use.
+    px4_dir: str | None = None
     seed: Annotated[int, Field(ge=0)] = 0
     step_s: PositiveFloat = 0.001
     motor_time_constant_s: NonNegativeFloat = 0.02
@@ -317,7 +323,9 @@ class VehiclesSection(_Section):
     vehicle). ``ports`` are the local UDP ports the links listen on (PX4's offboard/API
     link sends to 14540+i); ``addresses`` ("host:port"), when set, are contacted first."""
 
-    command_mode: Literal["actuator", "rates"] = "actuator"
+    # rates: thrust + body rates (SET_ATTITUDE_TARGET), what current PX4 takes over MAVLink
+    # (v1.15 ignores actuator setpoints); actuator: thrust + torques, PX4 ≤ 1.13 (the paper's).
+    command_mode: Literal["actuator", "rates"] = "rates"
     mocap_message: Literal["vision_position_estimate", "odometry"] = "vision_position_estimate"
     bind_host: str = "0.0.0.0"
     ports: Annotated[list[Port], Field(min_length=2, max_length=2)] = [14540, 14541]
@@ -335,6 +343,10 @@ class VehiclesSection(_Section):
     ack_timeout_s: PositiveFloat = 0.5
     retries: Annotated[int, Field(ge=1, le=10)] = 3
     link_loss_s: PositiveFloat = 1.5
+    # COM_OF_LOSS_T: how long PX4 waits for the next setpoint before its offboard-loss
+    # failsafe (COM_OBL_RC_ACT = land) takes over. Short, so a held command is not flown
+    # for long when the control loop stops.
+    offboard_loss_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 0.5
 
     @field_validator("addresses")
     @classmethod

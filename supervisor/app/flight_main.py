@@ -43,7 +43,10 @@ async def fly(
     if world is not None:
         qtm_host, qtm_port = _host_port(world["qtm"])
         vehicles = [_host_port(address) for address in world["vehicles"]]
-        link_configs = link_configs_from_config(config, (vehicles[0], vehicles[1]), (0, 0))
+        ports = world.get("link_ports") or (0, 0)
+        link_configs = link_configs_from_config(
+            config, (vehicles[0], vehicles[1]), (ports[0], ports[1])
+        )
     else:
         qtm_host, qtm_port = config.mocap.host, config.mocap.port
         link_configs = link_configs_from_config(config)

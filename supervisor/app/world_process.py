@@ -11,11 +11,16 @@ import logging
 import signal
 from collections.abc import Callable
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
+from sim.hil_sensors import HilSensors
+from sim.motor_mixer import QuadMixer
 from sim.plant import Plant
 from sim.px4_endpoint import API_LOCAL_PORT, Px4Endpoint
-from sim.world import SimulatedVehicle, SimulatedWorld
+from sim.px4_firmware import AIRFRAME, LabParameters, Px4Process, free_instances, resolve_px4_dir
+from sim.px4_sitl import Px4SitlVehicle
+from sim.world import SimulatedVehicle, SimulatedWorld, VehicleFactory
 from supervisor.app.assembly import (
     mocap_params_from_config,
     plant_params_from_config,
@@ -31,27 +36,75 @@ log = logging.getLogger(__name__)
 def build_world(
     config: Config, qtm_port: int, vehicle_local_ports: tuple[int, int], host: str = "127.0.0.1"
 ) -> SimulatedWorld:
-    """The world of ``config``; vehicle i sends to the supervisor's ``vehicles.ports[i]``
-    until a client talks to it."""
-
-    def vehicle(plant: Plant, uav: int) -> SimulatedVehicle:
-        return Px4Endpoint(
-            uav - 1,
-            plant.uav(uav),
-            px4_params_from_config(config, uav),
-            host=host,
-            local_port=vehicle_local_ports[uav - 1],
-            client_port=config.vehicles.ports[uav - 1] or 14540 + uav - 1,
+    """The world of ``config``; a simulated vehicle i sends to the supervisor's
+    ``vehicles.ports[i]`` until a client talks to it, a real PX4 to its instance's port."""
+    plant_params = plant_params_from_config(config)
+    if config.sim.vehicles == "px4_sitl":
+        px4_dir = resolve_px4_dir(config.sim.px4_dir)
+        mixer = QuadMixer.from_airframe(px4_dir / "etc" / "init.d-posix" / "airframes" / AIRFRAME)
+        limits = mixer.torque_limits_nm()
+        plant_params = plant_params_from_config(
+            config, (mixer.thrust_max_n, (float(limits[0]), float(limits[1]), float(limits[2])))
         )
+        vehicle = _px4_sitl_vehicles(config, px4_dir, mixer, host)
+    else:
+
+        def vehicle(plant: Plant, uav: int) -> SimulatedVehicle:
+            return Px4Endpoint(
+                uav - 1,
+                plant.uav(uav),
+                px4_params_from_config(config, uav),
+                host=host,
+                local_port=vehicle_local_ports[uav - 1],
+                client_port=config.vehicles.ports[uav - 1] or 14540 + uav - 1,
+            )
 
     return SimulatedWorld(
-        plant_params_from_config(config),
+        plant_params,
         mocap_params_from_config(config),
         vehicle,
         body_names=config.mocap.bodies,
         qtm_host=host,
         qtm_port=qtm_port,
     )
+
+
+def _px4_sitl_vehicles(
+    config: Config, px4_dir: Path, mixer: QuadMixer, host: str
+) -> VehicleFactory:
+    """One real PX4 per UAV, on two free instance numbers, each in its own folder under the
+    log folder (PX4's console output in ``px4.log`` there), booting with a lab's parameters."""
+    instances = free_instances(2)
+    params = config.system.to_params()
+
+    def vehicle(plant: Plant, uav: int) -> SimulatedVehicle:
+        k = uav - 1
+        carried_n = (params.uavs[k].mass_kg + params.payload_mass_kg(uav)) * params.gravity_mps2
+        folder = Path(config.log.folder).resolve() / "px4" / f"uav{uav}"
+        folder.mkdir(parents=True, exist_ok=True)
+        for stored in folder.glob("parameters*.bson"):
+            stored.unlink()  # boot from the airframe defaults and ours, not a past run's
+        parameters = LabParameters(
+            system_id=config.vehicles.system_ids[k],
+            offboard_loss_timeout_s=config.vehicles.offboard_loss_timeout_s,
+            hover_thrust=round(carried_n / mixer.thrust_max_n, 3),
+        )
+        return Px4SitlVehicle(
+            plant.uav(uav),
+            Px4Process(px4_dir, instances[k], folder, parameters),
+            mixer,
+            HilSensors(seed=config.sim.seed * 2 + uav),
+            host=host,
+        )
+
+    return vehicle
+
+
+def _link_ports(world: SimulatedWorld) -> list[int] | None:
+    """The UDP ports the supervisor must listen on, when the vehicles fix them (real PX4
+    sends its offboard link to 14540 + its instance)."""
+    ports = [getattr(v, "client_port", None) for v in world.vehicles]
+    return [p for p in ports if p is not None] or None
 
 
 async def run_world(
@@ -69,6 +122,7 @@ async def run_world(
             {
                 "qtm": f"{addresses.qtm_host}:{addresses.qtm_port}",
                 "vehicles": list(addresses.vehicles),
+                "link_ports": _link_ports(world),
             }
         )
         runner = asyncio.create_task(world.run())
