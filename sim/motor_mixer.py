@@ -12,6 +12,7 @@ body −z at position r gives the moment CT·u·(r × −ẑ) + CT·u·KM·ẑ.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,3 +89,25 @@ class QuadMixer:
         # Symmetric airframe: half the rotors push one way at full output, half are off.
         limits: FloatArray = np.abs(arms).T @ ct / 2.0
         return limits
+
+    def unit_torque_nm(self) -> FloatArray:
+        """The torque per axis (roll, pitch, yaw) of a unit normalized torque setpoint
+        after PX4's allocation [N m]. PX4 allocates with the pseudo-inverse of the
+        effectiveness matrix and scales its torque columns (``normalizeControlAllocation
+        Matrix``): each column to an RMS of 1/√2 over the rotors acting on that axis, roll
+        and pitch by the larger of their two scales, so a unit command gives 1/scale."""
+        arms = np.array([[-r.py_m, r.px_m, r.km_m] for r in self.rotors])
+        ct = np.array([r.ct_n for r in self.rotors])
+        effectiveness = np.vstack([(arms * ct[:, None]).T, -ct])  # roll, pitch, yaw, thrust
+        mix = np.linalg.pinv(effectiveness)
+        scales = np.array(
+            [
+                math.sqrt(
+                    float(mix[:, axis] @ mix[:, axis]) / (np.count_nonzero(arms[:, axis]) / 2.0)
+                )
+                for axis in range(3)
+            ]
+        )
+        scales[:2] = scales[:2].max()
+        result: FloatArray = 1.0 / scales
+        return result

@@ -133,6 +133,29 @@ def free_instances(count: int, first: int = 0) -> tuple[int, ...]:
     raise FirmwareError(f"no {count} free PX4 instances in 0..{MAX_INSTANCE}")
 
 
+# PX4's default rate P gains (MC_ROLLRATE_P, MC_PITCHRATE_P, MC_YAWRATE_P; parameters.json):
+# normalized torque per rad/s of rate error.
+DEFAULT_RATE_P = (0.15, 0.15, 0.2)
+
+
+def rate_gain_multipliers(
+    unit_torque_nm: tuple[float, float, float],
+    inertia_kgm2: tuple[float, float, float],
+    bandwidth_per_s: tuple[float, float, float],
+) -> tuple[float, float, float]:
+    """MC_ROLLRATE_K, MC_PITCHRATE_K, MC_YAWRATE_K that give PX4's rate loop the
+    proportional ``bandwidth_per_s`` (angular acceleration per rate error) on this
+    airframe: P·K·(torque per normalized unit)/J. PX4's defaults are tuned for a lighter
+    frame with longer arms; the paper's UAV needs about twice the pitch gain."""
+    values = [
+        min(5.0, max(0.01, b * j / (p * t)))
+        for b, j, p, t in zip(
+            bandwidth_per_s, inertia_kgm2, DEFAULT_RATE_P, unit_torque_nm, strict=True
+        )
+    ]
+    return round(values[0], 3), round(values[1], 3), round(values[2], 3)
+
+
 @dataclass(frozen=True)
 class LabParameters:
     """The PX4 parameters a mocap lab flies with, written before boot."""
@@ -140,6 +163,7 @@ class LabParameters:
     system_id: int
     offboard_loss_timeout_s: float
     hover_thrust: float  # MPC_THR_HOVER, normalized
+    rate_gain_k: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def values(self) -> dict[str, float | int]:
         return {
@@ -160,6 +184,9 @@ class LabParameters:
             "NAV_DLL_ACT": 0,
             "MPC_THR_HOVER": self.hover_thrust,
             "THR_MDL_FAC": 0.0,  # thrust linear in the motor output (sim/motor_mixer.py)
+            "MC_ROLLRATE_K": self.rate_gain_k[0],
+            "MC_PITCHRATE_K": self.rate_gain_k[1],
+            "MC_YAWRATE_K": self.rate_gain_k[2],
             "SDLOG_MODE": -1,  # no ULog: saves a core's worth of writes on long runs
         }
 

@@ -63,6 +63,7 @@ class Px4SitlVehicle:
         self._server: asyncio.Server | None = None
         self._writer: asyncio.StreamWriter | None = None
         self._next_sensor_s = 0.0
+        self._sent_at_s: list[float] = []
 
     @property
     def instance(self) -> int:
@@ -151,7 +152,26 @@ class Px4SitlVehicle:
             ALL_FIELDS, 0,
         )  # fmt: skip
         self.sensor_messages += 1
+        self._report_punctuality(time.monotonic())
         writer = self._writer
         if writer is not None:
             for frame in self.codec.outgoing():
                 writer.write(frame)
+
+    def _report_punctuality(self, now_s: float) -> None:
+        """Every 10 s, how regularly the sensors went out (PX4 flies on them: a late sample
+        is a late rate loop)."""
+        sent = self._sent_at_s
+        sent.append(now_s)
+        if now_s - sent[0] < 10.0:
+            return
+        gaps_ms = np.diff(sent) * 1000.0
+        log.info(
+            "PX4 %d sensors: %.0f Hz, gap p50 %.1f ms, p99 %.1f ms, max %.1f ms",
+            self.instance,
+            len(gaps_ms) / (sent[-1] - sent[0]),
+            np.percentile(gaps_ms, 50),
+            np.percentile(gaps_ms, 99),
+            gaps_ms.max(),
+        )
+        self._sent_at_s = [now_s]

@@ -17,8 +17,16 @@ from typing import Any
 from sim.hil_sensors import HilSensors
 from sim.motor_mixer import QuadMixer
 from sim.plant import Plant
+from sim.px4_control import RateGains
 from sim.px4_endpoint import API_LOCAL_PORT, Px4Endpoint
-from sim.px4_firmware import AIRFRAME, LabParameters, Px4Process, free_instances, resolve_px4_dir
+from sim.px4_firmware import (
+    AIRFRAME,
+    LabParameters,
+    Px4Process,
+    free_instances,
+    rate_gain_multipliers,
+    resolve_px4_dir,
+)
 from sim.px4_sitl import Px4SitlVehicle
 from sim.world import SimulatedVehicle, SimulatedWorld, VehicleFactory
 from supervisor.app.assembly import (
@@ -28,7 +36,7 @@ from supervisor.app.assembly import (
 )
 from supervisor.app.config import Config
 from supervisor.logs.logging_setup import configure_logging
-from supervisor.runtime.cpu import single_threaded_blas
+from supervisor.runtime.cpu import raise_priority, single_threaded_blas
 
 log = logging.getLogger(__name__)
 
@@ -84,10 +92,18 @@ def _px4_sitl_vehicles(
         folder.mkdir(parents=True, exist_ok=True)
         for stored in folder.glob("parameters*.bson"):
             stored.unlink()  # boot from the airframe defaults and ours, not a past run's
+        unit_torque = mixer.unit_torque_nm()
         parameters = LabParameters(
             system_id=config.vehicles.system_ids[k],
             offboard_loss_timeout_s=config.vehicles.offboard_loss_timeout_s,
             hover_thrust=round(carried_n / mixer.thrust_max_n, 3),
+            # The rate loop as fast as our simulated PX4's, which the MPC's rate
+            # look-ahead is tuned for.
+            rate_gain_k=rate_gain_multipliers(
+                (float(unit_torque[0]), float(unit_torque[1]), float(unit_torque[2])),
+                params.uavs[k].inertia_kgm2,
+                RateGains().kp,
+            ),
         )
         return Px4SitlVehicle(
             plant.uav(uav),
@@ -139,6 +155,9 @@ def run_world_process(config: Config, ready: Connection) -> None:
     SIGTERM or until the parent closes its end of ``ready``."""
     configure_logging()
     single_threaded_blas()
+    # The world's frames and PX4's sensor samples are as punctual as the flight process's
+    # ticks: a late one is a real gap to whoever reads it (PX4 children inherit this).
+    log.info("world process: %s", raise_priority())
 
     async def main() -> None:
         stop = asyncio.Event()
