@@ -13,7 +13,11 @@ import numpy as np
 import pytest
 
 from benchmarks.service import RunningService, running_service
-from supervisor.logs.flight_log import read_flight_log
+from controllers.params import BarSystemParams
+from geometry.state import P_B, bar_ends, uav_position
+from sim.px4_firmware import FirmwareError, resolve_px4_dir
+from supervisor.app.config import CONFIG_DIR, load_config
+from supervisor.logs.flight_log import FlightLog, read_flight_log
 
 TOKEN = "e2e-token-0123456789"
 SETPOINTS = [
@@ -74,9 +78,38 @@ async def refused_without_token(service: RunningService) -> None:
         assert after[key] == before[key], key
 
 
+def require_px4() -> None:
+    """Skip, saying why, when no PX4 SITL build can be found (sim/px4_firmware.py)."""
+    try:
+        resolve_px4_dir(None)
+    except FirmwareError as missing:
+        pytest.skip(f"real PX4 firmware not available: {missing}")
+
+
+def slack_while_airborne(log: FlightLog, params: BarSystemParams) -> float:
+    """The largest cable slack [m] the mocap saw while the bar was off the ground: cable
+    length minus the UAV-to-bar-end distance."""
+    worst = 0.0
+    arms = (params.d1_m, params.d2_m)
+    for x in log.state[np.asarray(log.state)[:, P_B][:, 2] > 0.1]:
+        for i, end in enumerate(bar_ends(x, arms), start=1):
+            chord = float(np.linalg.norm(uav_position(x, i) - end))
+            worst = max(worst, params.cable_lengths_m[i - 1] - chord)
+    return worst
+
+
 @pytest.mark.slow
-async def test_a_whole_flight_over_http(tmp_path: Path) -> None:
-    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+@pytest.mark.parametrize("vehicles", ["simulated", pytest.param("px4_sitl", marks=pytest.mark.px4)])
+async def test_a_whole_flight_over_http(tmp_path: Path, vehicles: str) -> None:
+    """Arm, take off, fly two setpoints (the bar within 5 cm of each), switch to the
+    decentralized MPC, land — on our simulated PX4s and on two real PX4 SITL instances."""
+    if vehicles == "px4_sitl":
+        require_px4()
+    overrides = [f'sim.vehicles="{vehicles}"']
+    async with (
+        running_service(TOKEN, tmp_path, overrides) as service,
+        service.client() as http,
+    ):
         await ready(service, http)
         await refused_without_token(service)
         await take_off(service, http)
@@ -110,6 +143,7 @@ async def test_a_whole_flight_over_http(tmp_path: Path) -> None:
     switch = log.controllers.index("decentralized")
     jumps = np.abs(np.diff(log.inputs[switch - 5 : switch + 20, [0, 4]], axis=0))
     assert jumps.max() < 1.5
+    assert slack_while_airborne(log, load_config(CONFIG_DIR / "sim.toml").system.to_params()) < 0.05
 
 
 @pytest.mark.slow

@@ -117,10 +117,10 @@ def _px4_sitl_vehicles(
 
 
 def _link_ports(world: SimulatedWorld) -> list[int] | None:
-    """The UDP ports the supervisor must listen on, when the vehicles fix them (real PX4
-    sends its offboard link to 14540 + its instance)."""
-    ports = [getattr(v, "client_port", None) for v in world.vehicles]
-    return [p for p in ports if p is not None] or None
+    """The UDP ports the supervisor must listen on when the vehicles fix them: a real PX4
+    sends its offboard link to 14540 + its instance (ours answer whoever talks to them)."""
+    ports = [v.client_port for v in world.vehicles if isinstance(v, Px4SitlVehicle)]
+    return ports or None
 
 
 async def run_world(
