@@ -1,6 +1,7 @@
 """The flight-control loops of the simulated PX4: body-rate PID (what PX4's rate
 controller does with SET_ATTITUDE_TARGET body rates) and the position/attitude cascade its
-own modes use (hold and land). Pure; SI units; body frame FLU, arena ENU.
+own modes use (position and altitude hold, stabilized, land). Pure; SI units; body frame
+FLU, arena ENU.
 
 PX4 runs its rate loop at 250 Hz–1 kHz; here it runs whenever the world steps it (every
 plant chunk, ~500 Hz), integrating over the actual elapsed time.
@@ -78,7 +79,10 @@ class HoldGains:
 @dataclass
 class HoldController:
     """PX4's own position modes, reduced: hold a position (or descend at a rate) with a
-    level attitude and held yaw; returns (thrust [N], body-rate setpoint [rad/s])."""
+    level attitude and held yaw; returns (thrust [N], body-rate setpoint [rad/s]).
+    ``hover_thrust_n`` is the thrust PX4 believes hovers the vehicle (MPC_THR_HOVER times
+    the vehicle's thrust at normalized 1.0): the model updates it when that parameter
+    changes."""
 
     hover_thrust_n: float
     gains: HoldGains = field(default_factory=HoldGains)
@@ -96,11 +100,16 @@ class HoldController:
         velocity_mps: FloatArray,
         rotation: FloatArray,
         dt: float,
+        *,
+        hold_horizontal: bool = True,
     ) -> tuple[float, FloatArray]:
         """``climb_rate_mps`` None holds ``target_m``; a value tracks that vertical speed
-        (negative: descend) while holding x, y."""
+        (negative: descend) while holding x, y. ``hold_horizontal`` False holds the height
+        only, level (PX4's altitude mode with centred sticks: the vehicle drifts)."""
         g = self.gains
         accel = g.kp * (target_m - position_m) - g.kv * velocity_mps
+        if not hold_horizontal:
+            accel[0:2] = 0.0
         if climb_rate_mps is not None:
             accel[2] = g.kv * (climb_rate_mps - velocity_mps[2])
         self._integral_z = float(np.clip(self._integral_z + accel[2] * dt, -2.0, 2.0))
@@ -112,6 +121,19 @@ class HoldController:
         if horizontal > limit and horizontal > 0.0:
             force[0:2] *= limit / horizontal
         force[2] = max(force[2], 0.0)
+        return self._track(force, yaw_rad, rotation)
+
+    def level(self, yaw_rad: float, rotation: FloatArray) -> tuple[float, FloatArray]:
+        """PX4's stabilized mode with centred sticks: level attitude, held yaw, the hover
+        thrust (MPC_THR_HOVER is what the centred throttle stick maps to), no height hold."""
+        return self._track(np.array([0.0, 0.0, self.hover_thrust_n]), yaw_rad, rotation)
+
+    def _track(
+        self, force: FloatArray, yaw_rad: float, rotation: FloatArray
+    ) -> tuple[float, FloatArray]:
+        """Thrust along the body z axis and the body rates that turn it toward ``force``
+        (arena ENU [N]) with heading ``yaw_rad``."""
+        g = self.gains
         norm = float(np.linalg.norm(force))
         z_desired = force / norm if norm > 0.0 else np.array([0.0, 0.0, 1.0])
         heading = np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])

@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Protocol
 
 from geometry.frames import euler_zyx_from_quaternion
@@ -81,12 +82,15 @@ class SimulatedWorld:
         qtm_port: int = 22223,
         step_period_s: float = 0.002,
         clock: Callable[[], float] = time.monotonic,
+        event_definitions: Path | None = None,
     ) -> None:
         self.plant = Plant(plant_params)
         self.mocap = MocapModel(mocap_params)
         self.vehicles = [vehicles(self.plant, i) for i in (1, 2)]
         self.qtm = QtmServer(list(body_names), host=qtm_host, port=qtm_port, rate_hz=None)
         self.step_period_s = step_period_s
+        self.event_definitions = event_definitions
+        """The definitions of the events its vehicles send (PX4's libevents format)."""
         self._sleeper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="world-sleep")
         self._clock = clock
         self._t0 = 0.0

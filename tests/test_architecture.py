@@ -22,8 +22,14 @@ ALLOWED = {
     "benchmarks": {"geometry", "controllers", "mocap", "sim", "supervisor", "api"},
 }
 # The simulated PX4 speaks MAVLink through the same sans-IO codec and UDP transport as the
-# supervisor's link, and nothing else of the supervisor.
-SIM_MAY_USE = {"supervisor.mavlink.codec", "supervisor.mavlink.transport"}
+# supervisor's link (with PX4's event messages and catalog, to emit events), and nothing else
+# of the supervisor.
+SIM_MAY_USE = {
+    "supervisor.mavlink.codec",
+    "supervisor.mavlink.transport",
+    "supervisor.mavlink.px4_messages",
+    "supervisor.mavlink.events",
+}
 
 # The rooms of supervisor/, and which other rooms each may import: arrows point one way,
 # and a value type lives in the lowest room that uses it.
@@ -51,6 +57,9 @@ PURE = {
     "supervisor/flight": NO_IO,
     "supervisor/mavlink/codec.py": NO_IO,
     "supervisor/mavlink/session.py": NO_IO,
+    "supervisor/mavlink/px4_messages.py": NO_IO,
+    "supervisor/mavlink/events.py": NO_IO,
+    "supervisor/mavlink/parameters.py": NO_IO,
     "mocap/qtm_protocol.py": NO_IO,
     "mocap/fusion.py": NO_IO,
 }

@@ -158,8 +158,10 @@ def link_configs_from_config(
     config: Config,
     vehicle_addresses: tuple[tuple[str, int], tuple[str, int]] | None = None,
     local_ports: tuple[int, int] | None = None,
+    events_path: str | None = None,
 ) -> tuple[LinkConfig, LinkConfig]:
-    """Both vehicles' MAVLink links (the embedded world passes its own addresses/ports)."""
+    """Both vehicles' MAVLink links (the embedded world passes its own addresses, ports and
+    event definitions)."""
     v = config.vehicles
     thrust, torque = _per_vehicle(v.thrust_max_n), _per_vehicle(v.torque_max_nm)
     configured = [
@@ -180,6 +182,7 @@ def link_configs_from_config(
             ack_timeout_s=v.ack_timeout_s,
             retries=v.retries,
             link_loss_s=v.link_loss_s,
+            events_path=events_path or v.px4_events,
         )
         for k in range(2)
     ]
@@ -188,16 +191,33 @@ def link_configs_from_config(
 
 def px4_params_from_config(config: Config, uav: int) -> Px4Params:
     """The simulated PX4 of UAV ``uav`` (1 or 2): the vehicle's true calibration (the
-    configured one, times ``sim.px4_thrust_scale``) and its hover thrust with half the bar."""
+    configured one, times ``sim.px4_thrust_scale``), its hover thrust with half the bar, and
+    the parameters a mocap lab boots with — the same ``LabParameters`` the real-firmware
+    back-end writes (offboard loss: land after ``vehicles.offboard_loss_timeout_s``; vision
+    only; MAV_SYS_ID the configured system id)."""
+    from sim.px4_firmware import LabParameters  # here: only this function may change
+
     params = config.system.to_params()
     k = uav - 1
     inertia = params.uavs[k].inertia_kgm2
     carried_kg = params.uavs[k].mass_kg + params.payload_mass_kg(uav)  # (13)
+    thrust_max_n = _per_vehicle(config.vehicles.thrust_max_n)[k]
+    thrust_scale = config.sim.px4_thrust_scale[k]
+    hover_thrust_n = carried_kg * params.gravity_mps2
+    lab = LabParameters(
+        system_id=config.vehicles.system_ids[k],
+        offboard_loss_timeout_s=config.vehicles.offboard_loss_timeout_s,
+        hover_thrust=hover_thrust_n / (thrust_max_n * thrust_scale),
+    )
     return Px4Params(
         inertia_kgm2=(inertia[0], inertia[1], inertia[2]),
-        thrust_max_n=_per_vehicle(config.vehicles.thrust_max_n)[k],
+        thrust_max_n=thrust_max_n,
         torque_max_nm=_per_vehicle(config.vehicles.torque_max_nm)[k],
-        thrust_scale=config.sim.px4_thrust_scale[k],
-        hover_thrust_n=carried_kg * params.gravity_mps2,
+        thrust_scale=thrust_scale,
+        hover_thrust_n=hover_thrust_n,
+        offboard_loss_timeout_s=config.vehicles.offboard_loss_timeout_s,
+        offboard_loss_action=4,  # COM_OBL_RC_ACT: land (LabParameters sets it too)
         require_vision=config.sim.px4_require_vision,
+        boot_parameters=tuple((name, float(value)) for name, value in lab.values().items()),
+        seed=config.sim.seed,
     )

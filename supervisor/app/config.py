@@ -347,6 +347,9 @@ class VehiclesSection(_Section):
     # failsafe (COM_OBL_RC_ACT = land) takes over. Short, so a held command is not flown
     # for long when the control loop stops.
     offboard_loss_timeout_s: Annotated[float, Field(ge=0.1, le=60.0)] = 0.5
+    # PX4's event definitions (the firmware build's etc/extras/all_events.json.xz), to show
+    # its reasons (arming refusals, failsafes) in words. The embedded world brings its own.
+    px4_events: str | None = None
 
     @field_validator("addresses")
     @classmethod

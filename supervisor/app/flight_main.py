@@ -24,7 +24,7 @@ from supervisor.app.config import Config
 from supervisor.ipc.channel import Channel
 from supervisor.logs.logging_setup import queued_logging
 from supervisor.mavlink.link import MavlinkLink
-from supervisor.runtime.cpu import raise_priority, single_threaded_blas
+from supervisor.runtime.cpu import name_process, raise_priority, single_threaded_blas
 from supervisor.runtime.flight_process import FlightProcess, FlightSettings
 from supervisor.runtime.tick_driver import TickDriver
 
@@ -37,26 +37,36 @@ def _host_port(address: str) -> tuple[str, int]:
 
 
 async def fly(
-    config: Config, commands: Channel, urgent: Channel, world: dict[str, Any] | None
+    config: Config,
+    commands: Channel,
+    urgent: Channel,
+    world: dict[str, Any] | None,
+    link_sockets: tuple[socket.socket, socket.socket] | None = None,
+    relayed: bool = False,
 ) -> None:
-    """Run the flight process on already opened channels."""
+    """Run the flight process on already opened channels (and the links' sockets, bound by
+    ``serve``)."""
     if world is not None:
         qtm_host, qtm_port = _host_port(world["qtm"])
         vehicles = [_host_port(address) for address in world["vehicles"]]
         ports = world.get("link_ports") or (0, 0)
         link_configs = link_configs_from_config(
-            config, (vehicles[0], vehicles[1]), (ports[0], ports[1])
+            config, (vehicles[0], vehicles[1]), (ports[0], ports[1]), world.get("px4_events")
         )
     else:
         qtm_host, qtm_port = config.mocap.host, config.mocap.port
         link_configs = link_configs_from_config(config)
-    links = (MavlinkLink(link_configs[0]), MavlinkLink(link_configs[1]))
+    sockets = link_sockets or (None, None)
+    links = (
+        MavlinkLink(link_configs[0], sock=sockets[0]),
+        MavlinkLink(link_configs[1], sock=sockets[1]),
+    )
     for link in links:
         await link.start()
     try:
         async with QtmClient(qtm_host, qtm_port) as mocap:
             process = FlightProcess(
-                FlightSettings(config.mpc.dt_s, config.mocap.phase_lock, config.name),
+                FlightSettings(config.mpc.dt_s, config.mocap.phase_lock, config.name, not relayed),
                 TickDriver(
                     flight_core_from_config(config, clock=time.perf_counter),
                     fusion_from_config(config),
@@ -76,16 +86,23 @@ async def fly(
 
 
 def run_flight_process(
-    config: Config, commands: socket.socket, urgent: socket.socket, world: dict[str, Any] | None
+    config: Config,
+    commands: socket.socket,
+    urgent: socket.socket,
+    world: dict[str, Any] | None,
+    link_sockets: tuple[socket.socket, socket.socket],
+    relayed: bool,
 ) -> None:
-    """Child-process entry of ``serve``."""
+    """Child-process entry of ``serve`` (``relayed``: the relay process forwards the mocap
+    to the vehicles)."""
     single_threaded_blas()
+    name_process("uavbar-flight")
 
     async def main() -> None:
         command_channel = await Channel.open(commands)
         urgent_channel = await Channel.open(urgent)
         try:
-            await fly(config, command_channel, urgent_channel, world)
+            await fly(config, command_channel, urgent_channel, world, link_sockets, relayed)
         finally:
             for channel in (command_channel, urgent_channel):
                 with contextlib.suppress(Exception):

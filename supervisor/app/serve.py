@@ -28,9 +28,11 @@ from api.app import create_app
 from api.server import HttpServer, bind
 from supervisor.app.assembly import arena_from_config
 from supervisor.app.config import TOKEN_ENV, Config, load_config
+from supervisor.app.relay_main import relay_addresses
 from supervisor.flight.operator_requests import ShutdownRequest
 from supervisor.ipc.channel import Channel
 from supervisor.ipc.client import FlightClient
+from supervisor.mavlink.transport import bind_udp
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
 
 log = logging.getLogger(__name__)
@@ -67,10 +69,56 @@ def _world_main(setup: Setup, ready: multiprocessing.connection.Connection) -> N
     run_world_process(setup.load(), ready)
 
 
-def _flight_main(setup: Setup, commands: socket.socket, urgent: socket.socket, world: Any) -> None:
+LinkSockets = tuple[socket.socket, socket.socket]
+
+
+def _flight_main(
+    setup: Setup,
+    commands: socket.socket,
+    urgent: socket.socket,
+    world: Any,
+    link_sockets: LinkSockets,
+    relayed: bool,
+) -> None:
     from supervisor.app.flight_main import run_flight_process
 
-    run_flight_process(setup.load(), commands, urgent, world)
+    run_flight_process(setup.load(), commands, urgent, world, link_sockets, relayed)
+
+
+def _relay_main(
+    setup: Setup,
+    world: Any,
+    link_sockets: LinkSockets,
+    parent: multiprocessing.connection.Connection,
+) -> None:
+    from supervisor.app.relay_main import run_relay_process
+
+    run_relay_process(setup.load(), world, link_sockets, parent)
+
+
+def _bind_link_sockets(config: Config, world: dict[str, Any] | None) -> LinkSockets:
+    """The vehicle links' UDP sockets, bound here so that the flight process and the mocap
+    relay both send from them (``supervisor.mavlink.relay``)."""
+    ports = (world.get("link_ports") or [0, 0]) if world is not None else config.vehicles.ports
+    host = config.vehicles.bind_host
+    return bind_udp(host, ports[0]), bind_udp(host, ports[1])
+
+
+def _start_relay(
+    setup: Setup, config: Config, world: dict[str, Any] | None, link_sockets: LinkSockets
+) -> tuple[BaseProcess, multiprocessing.connection.Connection] | None:
+    """The mocap relay process and the pipe whose closing stops it, when the vehicles'
+    addresses are known (else the flight process forwards the mocap itself)."""
+    if relay_addresses(config, world) is None:
+        log.info("mocap relay: vehicle addresses unknown, the flight process forwards mocap")
+        return None
+    parent, child = SPAWN.Pipe()
+    process = SPAWN.Process(
+        target=_relay_main, args=(setup, world, link_sockets, child), name="uavbar-relay"
+    )
+    process.start()
+    child.close()
+    return process, parent
 
 
 def _start_world(
@@ -114,15 +162,19 @@ async def serve(setup: Setup) -> int:
         world, world_pipe, started = await asyncio.to_thread(_start_world, setup)
         log.info("simulated world: QTM %s, PX4s %s", started["qtm"], ", ".join(started["vehicles"]))
         world_addresses = started
+    link_sockets = _bind_link_sockets(config, world_addresses)
+    relay = _start_relay(setup, config, world_addresses, link_sockets)
     pairs = [socket.socketpair() for _ in range(2)]
     flight = SPAWN.Process(
         target=_flight_main,
-        args=(setup, pairs[0][1], pairs[1][1], world_addresses),
+        args=(setup, pairs[0][1], pairs[1][1], world_addresses, link_sockets, relay is not None),
         name="uavbar-flight",
     )
     flight.start()
     for _, child_end in pairs:
         child_end.close()
+    for sock in link_sockets:
+        sock.close()  # the children hold their own copies
     # The flight process and the world it flies come first on a busy machine: requests
     # and WebSocket clients may wait, ticks and mocap frames may not.
     os.nice(API_NICENESS)
@@ -136,6 +188,7 @@ async def serve(setup: Setup) -> int:
         log.info("API token (generated; set %s or api.token to choose one): %s", TOKEN_ENV, token)
 
     stop = asyncio.Event()
+    flight_died = False
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
@@ -145,6 +198,17 @@ async def serve(setup: Setup) -> int:
             flight_link = group.create_task(client.run())
             stopper = group.create_task(stop.wait())
             await asyncio.wait({flight_link, stopper}, return_when=asyncio.FIRST_COMPLETED)
+            if flight_link.done() and not stop.is_set():
+                await asyncio.to_thread(flight.join, 5.0)
+                if flight.exitcode != 0:
+                    flight_died = True
+                    log.error(
+                        "the flight process died (exit status %s): nothing commands the "
+                        "vehicles now, each PX4's offboard-loss failsafe takes over; the API "
+                        "stays up (its status is marked stale); Ctrl-C stops",
+                        flight.exitcode,
+                    )
+                    await stopper
             if not flight_link.done():
                 await client.request(ShutdownRequest())
                 with contextlib.suppress(TimeoutError):
@@ -156,10 +220,15 @@ async def serve(setup: Setup) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
         await asyncio.to_thread(_stop, flight, 10.0)
+        if relay is not None:
+            await asyncio.to_thread(_stop, relay[0], 5.0)
+            relay[1].close()
         await asyncio.to_thread(_stop, world, 10.0)
         if world_pipe is not None:
             world_pipe.close()
         await client.close()
+    if flight_died:
+        return 1
     return 0 if flight.exitcode in (0, None) or stop.is_set() else 1
 
 

@@ -18,7 +18,7 @@ from sim.hil_sensors import HilSensors
 from sim.motor_mixer import QuadMixer
 from sim.plant import Plant
 from sim.px4_control import RateGains
-from sim.px4_endpoint import API_LOCAL_PORT, Px4Endpoint
+from sim.px4_endpoint import API_LOCAL_PORT, CATALOG_PATH, Px4Endpoint
 from sim.px4_firmware import (
     AIRFRAME,
     LabParameters,
@@ -36,9 +36,11 @@ from supervisor.app.assembly import (
 )
 from supervisor.app.config import Config
 from supervisor.logs.logging_setup import configure_logging
-from supervisor.runtime.cpu import raise_priority, single_threaded_blas
+from supervisor.runtime.cpu import name_process, raise_priority, single_threaded_blas
 
 log = logging.getLogger(__name__)
+
+WORLD_PRIORITY = 5  # SCHED_FIFO, below the flight process's REALTIME_PRIORITY
 
 
 def build_world(
@@ -47,6 +49,7 @@ def build_world(
     """The world of ``config``; a simulated vehicle i sends to the supervisor's
     ``vehicles.ports[i]`` until a client talks to it, a real PX4 to its instance's port."""
     plant_params = plant_params_from_config(config)
+    events = CATALOG_PATH
     if config.sim.vehicles == "px4_sitl":
         px4_dir = resolve_px4_dir(config.sim.px4_dir)
         mixer = QuadMixer.from_airframe(px4_dir / "etc" / "init.d-posix" / "airframes" / AIRFRAME)
@@ -55,6 +58,7 @@ def build_world(
             config, (mixer.thrust_max_n, (float(limits[0]), float(limits[1]), float(limits[2])))
         )
         vehicle = _px4_sitl_vehicles(config, px4_dir, mixer, host)
+        events = px4_dir / "etc" / "extras" / "all_events.json.xz"
     else:
 
         def vehicle(plant: Plant, uav: int) -> SimulatedVehicle:
@@ -67,14 +71,16 @@ def build_world(
                 client_port=config.vehicles.ports[uav - 1] or 14540 + uav - 1,
             )
 
-    return SimulatedWorld(
+    world = SimulatedWorld(
         plant_params,
         mocap_params_from_config(config),
         vehicle,
         body_names=config.mocap.bodies,
         qtm_host=host,
         qtm_port=qtm_port,
+        event_definitions=events,
     )
+    return world
 
 
 def _px4_sitl_vehicles(
@@ -139,6 +145,7 @@ async def run_world(
                 "qtm": f"{addresses.qtm_host}:{addresses.qtm_port}",
                 "vehicles": list(addresses.vehicles),
                 "link_ports": _link_ports(world),
+                "px4_events": str(world.event_definitions),
             }
         )
         runner = asyncio.create_task(world.run())
@@ -155,9 +162,11 @@ def run_world_process(config: Config, ready: Connection) -> None:
     SIGTERM or until the parent closes its end of ``ready``."""
     configure_logging()
     single_threaded_blas()
-    # The world's frames and PX4's sensor samples are as punctual as the flight process's
-    # ticks: a late one is a real gap to whoever reads it (PX4 children inherit this).
-    log.info("world process: %s", raise_priority())
+    name_process("uavbar-world")
+    # The world's frames and PX4's sensor samples are punctual: a late one is a real gap to
+    # whoever reads it (PX4 children inherit this). Below the flight process, whose ticks
+    # the simulated world must never delay.
+    log.info("world process: %s", raise_priority(WORLD_PRIORITY))
 
     async def main() -> None:
         stop = asyncio.Event()

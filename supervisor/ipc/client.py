@@ -17,6 +17,10 @@ from supervisor.flight.operator_requests import Outcome, Reply, Request, is_urge
 from supervisor.ipc.channel import Channel, ChannelClosedError
 from supervisor.ipc.messages import ReplyMessage, RequestMessage, TelemetryMessage
 
+# supervisor.vehicles.sequences.arm_for_offboard: 1.2 s of proof of life, then two commands
+# of up to 3 × 0.5 s each on a slow link.
+ARM_TIMEOUT_S = 8.0
+
 
 def _unavailable(reason: str) -> Reply:
     return Reply(outcome=Outcome.UNAVAILABLE, reason=reason)
@@ -96,12 +100,15 @@ class FlightClient:
         future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
         self._pending[request_id] = future
         channel = self._channels["urgent" if is_urgent(request) else "commands"]
+        # Arming answers after the vehicles' sequence: a second of proof of life, then
+        # offboard and arm, each retried when an acknowledgement is late.
+        timeout_s = ARM_TIMEOUT_S if request.kind == "arm" else self._timeout_s
         try:
             channel.send(RequestMessage(id=request_id, request=request))
-            async with asyncio.timeout(self._timeout_s):
+            async with asyncio.timeout(timeout_s):
                 return await future
         except TimeoutError:
-            return _unavailable(f"no answer from the flight process in {self._timeout_s} s")
+            return _unavailable(f"no answer from the flight process in {timeout_s} s")
         except ChannelClosedError:
             return _unavailable("the flight process is not running")
         finally:

@@ -1,1 +1,1 @@
-"""MAVLink 2: sans-IO codec and session, one UDP transport, the asyncio link to a PX4."""
+"""MAVLink 2: sans-IO codec, PX4 events, session, parameters; UDP transport; the asyncio link."""

@@ -6,13 +6,19 @@ file is an in-memory queue, so ``messages.heartbeat_send(...)`` only queues the 
 (sequence numbers and all, as pymavlink keeps them) and the adapter takes the frames with
 ``outgoing()`` and sends them however it moves bytes. The supervisor's link and the
 simulated PX4 both use this codec over ``supervisor.mavlink.transport``.
+
+``mavlink`` here is the project's one MAVLink dialect (``development``, a superset of
+``common``, with PX4's EVENT messages added: ``supervisor.mavlink.px4_messages``); import it
+from here. ``codec.messages.send(msg)`` queues any message, the added ones included.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from pymavlink.dialects.v20 import common as mavlink
+from supervisor.mavlink.px4_messages import mavlink
+
+__all__ = ["PARSE_ERRORS", "Decoded", "MavlinkCodec", "mavlink"]
 
 # What pymavlink raises on bytes it cannot make sense of (a fuzzer found each of them).
 PARSE_ERRORS = (mavlink.MAVError, ValueError, IndexError, TypeError, OverflowError)

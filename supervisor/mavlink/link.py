@@ -4,16 +4,21 @@
 Like a MAVLink client on PX4's offboard/API link (docs/reference/px4-offboard.md §2–4): it
 listens on a local UDP port (14540+i by default; PX4 sends there) and answers the address
 the vehicle's datagrams come from; given the vehicle's address it also announces itself first (the
-embedded simulator, whose ports are picked at run time). It sends a HEARTBEAT at 1 Hz,
-detects link loss when the vehicle's heartbeats stop, sends commands and waits for their
-COMMAND_ACK (with retries), and sends exactly the setpoints the control loop hands it —
-nothing repeats them, so when the loop stops the stream stops and PX4's offboard-loss
+embedded simulator, whose ports are picked at run time). It sends a HEARTBEAT at 1 Hz as a
+ground station (MAV_TYPE_GCS: PX4 does not count an ONBOARD_CONTROLLER as one, §5 item 10),
+detects link loss when the vehicle's messages stop (any of them: PX4's heartbeat alone has
+2 s gaps), answers PX4's TIMESYNC requests, reads and sets parameters (PARAM_VALUE echo
+verified), sends commands and waits for their COMMAND_ACK (with retries; a refusal carries
+PX4's own reason, from its EVENT), and sends exactly the setpoints the control loop hands
+it — nothing repeats them, so when the loop stops the stream stops and PX4's offboard-loss
 failsafe takes over.
 
 Setpoints: ``actuator`` mode sends SET_ACTUATOR_CONTROL_TARGET group 0 (torques FRD
 normalized by ``torque_max_nm``, thrust by ``thrust_max_n``: the vehicle's calibration);
 ``rates`` mode sends SET_ATTITUDE_TARGET with type_mask 128 (body rates FRD + thrust).
-Mocap is forwarded as VISION_POSITION_ESTIMATE or ODOMETRY in NED/FRD.
+Mocap is forwarded as VISION_POSITION_ESTIMATE or ODOMETRY in NED/FRD, once per new frame,
+stamped with the frame's capture time on the link's clock: the clock our TIMESYNC answers
+carry, so PX4 maps the stamp onto its own time (§5 item 8).
 """
 
 from __future__ import annotations
@@ -21,26 +26,39 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
 
 from geometry.arrays import FloatArray
 from geometry.frames import (
-    enu_to_ned,
-    euler_zyx_from_rotation,
     flu_to_frd,
-    quaternion_from_rotation,
-    rotation_enu_flu_to_ned_frd,
-    rotation_from_quaternion,
 )
-from supervisor.mavlink.codec import MavlinkCodec
-from supervisor.mavlink.session import CommandAck, VehicleSession
+from supervisor.mavlink.codec import MavlinkCodec, mavlink
+from supervisor.mavlink.events import EventCatalog
+from supervisor.mavlink.parameters import (
+    ParameterClient,
+    ParameterError,
+    ParamNumber,
+    ParamValue,
+    format_value,
+    param_id_bytes,
+)
+from supervisor.mavlink.px4_messages import request_event_send
+from supervisor.mavlink.session import (
+    AUTOPILOT_COMPONENT,
+    REASON_WAIT_S,
+    CommandAck,
+    EventRequest,
+    TimesyncReply,
+    VehicleSession,
+)
 from supervisor.mavlink.transport import Address, UdpTransport
+from supervisor.mavlink.vision import VisionEncoder
 from supervisor.vehicles.types import UavCommand, VehicleCommandError, VehicleView
 
 FORCE_MAGIC = 21196
@@ -49,7 +67,10 @@ FORCE_MAGIC = 21196
 @dataclass(frozen=True)
 class LinkConfig:
     """One vehicle's link. ``local_port`` 0: any free port. ``vehicle_address`` (host,
-    port), when known, is contacted first; otherwise the vehicle's first datagram tells."""
+    port), when known, is contacted first; otherwise the vehicle's first datagram tells.
+    ``link_loss_s``: silence of the vehicle's autopilot (any message) that counts as lost.
+    ``events_path``: the firmware's event definitions (``etc/extras/all_events.json.xz`` of
+    the PX4 build), to put PX4's events in words; None: events are shown by their id."""
 
     system_id: int
     local_host: str = "0.0.0.0"
@@ -64,6 +85,7 @@ class LinkConfig:
     link_loss_s: float = 1.5
     source_system: int = 255
     source_component: int = 190
+    events_path: str | None = None
 
 
 @dataclass
@@ -78,27 +100,48 @@ class LinkCounters:
     thrust_clipped: int = 0
     torque_clipped: int = 0
     mocap_sent: int = 0
+    mocap_skipped: int = 0  # a frame not newer than the last one sent
+    timesync_answered: int = 0
+    events_requested: int = 0
 
 
 class MavlinkLink:
-    """``supervisor.vehicles.link.VehicleLink`` over MAVLink 2 / UDP."""
+    """``supervisor.vehicles.link.VehicleLink`` over MAVLink 2 / UDP. ``clock`` [s] is the
+    time base of everything the link stamps: liveness, TIMESYNC answers, mocap ``time_s``.
+    ``catalog`` overrides ``config.events_path``."""
 
-    def __init__(self, config: LinkConfig, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        config: LinkConfig,
+        clock: Callable[[], float] = time.monotonic,
+        catalog: EventCatalog | None = None,
+        sock: socket.socket | None = None,
+    ) -> None:
+        """``sock``: an already bound socket to use instead of binding ``config``'s port
+        (``serve`` binds it, so that the mocap relay sends from the same address: PX4
+        streams its link to the first address that talks to it, and only there)."""
         self.config = config
         self.counters = LinkCounters()
         self._clock = clock
         self.codec = MavlinkCodec(config.source_system, config.source_component)
-        self.session = VehicleSession(config.system_id, config.link_loss_s, clock())
+        if catalog is None and config.events_path:
+            catalog = EventCatalog.load(config.events_path)
+        self.session = VehicleSession(config.system_id, config.link_loss_s, clock(), catalog)
+        self.parameters = ParameterClient()
+        self._socket = sock
         self._transport: UdpTransport | None = None
         self._peer: Address | None = config.vehicle_address
         self._tasks: list[asyncio.Task[None]] = []
         self._acks: dict[int, asyncio.Future[CommandAck]] = {}
+        self._param_waiters: dict[str, asyncio.Future[ParamValue]] = {}
+        self._text_arrived = asyncio.Event()
+        self._vision = VisionEncoder(self.codec.messages, config.mocap_message)
 
     # ---- lifecycle ----------------------------------------------------------------------------
     async def start(self) -> None:
         c = self.config
         self._transport = await UdpTransport.open(
-            (c.local_host, c.local_port), self.handle_datagram, self._peer
+            (c.local_host, c.local_port), self.handle_datagram, self._peer, self._socket
         )
         loop = asyncio.get_running_loop()
         self._tasks.append(loop.create_task(self._heartbeats(), name=f"mavlink-hb-{c.system_id}"))
@@ -128,8 +171,9 @@ class MavlinkLink:
     async def _heartbeats(self) -> None:
         while True:
             if self.session.heartbeat_due(self._clock()):
+                # A ground station: PX4 counts no ONBOARD_CONTROLLER heartbeat as a GCS.
                 self.codec.messages.heartbeat_send(
-                    mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                    mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
                     mavlink.MAV_STATE_ACTIVE,
                 )  # fmt: skip
                 self._flush()
@@ -147,6 +191,7 @@ class MavlinkLink:
                 self.counters.foreign += 1
                 continue
             self.counters.messages += 1
+            texts = self.session.text_count
             ack = self.session.receive(message, now_s)
             if self.config.vehicle_address is None:
                 self._peer = sender  # answer where the vehicle talks from
@@ -156,6 +201,35 @@ class MavlinkLink:
                 future = self._acks.get(ack.command)
                 if future is not None and not future.done():
                     future.set_result(ack)
+            if self.session.text_count != texts:
+                self._text_arrived.set()
+            if message.get_type() == "PARAM_VALUE":
+                self._parameter_value(message)
+        self._answer()
+
+    def _parameter_value(self, message: object) -> None:
+        value = self.parameters.receive(message)
+        if value is not None:
+            waiter = self._param_waiters.get(value.name)
+            if waiter is not None and not waiter.done():
+                waiter.set_result(value)
+
+    def _answer(self) -> None:
+        """Send what the session says the vehicle expects back: at once, since PX4 uses a
+        TIMESYNC answer only when its round trip is under 10 ms (``Timesync.cpp``)."""
+        replies = self.session.replies()
+        for reply in replies:
+            if isinstance(reply, TimesyncReply):
+                self.codec.messages.timesync_send(reply.tc1_ns, reply.ts1_ns)
+                self.counters.timesync_answered += 1
+            elif isinstance(reply, EventRequest):
+                request_event_send(
+                    self.codec.messages, reply.target_system, reply.target_component,
+                    reply.first_sequence, reply.last_sequence,
+                )  # fmt: skip
+                self.counters.events_requested += 1
+        if replies:
+            self._flush()
 
     # ---- state --------------------------------------------------------------------------------
     @property
@@ -178,7 +252,7 @@ class MavlinkLink:
             raise VehicleCommandError("no link to the vehicle yet")
         padded = (*params, *([0.0] * (7 - len(params))))
         loop = asyncio.get_running_loop()
-        self.session.await_ack(command)
+        self.session.await_ack(command, *padded)
         try:
             for attempt in range(c.retries):
                 future: asyncio.Future[CommandAck] = loop.create_future()
@@ -194,10 +268,22 @@ class MavlinkLink:
                     self._acks.pop(command, None)
                 if ack.accepted:
                     return
+                await self._await_reason(ack)
                 raise VehicleCommandError(self.session.refusal(ack))
         finally:
             self.session.forget_ack(command)
         raise VehicleCommandError(f"command {command}: no acknowledgement after {c.retries} tries")
+
+    async def _await_reason(self, ack: CommandAck) -> None:
+        """Give PX4's reason for a refusal time to arrive: its EVENT (and STATUSTEXT) follow
+        the ACK by 2–9 ms (measured on v1.15.4), so wait up to ``REASON_WAIT_S`` (50 ms)
+        for a text received after the ACK."""
+        self._text_arrived.clear()
+        if self.session.heard_after(ack):
+            return
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(REASON_WAIT_S):
+                await self._text_arrived.wait()
 
     async def arm(self) -> None:
         await self.command(400, 1.0, 0.0)
@@ -213,6 +299,75 @@ class MavlinkLink:
 
     async def set_hold(self) -> None:
         await self.command(176, 1.0, 4.0, 3.0)  # AUTO.LOITER, as MAVSDK's offboard.stop()
+
+    # ---- parameters ----------------------------------------------------------------------------
+    async def _parameter_exchange(self, name: str, send: Callable[[], None]) -> ParamValue | None:
+        """Send once with ``send`` and wait ``ack_timeout_s`` for ``name``'s PARAM_VALUE."""
+        future: asyncio.Future[ParamValue] = asyncio.get_running_loop().create_future()
+        self._param_waiters[name] = future
+        self.parameters.await_value(name)
+        try:
+            send()
+            self._flush()
+            async with asyncio.timeout(self.config.ack_timeout_s):
+                return await future
+        except TimeoutError:
+            return None
+        finally:
+            self._param_waiters.pop(name, None)
+            self.parameters.forget(name)
+
+    async def read_parameter(self, name: str) -> ParamNumber:
+        """The vehicle's value of parameter ``name`` (int for integer parameters): a
+        PARAM_REQUEST_READ until answered (``retries`` tries of ``ack_timeout_s``); raises
+        ``VehicleCommandError`` on silence."""
+        c = self.config
+        if self._peer is None:
+            raise VehicleCommandError("no link to the vehicle yet")
+        try:
+            param_id = param_id_bytes(name)
+        except ParameterError as error:
+            raise VehicleCommandError(str(error)) from error
+        for _ in range(c.retries):
+            value = await self._parameter_exchange(
+                name,
+                lambda: self.codec.messages.param_request_read_send(
+                    c.system_id, AUTOPILOT_COMPONENT, param_id, -1
+                ),
+            )
+            if value is not None:
+                return value.value
+        raise VehicleCommandError(f"parameter {name}: no answer after {c.retries} tries")
+
+    async def set_parameter(self, name: str, value: ParamNumber) -> None:
+        """Set parameter ``name`` to ``value`` and check PX4's echo (a PARAM_VALUE) says the
+        same, retrying on silence or a different echo like commands. The parameter is read
+        first if its type is not known yet (PX4 copies a PARAM_SET's four bytes whatever type
+        it claims, so the value must be encoded in the parameter's own type). Raises
+        ``VehicleCommandError`` naming the mismatch or the silence."""
+        c = self.config
+        if name not in self.parameters.known:
+            await self.read_parameter(name)
+        try:
+            request = self.parameters.set_request(name, value)
+            param_id = param_id_bytes(name)
+        except ParameterError as error:
+            raise VehicleCommandError(str(error)) from error
+        problem = f"parameter {name}: no echo after {c.retries} tries"
+        for _ in range(c.retries):
+            echoed = await self._parameter_exchange(
+                name,
+                lambda: self.codec.messages.param_set_send(
+                    c.system_id, AUTOPILOT_COMPONENT, param_id, request.raw, request.param_type
+                ),
+            )
+            if echoed is None:
+                continue
+            mismatch = self.parameters.mismatch(request, echoed)
+            if mismatch is None:
+                return
+            problem = f"parameter {mismatch} (set {format_value(request.value)} refused?)"
+        raise VehicleCommandError(problem)
 
     # ---- streams --------------------------------------------------------------------------------
     def normalized_thrust(self, thrust_n: float) -> float:
@@ -262,24 +417,11 @@ class MavlinkLink:
         self.counters.setpoints_sent += 1
 
     def send_mocap(self, position_m: FloatArray, quaternion: FloatArray, time_s: float) -> None:
-        """The vehicle's pose (arena ENU, FLU body → ENU quaternion) in NED/FRD."""
-        if not (np.all(np.isfinite(position_m)) and np.all(np.isfinite(quaternion))):
-            return
-        north, east, down = enu_to_ned(position_m)
-        R = rotation_enu_flu_to_ned_frd(rotation_from_quaternion(quaternion))
-        usec = int(time_s * 1e6)
-        if self.config.mocap_message == "vision_position_estimate":
-            roll, pitch, yaw = euler_zyx_from_rotation(R)
-            self.codec.messages.vision_position_estimate_send(
-                usec, north, east, down, roll, pitch, yaw
-            )
-        else:
-            q = [float(v) for v in quaternion_from_rotation(R)]
-            nan21 = [math.nan] * 21
-            self.codec.messages.odometry_send(
-                usec, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD,
-                north, east, down, q, math.nan, math.nan, math.nan,
-                math.nan, math.nan, math.nan, nan21, nan21,
-            )  # fmt: skip
-        self._flush()
-        self.counters.mocap_sent += 1
+        """The vehicle's pose (arena ENU, FLU body → ENU quaternion) in NED/FRD, captured at
+        ``time_s`` — the camera's capture time *on this link's clock* [s] (the caller maps
+        QTM's timestamp onto it). Sent once per frame (``supervisor.mavlink.vision``); its
+        ``usec`` is in the time base of our TIMESYNC answers, so PX4 maps it onto its own."""
+        if self._vision.queue(position_m, quaternion, time_s):
+            self._flush()
+        self.counters.mocap_sent = self._vision.sent
+        self.counters.mocap_skipped = self._vision.skipped

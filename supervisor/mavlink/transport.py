@@ -5,6 +5,7 @@ supervisor's link and the simulated PX4 both use it."""
 from __future__ import annotations
 
 import asyncio
+import socket
 from collections.abc import Callable, Iterable
 
 Address = tuple[str, int]
@@ -28,13 +29,23 @@ class UdpTransport:
 
     @classmethod
     async def open(
-        cls, local: Address, on_datagram: DatagramHandler, peer: Address | None = None
+        cls,
+        local: Address,
+        on_datagram: DatagramHandler,
+        peer: Address | None = None,
+        sock: socket.socket | None = None,
     ) -> UdpTransport:
-        """Bind ``local`` (port 0: any free port) and deliver what arrives to ``on_datagram``."""
+        """Bind ``local`` (port 0: any free port) — or take ``sock``, already bound — and
+        deliver what arrives to ``on_datagram``."""
         loop = asyncio.get_running_loop()
-        transport, _ = await loop.create_datagram_endpoint(
-            lambda: _Protocol(on_datagram), local_addr=local
-        )
+        if sock is not None:
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Protocol(on_datagram), sock=sock
+            )
+        else:
+            transport, _ = await loop.create_datagram_endpoint(
+                lambda: _Protocol(on_datagram), local_addr=local
+            )
         return cls(transport, peer)
 
     @property
@@ -50,3 +61,16 @@ class UdpTransport:
 
     def close(self) -> None:
         self._transport.close()
+
+
+def bind_udp(host: str, port: int) -> socket.socket:
+    """A UDP socket bound to ``host``:``port`` (0: any free port), non-blocking, to hand to
+    ``UdpTransport.open`` in this or another process."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind((host, port))
+    except OSError:
+        sock.close()
+        raise
+    sock.setblocking(False)
+    return sock

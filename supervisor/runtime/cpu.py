@@ -8,20 +8,24 @@ helper thread is an ordinary thread that the API's load can keep waiting
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import os
 
 from threadpoolctl import threadpool_limits
 
 REALTIME_PRIORITY = 10
+PR_SET_NAME = 15
 
 
-def raise_priority() -> str:
+def raise_priority(priority: int = REALTIME_PRIORITY) -> str:
     """Run the calling process ahead of everything else where the OS allows it:
-    SCHED_FIFO (as root; the control loop sleeps most of each period, so it cannot starve
-    the machine), else a lower niceness, else as is. Returns what it got, for the operator."""
+    SCHED_FIFO ``priority`` (as root; the control loop sleeps most of each period, so it
+    cannot starve the machine), else a lower niceness, else as is. Returns what it got, for
+    the operator."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
-        return f"real-time priority (SCHED_FIFO {REALTIME_PRIORITY})"
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        return f"real-time priority (SCHED_FIFO {priority})"
     except (PermissionError, AttributeError, OSError):
         pass
     try:
@@ -34,3 +38,11 @@ def raise_priority() -> str:
 def single_threaded_blas() -> None:
     """Limit every BLAS/OpenMP pool loaded in this process to one thread, for good."""
     threadpool_limits(limits=1)
+
+
+def name_process(name: str) -> None:
+    """Give this process a name ``ps``/``top`` show (Linux: the 15-character command name),
+    so that an operator can tell the flight process from the world at a glance."""
+    with contextlib.suppress(OSError, AttributeError):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_NAME, name.encode()[:15], 0, 0, 0)

@@ -55,11 +55,13 @@ FULL_COLLECTION_TICKS = 250  # a full garbage collection every 5 s, between two 
 @dataclass(frozen=True)
 class FlightSettings:
     """What the flight process needs of the setup besides its parts: the control period
-    [s], whether ticks lock to the mocap frames, and the setup's name (for flight logs)."""
+    [s], whether ticks lock to the mocap frames, the setup's name (for flight logs), and
+    whether it forwards the mocap to the vehicles itself (False: the relay process does)."""
 
     dt_s: float
     phase_lock: bool
     setup_name: str
+    forward_mocap: bool = True
 
 
 def _percentiles(values: deque[float]) -> tuple[float, float]:
@@ -207,7 +209,8 @@ class FlightProcess:
                 latency_ms = (self.clock() - newest.receive_time_s) * 1e3
                 wait_ms = (started - newest.receive_time_s) * 1e3
                 self.latency_ms.append(latency_ms)
-        self._forward_mocap()
+        if self.settings.forward_mocap:
+            self._forward_mocap()
         compute_s = self.clock() - started
         self.stats.record(timing, compute_s, self.settings.dt_s)
         self.last_tick = result

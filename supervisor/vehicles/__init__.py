@@ -1,1 +1,1 @@
-"""Vehicle value types, the VehicleLink protocol, arm/disarm/kill sequences over both."""
+"""Vehicle value types, the VehicleLink protocol, sequences over both (arm, kill, parameters)."""

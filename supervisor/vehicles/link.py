@@ -13,7 +13,7 @@ class VehicleLink(Protocol):
 
     @property
     def connected(self) -> bool:
-        """Heartbeats arrive."""
+        """The vehicle is heard (any of its autopilot's messages, not heartbeats alone)."""
         ...
 
     def view(self) -> VehicleView:
@@ -44,6 +44,17 @@ class VehicleLink(Protocol):
         """Send this tick's setpoint (never blocks)."""
         ...
 
+    async def read_parameter(self, name: str) -> float | int:
+        """The vehicle's value of parameter ``name`` (int for integer parameters); raises
+        ``VehicleCommandError`` when the vehicle does not answer."""
+        ...
+
+    async def set_parameter(self, name: str, value: float | int) -> None:
+        """Set parameter ``name`` and verify the vehicle's echo; raises
+        ``VehicleCommandError`` on a different echo or silence."""
+        ...
+
     def send_mocap(self, position_m: FloatArray, quaternion: FloatArray, time_s: float) -> None:
-        """Forward the vehicle's own mocap pose (arena frame, FLU→arena quaternion)."""
+        """Forward the vehicle's own mocap pose (arena frame, FLU→arena quaternion), captured
+        at ``time_s`` on the link's clock [s]; a frame not newer than the last is skipped."""
         ...

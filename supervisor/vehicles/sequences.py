@@ -1,5 +1,5 @@
 """The sequences the flight process runs over both vehicles: arming the PX4 way, disarming
-after a landing, killing.
+after a landing, killing, and checking or setting the parameters a flight relies on.
 
 PX4 enters offboard only after setpoints have streamed for more than a second at more than
 2 Hz (docs/reference/px4-offboard.md §2.3), so arming starts the idle stream first, waits out
@@ -10,6 +10,8 @@ vehicle that refuses leaves both disarmed.
 from __future__ import annotations
 
 import asyncio
+import math
+from collections.abc import Mapping
 
 from supervisor.vehicles.link import VehicleLink
 from supervisor.vehicles.types import VehicleCommandError
@@ -74,3 +76,60 @@ async def disarm_all(links: tuple[VehicleLink, ...]) -> list[str]:
 async def kill_all(links: tuple[VehicleLink, ...]) -> list[str]:
     """Force-disarm every vehicle at once; returns the failures."""
     return await _each(links, "kill")
+
+
+def _show(value: float) -> str:
+    """A parameter value as a person writes it: 4, 1.0 → 1, 0.5."""
+    return f"{value:g}"
+
+
+def _same(actual: float, expected: float) -> bool:
+    """Equal as PX4 stores them: exactly for integers, to float32 precision otherwise."""
+    return math.isclose(actual, expected, rel_tol=1e-6, abs_tol=1e-9)
+
+
+async def _check_one(index: int, link: VehicleLink, expected: Mapping[str, float]) -> list[str]:
+    problems = []
+    for name, want in expected.items():
+        try:
+            actual = await link.read_parameter(name)
+        except VehicleCommandError as error:
+            problems.append(f"vehicle {index}: {name} unreadable ({error})")
+            continue
+        if not _same(actual, want):
+            problems.append(f"vehicle {index}: {name} is {_show(actual)}, expected {_show(want)}")
+    return problems
+
+
+async def check_failsafe_parameters(
+    links: tuple[VehicleLink, ...], expected: Mapping[str, float]
+) -> list[str]:
+    """Read every parameter of ``expected`` on every vehicle (all at once) and name each one
+    that differs or cannot be read, e.g. "vehicle 1: COM_OBL_RC_ACT is 0, expected 4". An
+    empty list: all as expected. Which parameters and values matter is the caller's choice
+    (the failsafes a flight relies on: COM_OF_LOSS_T, COM_OBL_RC_ACT, …)."""
+    results = await asyncio.gather(
+        *(_check_one(i, link, expected) for i, link in enumerate(links, start=1))
+    )
+    return [problem for problems in results for problem in problems]
+
+
+async def _apply_one(index: int, link: VehicleLink, values: Mapping[str, float]) -> list[str]:
+    problems = []
+    for name, value in values.items():
+        try:
+            await link.set_parameter(name, value)
+        except VehicleCommandError as error:
+            problems.append(f"vehicle {index}: {error}")
+    return problems
+
+
+async def apply_parameters(
+    links: tuple[VehicleLink, ...], values: Mapping[str, float]
+) -> list[str]:
+    """Set every parameter of ``values`` on every vehicle, each verified by the vehicle's
+    echo; returns the failures (empty: all set)."""
+    results = await asyncio.gather(
+        *(_apply_one(i, link, values) for i, link in enumerate(links, start=1))
+    )
+    return [problem for problems in results for problem in problems]

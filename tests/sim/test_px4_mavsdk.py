@@ -13,6 +13,7 @@ import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import AttitudeRate, OffboardAsync
+from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
 from mavsdk.autopilot import Autopilot
 
@@ -121,6 +122,13 @@ async def test_stopping_the_setpoints_triggers_the_offboard_loss_failsafe() -> N
             system = await mavsdk.first_autopilot(timeout_s=5.0)
             assert system is not None
             action, offboard = ActionAsync(system), OffboardAsync(system)
+            # PX4's default offboard-loss action holds position (COM_OBL_RC_ACT 0); the
+            # lab's is to land. MAVSDK's own parameter client sets it (INT32, bytewise).
+            param = ParamAsync(system)
+            assert await param.get_param_int("COM_OBL_RC_ACT") == 0
+            assert await param.get_param_float("COM_OF_LOSS_T") == 1.0
+            await param.set_param_int("COM_OBL_RC_ACT", 4)
+            assert w.vehicle.model.parameters.get("COM_OBL_RC_ACT") == 4
             await action.arm()
             await stream(offboard, AttitudeRate(0.0, 0.0, 0.0, 0.0), 1.3)
             await offboard.start()
@@ -131,7 +139,8 @@ async def test_stopping_the_setpoints_triggers_the_offboard_loss_failsafe() -> N
         assert (model.main_mode, model.sub_mode) == (MainMode.AUTO, AutoMode.LAND)
         assert model.setpoint is not None
         assert 1.0 <= w.plant.time_s - model.setpoint.time_s <= 1.1  # COM_OF_LOSS_T = 1 s
-        assert "Failsafe: offboard lost, landing" in w.vehicle.texts_sent
+        failsafe = "Failsafe: the autopilot takes over, landing"  # an EVENT, as PX4 v1.15
+        assert ("commander_failsafe_enter_generic", failsafe) in w.vehicle.events_sent
         assert model.armed  # landing, not falling
         await w.until(lambda: not model.armed, 30.0)
         assert w.plant.on_ground(1)  # landed, then disarmed itself

@@ -1,0 +1,75 @@
+"""The mocap relay process's entry point (``serve`` starts it when it knows the vehicles'
+addresses: the embedded world's, or ``vehicles.addresses``)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import signal
+import socket
+from multiprocessing.connection import Connection
+from typing import Any
+
+from mocap.client import QtmClient
+from supervisor.app.assembly import body_names_from_config
+from supervisor.app.config import Config
+from supervisor.logs.logging_setup import configure_logging
+from supervisor.mavlink.codec import MavlinkCodec
+from supervisor.mavlink.relay import MocapRelay, VisionTarget
+from supervisor.mavlink.vision import VisionEncoder
+from supervisor.runtime.cpu import name_process, raise_priority
+
+log = logging.getLogger(__name__)
+
+GROUND_STATION_SYSTEM = 255  # the system id our links speak as
+VISION_COMPONENT = 197  # MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY
+
+
+def _host_port(address: str) -> tuple[str, int]:
+    host, _, port = address.rpartition(":")
+    return host, int(port)
+
+
+def relay_addresses(config: Config, world: dict[str, Any] | None) -> list[str] | None:
+    """Where the relay sends each vehicle's poses, if known before any vehicle talks."""
+    if world is not None:
+        return list(world["vehicles"])
+    return list(config.vehicles.addresses) if config.vehicles.addresses else None
+
+
+def run_relay_process(
+    config: Config,
+    world: dict[str, Any] | None,
+    sockets: tuple[socket.socket, socket.socket],
+    parent: Connection,
+) -> None:
+    """Child-process entry: relay through the links' ``sockets`` until SIGTERM or until
+    ``parent`` closes."""
+    configure_logging()
+    name_process("uavbar-relay")
+    addresses = relay_addresses(config, world)
+    assert addresses is not None, "serve starts the relay only with known addresses"
+    qtm_host, qtm_port = (
+        _host_port(world["qtm"]) if world else (config.mocap.host, config.mocap.port)
+    )
+    names = body_names_from_config(config)
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        loop.add_signal_handler(signal.SIGTERM, stop.set)
+        loop.add_signal_handler(signal.SIGINT, lambda: None)  # the parent decides
+        loop.add_reader(parent.fileno(), stop.set)  # readable at EOF: the parent is gone
+        targets = []
+        for body, address, sock in zip((names.uav1, names.uav2), addresses, sockets, strict=True):
+            codec = MavlinkCodec(GROUND_STATION_SYSTEM, VISION_COMPONENT)
+            encoder = VisionEncoder(codec.messages, config.vehicles.mocap_message)
+            targets.append(VisionTarget(body, codec, encoder, sock, _host_port(address)))
+        log.info("mocap relay: %s; poses of %s to %s", raise_priority(), names, addresses)
+        try:
+            async with QtmClient(qtm_host, qtm_port) as mocap:
+                await MocapRelay(mocap, targets).run(stop)
+        finally:
+            loop.remove_reader(parent.fileno())
+
+    asyncio.run(main())

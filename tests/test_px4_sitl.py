@@ -1,0 +1,134 @@
+"""Real PX4 v1.15.4 SITL in the loop (``sim.vehicles = "px4_sitl"``): what only the real
+firmware can show — its own failsafe when the supervisor dies, its own reasons."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import re
+import signal
+import socket
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks.service import RunningService, running_service
+from geometry.frames import rotation_from_quaternion
+from mocap.client import QtmClient
+from sim.px4_firmware import resolve_px4_dir
+from supervisor.mavlink.codec import MavlinkCodec
+from supervisor.mavlink.events import EventCatalog
+from supervisor.mavlink.session import px4_mode_name
+from tests.test_service import TOKEN, require_px4, take_off
+
+pytestmark = [pytest.mark.px4, pytest.mark.slow]
+
+OFFBOARD_LOSS_TIMEOUT_S = 0.5  # vehicles.offboard_loss_timeout_s, written as COM_OF_LOSS_T
+GCS_PORT = 14550  # PX4 SITL's ground-station link, every instance
+
+
+def flight_process_pid(service: RunningService) -> int:
+    """The child of ``serve`` named ``uavbar-flight`` (``supervisor.runtime.cpu.name_process``)."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            name = (stat.parent / "comm").read_text().strip()
+        except OSError:
+            continue
+        if parent == service.process.pid and name == "uavbar-flight":
+            return int(stat.parent.name)
+    raise AssertionError("no flight process found")
+
+
+@dataclass
+class Px4Watch:
+    """What one PX4 says on its offboard link, with arrival times (monotonic)."""
+
+    modes: list[tuple[float, str]] = field(default_factory=list)
+    events: list[tuple[float, str]] = field(default_factory=list)
+
+
+async def watch_px4s(catalog: EventCatalog, watches: dict[int, Px4Watch], until: float) -> None:
+    """Listen where every PX4 sends its ground-station link (UDP 14550; system id tells
+    the vehicles apart); the offboard link's port is the dead flight process's, still held
+    by the mocap relay."""
+    codec = MavlinkCodec(255, 190)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", GCS_PORT))
+    sock.setblocking(False)
+    loop = asyncio.get_running_loop()
+    try:
+        while time.monotonic() < until:
+            try:
+                async with asyncio.timeout(0.2):
+                    data = await loop.sock_recv(sock, 4096)
+            except TimeoutError:
+                continue
+            now = time.monotonic()
+            for message in codec.decode(data).messages:
+                watch = watches.get(message.get_srcSystem())
+                if watch is None or message.get_srcComponent() != 1:
+                    continue
+                kind = message.get_type()
+                if kind in ("HEARTBEAT", "CURRENT_MODE"):
+                    watch.modes.append((now, px4_mode_name(message.custom_mode)))
+                elif kind == "EVENT":
+                    watch.events.append((now, catalog.text(message.id, bytes(message.arguments))))
+    finally:
+        sock.close()
+
+
+def tilt_deg(quaternion: np.ndarray) -> float:
+    return math.degrees(
+        math.acos(float(np.clip(rotation_from_quaternion(quaternion)[2, 2], -1, 1)))
+    )
+
+
+async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) -> None:
+    """SIGKILL the flight process mid-hover: each PX4 leaves offboard within COM_OF_LOSS_T
+    + 0.2 s (its failsafe event), lands (AUTO.LAND) with no UAV tilting beyond 30°, and the
+    API stays up saying its status is stale."""
+    require_px4()
+    catalog = EventCatalog.load(resolve_px4_dir(None) / "etc" / "extras" / "all_events.json.xz")
+    overrides = [
+        'sim.vehicles="px4_sitl"',
+        f"vehicles.offboard_loss_timeout_s={OFFBOARD_LOSS_TIMEOUT_S}",
+    ]
+    async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
+        world = next(line for line in service.output if "simulated world: QTM" in line)
+        qtm_host, qtm_port = re.search(r"QTM (\S+):(\d+)", world).groups()  # type: ignore[union-attr]
+        await take_off(service, http)
+        await asyncio.sleep(3.0)
+        async with QtmClient(qtm_host, int(qtm_port)) as mocap:
+            await mocap.wait_frame()
+            watches = {1: Px4Watch(), 2: Px4Watch()}
+            listener = asyncio.create_task(watch_px4s(catalog, watches, time.monotonic() + 27.0))
+            await asyncio.sleep(1.0)
+            os.kill(flight_process_pid(service), signal.SIGKILL)
+            killed = time.monotonic()
+            worst_tilt, landed_at = 0.0, None
+            while time.monotonic() < killed + 25.0:
+                frame = await mocap.wait_frame()
+                uavs = [frame.bodies[name] for name in ("uav1", "uav2")]
+                if all(u.tracked for u in uavs):
+                    worst_tilt = max(
+                        worst_tilt, *(tilt_deg(np.asarray(u.quaternion)) for u in uavs)
+                    )
+                    if landed_at is None and all(u.position_m[2] < 0.15 for u in uavs):
+                        landed_at = time.monotonic()
+            await listener
+        status = await service.status(http)
+    for i, watch in watches.items():
+        failsafe = [
+            t - killed for t, text in watch.events if "Failsafe activated" in text and t > killed
+        ]
+        assert failsafe, f"vehicle {i}: no failsafe event; events: {watch.events}"
+        assert failsafe[0] <= OFFBOARD_LOSS_TIMEOUT_S + 0.2, (i, failsafe[0], watch.events)
+        assert "AUTO.LAND" in {mode for _, mode in watch.modes}, (i, watch.modes)
+    assert landed_at is not None, "the UAVs did not land within 25 s"
+    assert worst_tilt < 30.0, worst_tilt
+    assert status["stale"]
