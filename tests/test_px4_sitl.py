@@ -19,16 +19,18 @@ import pytest
 from benchmarks.service import RunningService, running_service
 from geometry.frames import rotation_from_quaternion
 from mocap.client import QtmClient
-from sim.px4_firmware import resolve_px4_dir
+from sim.px4_firmware import OFFBOARD_LOCAL_PORT, resolve_px4_dir
 from supervisor.mavlink.codec import MavlinkCodec
 from supervisor.mavlink.events import EventCatalog
+from supervisor.mavlink.parameters import MAV_PARAM_TYPE_INT32, encode_param_value
 from supervisor.mavlink.session import px4_mode_name
-from tests.test_service import TOKEN, require_px4, take_off
+from tests.test_service import TOKEN, ready, require_px4, take_off
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
 OFFBOARD_LOSS_TIMEOUT_S = 0.5  # vehicles.offboard_loss_timeout_s, written as COM_OF_LOSS_T
 GCS_PORT = 14550  # PX4 SITL's ground-station link, every instance
+GCS_LOCAL_PORT = 18570  # PX4's end of that link: 18570 + instance
 
 
 def flight_process_pid(service: RunningService) -> int:
@@ -132,3 +134,42 @@ async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) ->
     assert landed_at is not None, "the UAVs did not land within 25 s"
     assert worst_tilt < 30.0, worst_tilt
     assert status["stale"]
+
+
+def _param_set(name: str, value: int) -> list[bytes]:
+    codec = MavlinkCodec(255, 190)
+    for system in (1, 2):
+        codec.messages.param_set_send(
+            system,
+            1,
+            name.encode(),
+            encode_param_value(value, MAV_PARAM_TYPE_INT32),
+            MAV_PARAM_TYPE_INT32,
+        )
+    return codec.outgoing()
+
+
+async def test_a_refused_arm_carries_px4s_own_reason(tmp_path: Path) -> None:
+    """PX4 told to require GPS (COM_ARM_WO_GPS 0, over its ground-station link) refuses to
+    arm in a mocap arena: the API's refusal, the status notices and the vehicle's text give
+    PX4's own words, decoded from its EVENTs."""
+    require_px4()
+    overrides = ['sim.vehicles="px4_sitl"']
+    async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
+        await ready(service, http)
+        world = next(line for line in service.output if "simulated world: QTM" in line)
+        ports = [int(p) for p in re.findall(r":(\d+)", world.split("PX4s")[1])]
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            for port in ports:  # PX4's ground-station link listens on 18570 + instance
+                for frame in _param_set("COM_ARM_WO_GPS", 0):
+                    sock.sendto(frame, ("127.0.0.1", port - OFFBOARD_LOCAL_PORT + GCS_LOCAL_PORT))
+        await asyncio.sleep(1.0)
+        response = await http.post("/api/arm")
+        status = await service.wait_for(http, lambda s: bool(s["notices"]), 5.0, "a notice")
+    assert response.status_code == 409, response.text
+    reason = response.json()["detail"]
+    # "Arming denied: …" are PX4's words (its EVENT), never the supervisor's.
+    assert "command 400" in reason and "Arming denied" in reason, reason
+    notices = " ".join(n["message"] for n in status["notices"])
+    assert "arming refused" in notices and "Arming denied" in notices, notices
+    assert status["armed"] == [False, False]

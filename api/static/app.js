@@ -183,6 +183,7 @@ function render(t) {
   t.uavs.forEach((uav, i) => {
     document.getElementById(`uav${i + 1}-info`).textContent =
       `${vec(uav.position)} · ${uav.px4_mode} · ${t.armed[i] ? "armed" : "disarmed"}`;
+    document.getElementById(`uav${i + 1}-text`).textContent = uav.status_text || "–";
   });
   document.getElementById("tick-info").textContent =
     `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`;

@@ -81,6 +81,7 @@ class CoreSettings:
 class NoticeKind(StrEnum):
     ABORT = "abort"  # the monitors started a coordinated landing
     SWING = "swing"  # the decentralized MPC handed the bar to the centralized one
+    VEHICLE = "vehicle"  # a vehicle refused what the supervisor asked (its own reason)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ import numpy as np
 
 from mocap.client import MocapSource
 from mocap.qtm_protocol import MocapFrame
-from supervisor.flight.core import FlightCore, TickResult
+from supervisor.flight.core import FlightCore, Notice, NoticeKind, TickResult
 from supervisor.flight.modes import TRANSITIONS, Event, Mode
 from supervisor.flight.operator_requests import (
     ModeRequest,
@@ -293,6 +293,8 @@ class FlightProcess:
         failures = await arm_for_offboard(self.links, self.proof_of_life_s)
         if failures:
             self.streaming = False
+            text = "arming refused: " + "; ".join(failures)
+            self.core.notices.append((self.clock(), Notice(NoticeKind.VEHICLE, text)))
             return Reply(
                 outcome=Outcome.REFUSED,
                 reason="arming failed: " + "; ".join(failures),

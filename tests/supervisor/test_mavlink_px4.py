@@ -2,7 +2,8 @@
 
 The build is found as the embedded world finds it (``sim.px4_firmware.resolve_px4_dir``:
 ``UAVBAR_PX4_DIR``, else the cache filled from ../shared/px4/). Instance 7: PX4 sends
-from UDP 14587 to 14547, system id 8. Each test starts a cold PX4 in its own working directory and stops it after.
+from UDP 14587 to 14547, system id 8. Each test starts a cold PX4 in its own working
+directory and stops it after.
 """
 
 from __future__ import annotations
