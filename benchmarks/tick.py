@@ -20,6 +20,7 @@ import asyncio
 import contextlib
 import json
 import math
+import os
 import sys
 import tempfile
 import time
@@ -32,6 +33,7 @@ import websockets
 
 from benchmarks.service import RunningService, running_service
 from supervisor.logs.flight_log import read_flight_log
+from supervisor.logs.report import summarize as summarize_flight
 
 TOKEN = "benchmark-token"
 PAPER_SETPOINTS: list[dict[str, Any]] = [
@@ -131,6 +133,7 @@ async def fly(service: RunningService, duration_s: float) -> str:
 def summarize(log_path: str, requests: int, duration_s: float) -> dict[str, Any]:
     """Figures over every tick of the flight, from its log."""
     log = read_flight_log(Path(log_path))
+    flight = summarize_flight(log)
 
     def column(name: str) -> np.ndarray:
         return np.array([r.get(name, math.nan) for r in log.extra], dtype=float)
@@ -163,15 +166,53 @@ def summarize(log_path: str, requests: int, duration_s: float) -> dict[str, Any]
         "solve_ms_p99": float(np.nanpercentile(log.solve_ms, 99)),
         # The share of MPC ticks that used the model prepared after the tick before.
         "mpc_prepared_share": float(np.nanmean(column("mpc_prepared"))),
+        # How the bar flew the paper's sequence (simulate's Table III figures).
+        **{
+            key: flight[key]
+            for key in ("bar_x_error_mean_m", "bar_x_error_std_m", "bar_yaw_rms_deg")
+        },
     }
 
 
-async def run(duration_s: float, rate_hz: float, n_websockets: int) -> dict[str, Any]:
+def process_tree_cpu_s(root: int) -> dict[str, float]:
+    """CPU time [s] (user + system) of ``root`` and its descendants, summed by process name
+    (``serve`` names its children: uavbar-flight, uavbar-world, uavbar-relay; PX4 is px4)."""
+    ticks = os.sysconf("SC_CLK_TCK")
+    parents: dict[int, int] = {}
+    names: dict[int, str] = {}
+    cpu: dict[int, float] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        pid = int(stat.parent.name)
+        fields = text.rsplit(")", 1)[1].split()
+        names[pid] = text[text.index("(") + 1 : text.rindex(")")]
+        parents[pid] = int(fields[1])
+        cpu[pid] = (int(fields[11]) + int(fields[12])) / ticks
+    tree, frontier = {root}, [root]
+    while frontier:
+        parent = frontier.pop()
+        children = [pid for pid, ppid in parents.items() if ppid == parent]
+        tree.update(children)
+        frontier.extend(children)
+    totals: dict[str, float] = {}
+    for pid in tree & cpu.keys():
+        name = "api (serve)" if pid == root else names[pid]
+        totals[name] = totals.get(name, 0.0) + cpu[pid]
+    return totals
+
+
+async def run(
+    duration_s: float, rate_hz: float, n_websockets: int, overrides: list[str]
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as scratch:
-        async with running_service(TOKEN, Path(scratch)) as service:
+        async with running_service(TOKEN, Path(scratch), overrides) as service:
             stop = asyncio.Event()
             started = time.monotonic()
             cpu_started = time.process_time()
+            processes_started = process_tree_cpu_s(service.process.pid)
             loaders = [asyncio.create_task(load(service.url, rate_hz, stop))]
             loaders += [asyncio.create_task(watch(service.url, stop)) for _ in range(n_websockets)]
             log_path = await fly(service, duration_s)
@@ -180,6 +221,11 @@ async def run(duration_s: float, rate_hz: float, n_websockets: int) -> dict[str,
             requests = (await asyncio.gather(*loaders))[0]
             result = summarize(log_path, requests, elapsed)
             result["load_generator_cpu_share"] = (time.process_time() - cpu_started) / elapsed
+            # The share of one core each process took over the flight (px4: both summed).
+            for name, cpu_s in process_tree_cpu_s(service.process.pid).items():
+                if name.startswith(("uavbar", "px4", "api")):
+                    share = (cpu_s - processes_started.get(name, 0.0)) / elapsed
+                    result[f"cpu_share_{name.replace(' ', '_')}"] = share
             return result
 
 
@@ -189,8 +235,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, default=200.0, help="API requests per second")
     parser.add_argument("--websockets", type=int, default=10)
     parser.add_argument("--json", action="store_true")
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="serve's --set"
+    )
     args = parser.parse_args(argv)
-    result = asyncio.run(run(args.duration, args.rate, args.websockets))
+    result = asyncio.run(run(args.duration, args.rate, args.websockets, args.set))
     if args.json:
         print(json.dumps(result))
     else:

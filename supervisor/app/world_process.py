@@ -191,8 +191,9 @@ def run_sitl(config: Config) -> int:
     def show(addresses: dict[str, Any]) -> None:
         bodies = ", ".join(config.mocap.bodies)
         log.info("QTM RT server   tcp %s (bodies: %s)", addresses["qtm"], bodies)
+        link_ports = addresses.get("link_ports") or config.vehicles.ports
         for i, vehicle in enumerate(addresses["vehicles"]):
-            port = config.vehicles.ports[i] or 14540 + i
+            port = link_ports[i] or 14540 + i
             log.info(
                 "PX4 vehicle %d   udp %s -> 127.0.0.1:%d (system id %d)",
                 i + 1,
