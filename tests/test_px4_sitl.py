@@ -90,6 +90,7 @@ def tilt_deg(quaternion: np.ndarray) -> float:
     )
 
 
+@pytest.mark.px4_flight
 async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) -> None:
     """SIGKILL the flight process mid-hover: each PX4 leaves offboard within COM_OF_LOSS_T
     + 0.2 s (its failsafe event), lands (AUTO.LAND) with no UAV tilting beyond 30°, and the

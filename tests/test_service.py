@@ -99,7 +99,10 @@ def slack_while_airborne(log: FlightLog, params: BarSystemParams) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("vehicles", ["simulated", pytest.param("px4_sitl", marks=pytest.mark.px4)])
+@pytest.mark.parametrize(
+    "vehicles",
+    ["simulated", pytest.param("px4_sitl", marks=[pytest.mark.px4, pytest.mark.px4_flight])],
+)
 async def test_a_whole_flight_over_http(tmp_path: Path, vehicles: str) -> None:
     """Arm, take off, fly two setpoints (the bar within 5 cm of each), switch to the
     decentralized MPC, land — on our simulated PX4s and on two real PX4 SITL instances."""

@@ -30,6 +30,8 @@ from supervisor.runtime.tick_driver import TickDriver
 
 log = logging.getLogger(__name__)
 
+OFFBOARD_LOSS_LAND = 4  # COM_OBL_RC_ACT: land when the offboard stream stops
+
 
 def _host_port(address: str) -> tuple[str, int]:
     host, _, port = address.rpartition(":")
@@ -66,7 +68,16 @@ async def fly(
     try:
         async with QtmClient(qtm_host, qtm_port) as mocap:
             process = FlightProcess(
-                FlightSettings(config.mpc.dt_s, config.mocap.phase_lock, config.name, not relayed),
+                FlightSettings(
+                    config.mpc.dt_s,
+                    config.mocap.phase_lock,
+                    config.name,
+                    forward_mocap=not relayed,
+                    failsafe_parameters={
+                        "COM_OF_LOSS_T": config.vehicles.offboard_loss_timeout_s,
+                        "COM_OBL_RC_ACT": OFFBOARD_LOSS_LAND,
+                    },
+                ),
                 TickDriver(
                     flight_core_from_config(config, clock=time.perf_counter),
                     fusion_from_config(config),

@@ -16,8 +16,8 @@ import gc
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Coroutine
-from dataclasses import dataclass
+from collections.abc import Callable, Coroutine, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +44,13 @@ from supervisor.runtime.phase_lock import MocapPhaseLock
 from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
 from supervisor.runtime.tick_driver import TickDriver
 from supervisor.vehicles.link import VehicleLink
-from supervisor.vehicles.sequences import PROOF_OF_LIFE_S, arm_for_offboard, disarm_all, kill_all
+from supervisor.vehicles.sequences import (
+    PROOF_OF_LIFE_S,
+    arm_for_offboard,
+    check_failsafe_parameters,
+    disarm_all,
+    kill_all,
+)
 
 TELEMETRY_PERIOD_S = 0.04
 TELEMETRY_BACKLOG_BYTES = 1 << 20
@@ -62,6 +68,9 @@ class FlightSettings:
     phase_lock: bool
     setup_name: str
     forward_mocap: bool = True
+    # PX4 parameters every vehicle must hold before it may arm (its offboard-loss failsafe:
+    # COM_OF_LOSS_T, COM_OBL_RC_ACT), read back from each vehicle at every arm.
+    failsafe_parameters: Mapping[str, float] = field(default_factory=dict)
 
 
 def _percentiles(values: deque[float]) -> tuple[float, float]:
@@ -289,8 +298,11 @@ class FlightProcess:
     async def _arm(self, request: ModeRequest) -> Reply:
         if (self.core.modes.mode, Event.ARM) not in TRANSITIONS:
             return handle_request(self.core, request, self.clock())  # the table's refusal
-        self.streaming = True  # idle setpoints: PX4's proof of life before offboard
-        failures = await arm_for_offboard(self.links, self.proof_of_life_s)
+        expected = self.settings.failsafe_parameters
+        failures = await check_failsafe_parameters(self.links, expected) if expected else []
+        if not failures:
+            self.streaming = True  # idle setpoints: PX4's proof of life before offboard
+            failures = await arm_for_offboard(self.links, self.proof_of_life_s)
         if failures:
             self.streaming = False
             text = "arming refused: " + "; ".join(failures)
