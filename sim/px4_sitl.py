@@ -32,7 +32,7 @@ from supervisor.mavlink.codec import MavlinkCodec
 
 log = logging.getLogger(__name__)
 
-SIMULATOR_SYSTEM_ID = 1
+SIMULATOR_SYSTEM_ID = 1  # PX4 ignores HIL_SENSOR from system 0 (measured: no sensor data)
 ARMED_FLAG = 128  # HIL_ACTUATOR_CONTROLS.mode: MAV_MODE_FLAG_SAFETY_ARMED
 
 
