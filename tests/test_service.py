@@ -185,3 +185,19 @@ async def test_both_command_modes_hover_within_5_cm(tmp_path: Path, command_mode
             await asyncio.sleep(0.1)
         assert status["mode"] == "hover"
         assert max(errors) < 0.05, max(errors)
+
+
+@pytest.mark.slow
+async def test_a_vehicle_that_disarms_itself_before_take_off_disarms_the_system(
+    tmp_path: Path,
+) -> None:
+    """PX4 disarms 10 s after an arm without take-off (COM_DISARM_PRFLT; our simulated PX4
+    too): the supervisor follows, says why, and a take-off is refused."""
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        await ready(service, http)
+        assert (await http.post("/api/arm")).status_code == 200
+        await asyncio.sleep(3.0)
+        assert (await service.status(http))["mode"] == "armed"  # not before PX4 does
+        status = await service.wait_for(http, lambda s: s["mode"] == "disarmed", 20.0, "disarm")
+        assert "disarmed by itself" in " ".join(n["message"] for n in status["notices"])
+        assert (await http.post("/api/takeoff")).status_code == 409

@@ -228,6 +228,7 @@ class FlightProcess:
         else:
             self._on_ground.set()
         self._react(before, result.mode)
+        self._notice_self_disarm(started)
         self.driver.finish(  # logs, then the next tick's model while no frame waits
             result,
             compute_total_ms=compute_s * 1e3,
@@ -253,6 +254,26 @@ class FlightProcess:
             pose = frame.bodies.get(name)
             if pose is not None and pose.tracked:
                 link.send_mocap(pose.position_m, pose.quaternion, frame.receive_time_s)
+
+    def _notice_self_disarm(self, now_s: float) -> None:
+        """Armed and waiting for take-off, a vehicle that shows itself disarmed has disarmed
+        on its own (PX4 does COM_DISARM_PRFLT, 10 s by default, after an arm without
+        take-off): the system is disarmed too, and says why, so that a take-off is never
+        flown on a vehicle that will not spin its motors."""
+        if self.core.modes.mode is not Mode.ARMED:
+            return
+        views = [link.view() for link in self.links]
+        idle = [i for i, view in enumerate(views, start=1) if view.connected and not view.armed]
+        if not idle:
+            return
+        vehicles = " and ".join(f"vehicle {i}" for i in idle)
+        text = (
+            f"{vehicles} disarmed by itself before take-off (PX4 disarms when no take-off "
+            "follows arming): arm again"
+        )
+        handle_request(self.core, ModeRequest(kind="disarm"), now_s)
+        self.core.notices.append((now_s, Notice(NoticeKind.VEHICLE, text)))
+        self._sequence(self._disarm_vehicles())
 
     def _react(self, before: Mode, after: Mode) -> None:
         """Vehicle sequences the tick core's own mode changes call for."""
