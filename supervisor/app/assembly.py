@@ -22,7 +22,7 @@ from sim.plant_params import (
     diagonal,
 )
 from sim.px4 import Px4Params
-from supervisor.app.config import Config
+from supervisor.app.config import Config, host_port
 from supervisor.flight.core import CONTROLLERS, FlightCore
 from supervisor.flight.estimation import BodyNames
 from supervisor.flight.safety import SafetyLimits
@@ -164,9 +164,7 @@ def link_configs_from_config(
     event definitions)."""
     v = config.vehicles
     thrust, torque = _per_vehicle(v.thrust_max_n), _per_vehicle(v.torque_max_nm)
-    configured = [
-        (host, int(port)) for host, _, port in (a.rpartition(":") for a in v.addresses or [])
-    ]
+    configured = [host_port(address) for address in v.addresses or []]
     addresses = vehicle_addresses or (tuple(configured) if configured else (None, None))
     ports = local_ports or (v.ports[0], v.ports[1])
     links = [

@@ -49,6 +49,12 @@ CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 TOKEN_ENV = "UAVBAR_TOKEN"
 
 
+def host_port(address: str) -> tuple[str, int]:
+    """ "host:port" (already validated) as (host, port)."""
+    host, _, port = address.rpartition(":")
+    return host, int(port)
+
+
 class ConfigError(OperatorError):
     """A setup that cannot be used: unreadable file, unknown key, wrong type or value."""
 

@@ -20,7 +20,7 @@ from supervisor.app.assembly import (
     fusion_from_config,
     link_configs_from_config,
 )
-from supervisor.app.config import Config
+from supervisor.app.config import Config, host_port
 from supervisor.ipc.channel import Channel
 from supervisor.logs.logging_setup import queued_logging
 from supervisor.mavlink.link import MavlinkLink
@@ -31,11 +31,6 @@ from supervisor.runtime.tick_driver import TickDriver
 log = logging.getLogger(__name__)
 
 OFFBOARD_LOSS_LAND = 4  # COM_OBL_RC_ACT: land when the offboard stream stops
-
-
-def _host_port(address: str) -> tuple[str, int]:
-    host, _, port = address.rpartition(":")
-    return host, int(port)
 
 
 async def fly(
@@ -49,8 +44,8 @@ async def fly(
     """Run the flight process on already opened channels (and the links' sockets, bound by
     ``serve``)."""
     if world is not None:
-        qtm_host, qtm_port = _host_port(world["qtm"])
-        vehicles = [_host_port(address) for address in world["vehicles"]]
+        qtm_host, qtm_port = host_port(world["qtm"])
+        vehicles = [host_port(address) for address in world["vehicles"]]
         ports = world.get("link_ports") or (0, 0)
         link_configs = link_configs_from_config(
             config, (vehicles[0], vehicles[1]), (ports[0], ports[1]), world.get("px4_events")

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import signal
 import socket
 from multiprocessing.connection import Connection
 from typing import Any
 
 from mocap.client import QtmClient
 from supervisor.app.assembly import body_names_from_config
-from supervisor.app.config import Config
+from supervisor.app.child_process import stop_event
+from supervisor.app.config import Config, host_port
 from supervisor.logs.logging_setup import configure_logging
 from supervisor.mavlink.codec import MavlinkCodec
 from supervisor.mavlink.relay import MocapRelay, VisionTarget
@@ -23,11 +23,6 @@ log = logging.getLogger(__name__)
 
 GROUND_STATION_SYSTEM = 255  # the system id our links speak as
 VISION_COMPONENT = 197  # MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY
-
-
-def _host_port(address: str) -> tuple[str, int]:
-    host, _, port = address.rpartition(":")
-    return host, int(port)
 
 
 def relay_addresses(config: Config, world: dict[str, Any] | None) -> list[str] | None:
@@ -50,26 +45,18 @@ def run_relay_process(
     addresses = relay_addresses(config, world)
     assert addresses is not None, "serve starts the relay only with known addresses"
     qtm_host, qtm_port = (
-        _host_port(world["qtm"]) if world else (config.mocap.host, config.mocap.port)
+        host_port(world["qtm"]) if world else (config.mocap.host, config.mocap.port)
     )
     names = body_names_from_config(config)
 
     async def main() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        loop.add_signal_handler(signal.SIGTERM, stop.set)
-        loop.add_signal_handler(signal.SIGINT, lambda: None)  # the parent decides
-        loop.add_reader(parent.fileno(), stop.set)  # readable at EOF: the parent is gone
         targets = []
         for body, address, sock in zip((names.uav1, names.uav2), addresses, sockets, strict=True):
             codec = MavlinkCodec(GROUND_STATION_SYSTEM, VISION_COMPONENT)
             encoder = VisionEncoder(codec.messages, config.vehicles.mocap_message)
-            targets.append(VisionTarget(body, codec, encoder, sock, _host_port(address)))
+            targets.append(VisionTarget(body, codec, encoder, sock, host_port(address)))
         log.info("mocap relay: %s; poses of %s to %s", raise_priority(), names, addresses)
-        try:
-            async with QtmClient(qtm_host, qtm_port) as mocap:
-                await MocapRelay(mocap, targets).run(stop)
-        finally:
-            loop.remove_reader(parent.fileno())
+        async with stop_event(parent) as stop, QtmClient(qtm_host, qtm_port) as mocap:
+            await MocapRelay(mocap, targets).run(stop)
 
     asyncio.run(main())

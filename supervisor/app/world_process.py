@@ -34,6 +34,7 @@ from supervisor.app.assembly import (
     plant_params_from_config,
     px4_params_from_config,
 )
+from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config
 from supervisor.logs.logging_setup import configure_logging
 from supervisor.runtime.cpu import name_process, raise_priority, single_threaded_blas
@@ -90,6 +91,7 @@ def _px4_sitl_vehicles(
     log folder (PX4's console output in ``px4.log`` there), booting with a lab's parameters."""
     instances = free_instances(2)
     params = config.system.to_params()
+    unit_torque = mixer.unit_torque_nm()
 
     def vehicle(plant: Plant, uav: int) -> SimulatedVehicle:
         k = uav - 1
@@ -98,7 +100,6 @@ def _px4_sitl_vehicles(
         folder.mkdir(parents=True, exist_ok=True)
         for stored in folder.glob("parameters*.bson"):
             stored.unlink()  # boot from the airframe defaults and ours, not a past run's
-        unit_torque = mixer.unit_torque_nm()
         parameters = LabParameters(
             system_id=config.vehicles.system_ids[k],
             offboard_loss_timeout_s=config.vehicles.offboard_loss_timeout_s,
@@ -169,18 +170,12 @@ def run_world_process(config: Config, ready: Connection) -> None:
     log.info("world process: %s", raise_priority(WORLD_PRIORITY))
 
     async def main() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        loop.add_signal_handler(signal.SIGTERM, stop.set)
-        loop.add_signal_handler(signal.SIGINT, lambda: None)  # the parent decides
-        loop.add_reader(ready.fileno(), stop.set)  # readable at EOF: the parent is gone
-        try:
-            await run_world(config, 0, (0, 0), ready.send, stop)
-        except Exception as error:
-            ready.send({"error": repr(error)})
-            raise
-        finally:
-            loop.remove_reader(ready.fileno())
+        async with stop_event(ready) as stop:
+            try:
+                await run_world(config, 0, (0, 0), ready.send, stop)
+            except Exception as error:
+                ready.send({"error": repr(error)})
+                raise
 
     asyncio.run(main())
 
