@@ -21,6 +21,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import sys
 import tempfile
 import time
@@ -226,7 +227,28 @@ async def run(
                 if name.startswith(("uavbar", "px4", "api")):
                     share = (cpu_s - processes_started.get(name, 0.0)) / elapsed
                     result[f"cpu_share_{name.replace(' ', '_')}"] = share
-            return result
+        # The world's last word on the cables (sim/truth.py), logged as it closed.
+        return {**result, **world_truth(service.output)}
+
+
+TRUTH_LINE = re.compile(
+    r"truth: bar hanging ([\d.]+) s, min cable tension (-?[\d.]+) N, slack events (\d+), "
+    r"max UAV tilt ([\d.]+) deg"
+)
+
+
+def world_truth(output: list[str]) -> dict[str, float]:
+    """The simulated world's figures from its last truth line (empty without one)."""
+    matches = [match for line in output if (match := TRUTH_LINE.search(line))]
+    if not matches:
+        return {}
+    hanging, tension, slack, tilt = matches[-1].groups()
+    return {
+        "bar_hanging_s": float(hanging),
+        "min_tension_hanging_n": float(tension),
+        "slack_events": int(slack),
+        "max_uav_tilt_deg": float(tilt),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -22,11 +23,15 @@ from typing import Protocol
 from geometry.frames import euler_zyx_from_quaternion
 from mocap.qtm_protocol import BodyPose
 from sim.measurement import MocapFrame, MocapModel, MocapParams
-from sim.plant import Plant
+from sim.plant import Plant, body_slice, resting_state
 from sim.plant_params import PlantParams
 from sim.qtm_server import QtmServer
+from sim.truth import TruthStats
+
+log = logging.getLogger(__name__)
 
 MAX_CATCH_UP_S = 0.1
+TRUTH_REPORT_PERIOD_S = 10.0
 
 
 class SimulatedVehicle(Protocol):
@@ -94,6 +99,11 @@ class SimulatedWorld:
         self._sleeper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="world-sleep")
         self._clock = clock
         self._t0 = 0.0
+        bar_rest_z_m = float(resting_state(plant_params)[body_slice("bar")][2])
+        self.truth = TruthStats(bar_rest_z_m)
+        """Cable tension and slack while the bar hangs, the worst tilt (logged every
+        ``TRUTH_REPORT_PERIOD_S`` and at close)."""
+        self._truth_reported_s = 0.0
 
     @property
     def now_s(self) -> float:
@@ -110,6 +120,7 @@ class SimulatedWorld:
         )
 
     async def close(self) -> None:
+        log.info("%s", self.truth.describe())
         for vehicle in self.vehicles:
             with contextlib.suppress(Exception):
                 await vehicle.close()
@@ -125,8 +136,12 @@ class SimulatedWorld:
             stop = min(until_s, max(self.mocap.next_capture_time_s, plant.time_s + step))
             plant.advance(stop - plant.time_s)
             self.mocap.capture(plant.truth())
+            self.truth.update(plant, airborne=True)
             for vehicle in self.vehicles:
                 vehicle.step(plant.time_s)
+        if plant.time_s - self._truth_reported_s >= TRUTH_REPORT_PERIOD_S:
+            self._truth_reported_s = plant.time_s
+            log.info("%s", self.truth.describe())
         for frame in self.mocap.poll(until_s):
             self.qtm.publish(_poses(frame))
 

@@ -27,6 +27,7 @@ from mocap.qtm_protocol import MocapFrame as QtmFrame
 from sim.measurement import MocapFrame as SimFrame
 from sim.measurement import MocapModel
 from sim.plant import Plant, body_slice, resting_state
+from sim.truth import TruthStats
 from supervisor.app.assembly import (
     body_names_from_config,
     flight_core_from_config,
@@ -60,42 +61,6 @@ def qtm_frame(frame: SimFrame) -> QtmFrame:
     return QtmFrame(
         frame.frame_number, round(frame.capture_time_s * 1e6), bodies, frame.delivery_time_s
     )
-
-
-HANGING_CLEARANCE_M = 0.05
-
-
-@dataclass
-class TruthStats:
-    """What only the simulator can see. Slack and tension count while the bar hangs: in an
-    airborne mode with the bar more than ``HANGING_CLEARANCE_M`` above its resting height
-    (so touch-down and the first centimetres of lift-off, where the ground carries the bar,
-    are not counted as slack)."""
-
-    bar_rest_z_m: float
-    slack_events: int = 0
-    max_tilt_deg: float = 0.0
-    min_tension_n: float = math.inf
-    min_tension_airborne_n: float = math.inf
-    _slack: tuple[bool, bool] = (False, False)
-
-    def update(self, plant: Plant, airborne: bool) -> None:
-        """Account for the plant's state now; ``airborne`` is the flight mode's view."""
-        cables = plant.cables()
-        self.min_tension_n = min(self.min_tension_n, *cables.tension_n)
-        hanging = plant.body("bar").position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
-        if not airborne or not hanging:
-            self._slack = cables.slack
-            return
-        self.min_tension_airborne_n = min(self.min_tension_airborne_n, *cables.tension_n)
-        self.slack_events += sum(
-            1 for now, before in zip(cables.slack, self._slack, strict=True) if now and not before
-        )
-        self._slack = cables.slack
-        for name in ("uav1", "uav2"):
-            z_axis_z = float(plant.body(name).rotation[2, 2])
-            tilt = math.degrees(math.acos(max(-1.0, min(1.0, z_axis_z))))
-            self.max_tilt_deg = max(self.max_tilt_deg, tilt)
 
 
 @dataclass

@@ -1,0 +1,60 @@
+"""What only the simulator can see about a flight: cable tension and slack while the bar
+hangs, and the UAVs' worst tilt. The closed-loop simulator and the real-time world keep
+the same figures, so that a flight on real PX4 is judged like a ``simulate`` run."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from sim.plant import Plant
+
+HANGING_CLEARANCE_M = 0.05
+
+
+@dataclass
+class TruthStats:
+    """Slack and tension count while the bar hangs: in an airborne mode with the bar more
+    than ``HANGING_CLEARANCE_M`` above its resting height (so touch-down and the first
+    centimetres of lift-off, where the ground carries the bar, are not counted as slack)."""
+
+    bar_rest_z_m: float
+    slack_events: int = 0
+    max_tilt_deg: float = 0.0
+    min_tension_n: float = math.inf
+    min_tension_airborne_n: float = math.inf
+    hanging_s: float = 0.0
+    _slack: tuple[bool, bool] = (False, False)
+    _last_hanging_s: float | None = None
+
+    def update(self, plant: Plant, airborne: bool) -> None:
+        """Account for the plant's state now; ``airborne`` is the flight mode's view."""
+        cables = plant.cables()
+        self.min_tension_n = min(self.min_tension_n, *cables.tension_n)
+        hanging = plant.body("bar").position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
+        if not airborne or not hanging:
+            self._slack = cables.slack
+            self._last_hanging_s = None
+            return
+        if self._last_hanging_s is not None:
+            self.hanging_s += plant.time_s - self._last_hanging_s
+        self._last_hanging_s = plant.time_s
+        self.min_tension_airborne_n = min(self.min_tension_airborne_n, *cables.tension_n)
+        self.slack_events += sum(
+            1 for now, before in zip(cables.slack, self._slack, strict=True) if now and not before
+        )
+        self._slack = cables.slack
+        for name in ("uav1", "uav2"):
+            z_axis_z = float(plant.body(name).rotation[2, 2])
+            tilt = math.degrees(math.acos(max(-1.0, min(1.0, z_axis_z))))
+            self.max_tilt_deg = max(self.max_tilt_deg, tilt)
+
+    def describe(self) -> str:
+        """One line for the world's log (``benchmarks.tick`` reads it back)."""
+        if self.hanging_s == 0.0:
+            return "truth: the bar has not hung yet"
+        return (
+            f"truth: bar hanging {self.hanging_s:.1f} s, min cable tension "
+            f"{self.min_tension_airborne_n:.2f} N, slack events {self.slack_events}, "
+            f"max UAV tilt {self.max_tilt_deg:.1f} deg"
+        )

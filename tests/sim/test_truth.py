@@ -1,0 +1,54 @@
+"""The simulator's own view of a flight (sim/truth.py), as the real-time world logs it and
+``benchmarks.tick`` reads it back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.tick import world_truth
+from sim.plant import Plant
+from sim.truth import TruthStats
+
+
+def hanging_plant() -> tuple[Plant, tuple[float, float]]:
+    plant = Plant()
+    trim = plant.place_hanging((np.array([-0.72, 0.0, 2.0]), np.array([0.76, 0.0, 2.0])), (0, 0))
+    return plant, trim.tension_n
+
+
+def test_a_hanging_bar_counts_its_time_and_its_tension() -> None:
+    plant, tensions = hanging_plant()
+    truth = TruthStats(bar_rest_z_m=0.02)
+    for _ in range(50):
+        plant.advance(0.02)
+        truth.update(plant, airborne=True)
+    assert truth.hanging_s == pytest.approx(0.98, abs=1e-6)  # from the first update on
+    assert truth.min_tension_airborne_n == pytest.approx(min(tensions), rel=1e-6)
+    assert truth.slack_events == 0
+    assert truth.max_tilt_deg < 0.1
+
+
+def test_nothing_counts_while_the_bar_rests_or_the_mode_is_not_airborne() -> None:
+    plant = Plant()
+    truth = TruthStats(bar_rest_z_m=float(plant.body("bar").position_m[2]))
+    plant.advance(0.5)
+    truth.update(plant, airborne=True)
+    hanging, _ = hanging_plant()
+    truth.update(hanging, airborne=False)
+    assert truth.hanging_s == 0.0 and truth.min_tension_airborne_n == float("inf")
+    assert truth.describe() == "truth: the bar has not hung yet"
+    assert world_truth([truth.describe()]) == {}
+
+
+def test_the_benchmark_reads_back_what_the_world_logs() -> None:
+    plant, tensions = hanging_plant()
+    truth = TruthStats(bar_rest_z_m=0.02)
+    for _ in range(3):
+        plant.advance(0.1)
+        truth.update(plant, airborne=True)
+    line = f"03:12:00 uavbar-world sim.world INFO: {truth.describe()}"
+    figures = world_truth(["unrelated", line])
+    assert figures["bar_hanging_s"] == pytest.approx(0.2, abs=0.05)
+    assert figures["min_tension_hanging_n"] == pytest.approx(min(tensions), abs=0.005)
+    assert figures["slack_events"] == 0
