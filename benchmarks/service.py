@@ -98,6 +98,10 @@ async def running_service(
         reader = asyncio.create_task(_read_output(process.stdout, output))
         try:
             yield RunningService(url, token, process, output)
+        except BaseException:
+            # What serve said, for whoever reads the failure (pytest shows captured output).
+            print("\n".join(["--- serve's output ---", *output[-200:]]))
+            raise
         finally:
             if process.returncode is None:
                 process.send_signal(signal.SIGINT)

@@ -233,7 +233,7 @@ async def run(
 
 TRUTH_LINE = re.compile(
     r"truth: bar hanging ([\d.]+) s, min cable tension (-?[\d.]+) N, slack events (\d+), "
-    r"max UAV tilt ([\d.]+) deg"
+    r"max UAV tilt ([\d.]+) deg, max descent ([\d.]+) m/s"
 )
 
 
@@ -242,12 +242,13 @@ def world_truth(output: list[str]) -> dict[str, float]:
     matches = [match for line in output if (match := TRUTH_LINE.search(line))]
     if not matches:
         return {}
-    hanging, tension, slack, tilt = matches[-1].groups()
+    hanging, tension, slack, tilt, descent = matches[-1].groups()
     return {
         "bar_hanging_s": float(hanging),
         "min_tension_hanging_n": float(tension),
         "slack_events": int(slack),
         "max_uav_tilt_deg": float(tilt),
+        "max_descent_mps": float(descent),
     }
 
 

@@ -10,13 +10,15 @@ from dataclasses import dataclass
 from sim.plant import Plant
 
 HANGING_CLEARANCE_M = 0.05
+DESCENT_FLOOR_M = 0.2  # descents count above this height (bodies' centres)
 
 
 @dataclass
 class TruthStats:
     """Slack and tension count while the bar hangs: in an airborne mode with the bar more
     than ``HANGING_CLEARANCE_M`` above its resting height (so touch-down and the first
-    centimetres of lift-off, where the ground carries the bar, are not counted as slack)."""
+    centimetres of lift-off, where the ground carries the bar, are not counted as slack).
+    The descent rate counts in an airborne mode, for every body above ``DESCENT_FLOOR_M``."""
 
     bar_rest_z_m: float
     slack_events: int = 0
@@ -24,6 +26,7 @@ class TruthStats:
     min_tension_n: float = math.inf
     min_tension_airborne_n: float = math.inf
     hanging_s: float = 0.0
+    max_descent_mps: float = 0.0
     _slack: tuple[bool, bool] = (False, False)
     _last_hanging_s: float | None = None
 
@@ -31,6 +34,11 @@ class TruthStats:
         """Account for the plant's state now; ``airborne`` is the flight mode's view."""
         cables = plant.cables()
         self.min_tension_n = min(self.min_tension_n, *cables.tension_n)
+        if airborne:
+            for name in ("bar", "uav1", "uav2"):
+                body = plant.body(name)
+                if body.position_m[2] > DESCENT_FLOOR_M:
+                    self.max_descent_mps = max(self.max_descent_mps, -float(body.velocity_mps[2]))
         hanging = plant.body("bar").position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
         if not airborne or not hanging:
             self._slack = cables.slack
@@ -56,5 +64,6 @@ class TruthStats:
         return (
             f"truth: bar hanging {self.hanging_s:.1f} s, min cable tension "
             f"{self.min_tension_airborne_n:.2f} N, slack events {self.slack_events}, "
-            f"max UAV tilt {self.max_tilt_deg:.1f} deg"
+            f"max UAV tilt {self.max_tilt_deg:.1f} deg, "
+            f"max descent {self.max_descent_mps:.2f} m/s above {DESCENT_FLOOR_M} m"
         )

@@ -12,7 +12,8 @@ import pytest
 from playwright.async_api import Browser, Page, async_playwright, expect
 
 from benchmarks.service import RunningService, running_service
-from tests.test_service import all_connected
+from tests.test_px4_sitl import PX4_REFUSAL, require_gps_for_arming
+from tests.test_service import all_connected, require_px4
 
 CHROMIUM = shutil.which("chromium")
 SCREENSHOT = Path(__file__).resolve().parent.parent / "docs" / "images" / "dashboard.png"
@@ -135,4 +136,24 @@ async def test_switch_controller_and_queue_a_setpoint_from_the_page(
         await expect(position).to_have_text(near, timeout=40_000)
         await page.get_by_test_id("land").click()
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+@pytest.mark.px4
+async def test_a_refused_arm_shows_px4s_own_reason_on_the_page(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """Two real PX4s that require GPS refuse to arm: the page's reason, its notices and
+    each "PX4 says" row carry PX4's own words."""
+    require_px4()
+    async with running_service(TOKEN, tmp_path, ['sim.vehicles="px4_sitl"']) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        await require_gps_for_arming(service)
+        await page.get_by_test_id("arm").click()
+        await expect(page.get_by_test_id("flight-reason")).to_have_text(PX4_REFUSAL)
+        await expect(page.get_by_test_id("notices")).to_contain_text(PX4_REFUSAL)
+        px4_text = re.compile("Arming denied|Preflight Fail")
+        for row in ("#uav1-text", "#uav2-text"):
+            await expect(page.locator(row)).to_have_text(px4_text, timeout=10_000)
+        await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
         assert not PAGE_ERRORS, PAGE_ERRORS

@@ -4,11 +4,13 @@ firmware can show — its own failsafe when the supervisor dies, its own reasons
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import os
 import re
 import signal
 import socket
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -158,21 +160,107 @@ async def test_a_refused_arm_carries_px4s_own_reason(tmp_path: Path) -> None:
     overrides = ['sim.vehicles="px4_sitl"']
     async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
         await ready(service, http)
-        world = next(line for line in service.output if "simulated world: QTM" in line)
-        ports = [int(p) for p in re.findall(r":(\d+)", world.split("PX4s")[1])]
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            for port in ports:  # PX4's ground-station link listens on 18570 + instance
-                for frame in _param_set("COM_ARM_WO_GPS", 0):
-                    sock.sendto(frame, ("127.0.0.1", port - OFFBOARD_LOCAL_PORT + GCS_LOCAL_PORT))
-        await asyncio.sleep(1.0)
+        await require_gps_for_arming(service)
         response = await http.post("/api/arm")
         status = await service.wait_for(http, lambda s: bool(s["notices"]), 5.0, "a notice")
     assert response.status_code == 409, response.text
     reason = response.json()["detail"]
-    # "Arming denied: …" (its EVENT) and "Preflight Fail: …" (its text) are PX4's words,
-    # never the supervisor's; which of them comes first varies from run to run.
-    px4_words = re.compile(r"command 400 temporarily rejected \((Arming denied|Preflight Fail)")
-    assert px4_words.search(reason), reason
+    assert PX4_REFUSAL.search(reason), reason
     notices = " ".join(n["message"] for n in status["notices"])
-    assert "arming refused" in notices and px4_words.search(notices), notices
+    assert "arming refused" in notices and PX4_REFUSAL.search(notices), notices
     assert status["armed"] == [False, False]
+
+
+# "Arming denied: …" (its EVENT) and "Preflight Fail: …" (its text) are PX4's words, never
+# the supervisor's; which of them comes first varies from run to run.
+PX4_REFUSAL = re.compile(r"command 400 temporarily rejected \((Arming denied|Preflight Fail)")
+
+
+async def require_gps_for_arming(service: RunningService) -> None:
+    """Tell both PX4s, over their ground-station links, to require GPS to arm
+    (COM_ARM_WO_GPS 0): in a mocap arena they will refuse."""
+    world = next(line for line in service.output if "simulated world: QTM" in line)
+    ports = [int(p) for p in re.findall(r":(\d+)", world.split("PX4s")[1])]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for port in ports:  # PX4's ground-station link listens on 18570 + instance
+            for frame in _param_set("COM_ARM_WO_GPS", 0):
+                sock.sendto(frame, ("127.0.0.1", port - OFFBOARD_LOCAL_PORT + GCS_LOCAL_PORT))
+    await asyncio.sleep(1.0)
+
+
+async def test_sitl_runs_two_real_px4s_and_a_qtm_server_until_interrupted(tmp_path: Path) -> None:
+    """``uavbar-supervisor sitl`` with real PX4: the QTM server streams the resting bodies,
+    each PX4 answers a ground station's heartbeat on the address printed, and Ctrl-C stops
+    the world and both firmware processes."""
+    require_px4()
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        qtm_port = probe.getsockname()[1]
+    arguments = ["sitl", "--set", 'sim.vehicles="px4_sitl"', "--set", f"mocap.port={qtm_port}"]
+    arguments += ["--set", f'log.folder="{tmp_path}"']
+    process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "supervisor.cli.main",
+        *arguments,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+    )
+    assert process.stdout is not None
+    output: list[str] = []
+    try:
+        async with asyncio.timeout(90.0):
+            while not output or "running in real time" not in output[-1]:
+                line = await process.stdout.readline()
+                assert line, "sitl exited:\n" + "\n".join(output)
+                output.append(line.decode(errors="replace").rstrip())
+        text = "\n".join(output)
+        assert f"QTM RT server   tcp 127.0.0.1:{qtm_port}" in text, text
+        vehicles = re.findall(r"PX4 vehicle (\d)\s+udp (\S+):(\d+) ->", text)
+        assert [v[0] for v in vehicles] == ["1", "2"], text
+        async with QtmClient("127.0.0.1", qtm_port) as mocap:
+            frame = await mocap.wait_frame()
+            assert all(frame.bodies[name].tracked for name in ("bar", "uav1", "uav2"))
+        for number, host, port in vehicles:
+            assert await heartbeat_answered(host, int(port)) == int(number)
+        process.send_signal(signal.SIGINT)
+        async with asyncio.timeout(30.0):
+            await process.stdout.read()
+            assert await process.wait() == 0
+    finally:
+        if process.returncode is None:
+            process.kill()
+            await process.wait()
+    assert not px4_processes_under(tmp_path)
+
+
+async def heartbeat_answered(host: str, port: int) -> int:
+    """Send a ground station's heartbeat to a PX4 link; the system id of the PX4 that
+    answers with its own heartbeat."""
+    codec = MavlinkCodec(255, 190)
+    loop = asyncio.get_running_loop()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.setblocking(False)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            codec.messages.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
+            for frame in codec.outgoing():
+                sock.sendto(frame, (host, port))
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(1.0):
+                    while True:
+                        data = await loop.sock_recv(sock, 2048)
+                        for message in codec.messages.parse_buffer(data) or []:
+                            if message.get_type() == "HEARTBEAT" and message.type == 2:
+                                return int(message.get_srcSystem())
+    raise AssertionError(f"no PX4 heartbeat from {host}:{port}")
+
+
+def px4_processes_under(folder: Path) -> list[int]:
+    """PIDs of PX4 processes whose working directory is inside ``folder``."""
+    found = []
+    for cwd in Path("/proc").glob("[0-9]*/cwd"):
+        with contextlib.suppress(OSError):
+            if cwd.resolve().is_relative_to(folder.resolve()):
+                found.append(int(cwd.parent.name))
+    return found

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 import socket
 import time
@@ -61,6 +62,8 @@ from supervisor.mavlink.transport import Address, UdpTransport
 from supervisor.mavlink.vision import VisionEncoder
 from supervisor.vehicles.types import UavCommand, VehicleCommandError, VehicleView
 
+log = logging.getLogger(__name__)
+
 FORCE_MAGIC = 21196
 
 
@@ -88,6 +91,13 @@ class LinkConfig:
     events_path: str | None = None
 
 
+def resolved(address: Address | None) -> Address | None:
+    """``address`` with its host as the IP datagrams come from ("localhost" → 127.0.0.1)."""
+    if address is None:
+        return None
+    return socket.gethostbyname(address[0]), address[1]
+
+
 @dataclass
 class LinkCounters:
     """Traffic seen on the link."""
@@ -96,6 +106,7 @@ class LinkCounters:
     messages: int = 0
     bad_data: int = 0
     foreign: int = 0
+    impostor: int = 0  # the vehicle's system id, from an address not the vehicle's
     setpoints_sent: int = 0
     thrust_clipped: int = 0
     torque_clipped: int = 0
@@ -130,7 +141,8 @@ class MavlinkLink:
         self.parameters = ParameterClient()
         self._socket = sock
         self._transport: UdpTransport | None = None
-        self._peer: Address | None = config.vehicle_address
+        self._peer: Address | None = resolved(config.vehicle_address)
+        self._impostors: set[tuple[str, int]] = set()
         self._tasks: list[asyncio.Task[None]] = []
         self._acks: dict[int, asyncio.Future[CommandAck]] = {}
         self._param_waiters: dict[str, asyncio.Future[ParamValue]] = {}
@@ -190,13 +202,12 @@ class MavlinkLink:
             if not self.session.is_from_vehicle(message):
                 self.counters.foreign += 1
                 continue
+            if not self._from_peer(sender, now_s):
+                self.counters.impostor += 1
+                continue
             self.counters.messages += 1
             texts = self.session.text_count
             ack = self.session.receive(message, now_s)
-            if self.config.vehicle_address is None:
-                self._peer = sender  # answer where the vehicle talks from
-                if self._transport is not None:
-                    self._transport.peer = sender
             if ack is not None:
                 future = self._acks.get(ack.command)
                 if future is not None and not future.done():
@@ -206,6 +217,33 @@ class MavlinkLink:
             if message.get_type() == "PARAM_VALUE":
                 self._parameter_value(message)
         self._answer()
+
+    def _from_peer(self, sender: tuple[str, int], now_s: float) -> bool:
+        """Whether the vehicle's message from ``sender`` is the vehicle's. The link keeps to
+        one address, as PX4 does: the configured one, else the first that spoke — until the
+        vehicle has been silent for ``link_loss_s``. Anyone else sending with the vehicle's
+        system id (a second simulator, a misconfigured vehicle) is ignored: it must never
+        change what the link believes, nor where its commands go."""
+        if sender == self._peer:
+            return True
+        if self.config.vehicle_address is None and (
+            self._peer is None or not self.session.connected(now_s)
+        ):
+            if self._peer is not None:
+                log.warning("vehicle %d now talks from %s:%d", self.config.system_id, *sender)
+            self._peer = sender  # answer where the vehicle talks from
+            if self._transport is not None:
+                self._transport.peer = sender
+            return True
+        if sender not in self._impostors:
+            self._impostors.add(sender)
+            log.warning(
+                "vehicle %d: ignoring messages with its system id from %s:%d (it is at %s)",
+                self.config.system_id,
+                *sender,
+                self._peer,
+            )
+        return False
 
     def _parameter_value(self, message: object) -> None:
         value = self.parameters.receive(message)

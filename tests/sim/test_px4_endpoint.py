@@ -20,13 +20,12 @@ from sim import px4
 from sim.ports import AirframeState
 from sim.px4 import PX4_NAMES, Px4Params
 from sim.px4_endpoint import CATALOG_PATH, HeartbeatSchedule, Px4Endpoint
+from sim.px4_firmware import resolve_px4_dir
 from supervisor.mavlink.codec import MavlinkCodec, mavlink
 from supervisor.mavlink.events import EventCatalog
 from supervisor.mavlink.px4_messages import request_event_send
+from tests.test_service import require_px4
 
-FIRMWARE_EVENTS = Path(
-    "/tmp/px4cache/px4-sitl-v1.15.4-nolockstep/etc/extras/all_events.json.xz"
-)  # the real build's definitions, where this machine has them
 INT32, REAL32 = 6, 9
 CLIENT_SYSTEM = 245
 
@@ -346,18 +345,26 @@ def test_current_mode_keeps_the_intended_offboard_through_a_failsafe() -> None:
 
 
 # ---- the event catalog -------------------------------------------------------------------
-def test_the_catalog_holds_what_the_model_emits_with_the_firmwares_ids_in_its_own_words() -> None:
+def our_catalog() -> dict[str, tuple[int, dict[str, Any]]]:
     document = json.loads(CATALOG_PATH.read_text())
-    ours = {
+    return {
         e["name"]: (int(sub), e)
         for group in document["components"]["1"]["event_groups"].values()
         for sub, e in group["events"].items()
     }
+
+
+def test_the_catalog_holds_only_what_the_model_emits() -> None:
     source = Path(px4.__file__).read_text()
-    assert all(f'"{name}"' in source for name in ours), "an event the model never emits"
-    if not FIRMWARE_EVENTS.exists():
-        pytest.skip("the firmware's event definitions are not on this machine")
-    firmware = json.loads(lzma.decompress(FIRMWARE_EVENTS.read_bytes()))
+    assert all(f'"{name}"' in source for name in our_catalog()), "an event the model never emits"
+
+
+@pytest.mark.px4
+def test_the_catalogs_events_have_the_firmwares_ids_in_their_own_words() -> None:
+    require_px4()
+    definitions = resolve_px4_dir(None) / "etc" / "extras" / "all_events.json.xz"
+    ours = our_catalog()
+    firmware = json.loads(lzma.decompress(definitions.read_bytes()))
     theirs = {
         e["name"]: (int(sub), e)
         for group in firmware["components"]["1"]["event_groups"].values()

@@ -22,7 +22,8 @@ from supervisor.mavlink.parameters import (
 )
 from supervisor.mavlink.transport import Address, UdpTransport
 from supervisor.vehicles.sequences import apply_parameters, check_failsafe_parameters
-from supervisor.vehicles.types import VehicleCommandError
+from supervisor.vehicles.types import UavCommand, VehicleCommandError
+from tests.mocap.test_client import wait_until
 from tests.supervisor.test_mavlink_events import PX4_EVENTS_EXCERPT
 from tests.supervisor.test_mavlink_px4_messages import frame
 
@@ -277,4 +278,70 @@ async def test_a_refusal_without_a_reason_does_not_wait_long(vehicle: ScriptedVe
             await link.arm()
         assert loop.time() - started < 0.5
     finally:
+        await link.close()
+
+
+def heartbeat(vehicle: ScriptedVehicle, armed: bool) -> None:
+    base_mode = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    if armed:
+        base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    vehicle.codec.messages.heartbeat_send(
+        mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, base_mode, 0x00060000, 4
+    )
+    vehicle.flush()
+
+
+async def test_another_sender_with_the_vehicles_id_changes_nothing(
+    vehicle: ScriptedVehicle,
+) -> None:
+    """A second simulator (or a misconfigured vehicle) sending as system 8, disarmed: the
+    link keeps to the vehicle's address, its state and its commands."""
+    link = await open_link(vehicle)
+    impostor = ScriptedVehicle()
+    try:
+        heartbeat(vehicle, armed=True)
+        await wait_until(lambda: link.view().armed)
+        await impostor.open()
+        assert impostor._transport is not None
+        impostor._transport.peer = ("127.0.0.1", link.local_port)
+        for _ in range(3):
+            heartbeat(impostor, armed=False)
+        await wait_until(lambda: link.counters.impostor == 3)
+        assert link.view().armed and link.px4_mode == "OFFBOARD"
+        link.send_setpoint(UavCommand(10.0, np.zeros(3), np.zeros(3), True))
+        await vehicle.until(lambda: bool(vehicle.of_type("SET_ACTUATOR_CONTROL_TARGET")))
+        assert not impostor.received
+    finally:
+        impostor.close()
+        await link.close()
+
+
+async def test_without_a_vehicle_address_the_first_sender_is_kept_until_it_falls_silent(
+    vehicle: ScriptedVehicle,
+) -> None:
+    clock = Clock(100.0)
+    await vehicle.open()
+    settings = LinkConfig(system_id=8, local_host="127.0.0.1", local_port=0, link_loss_s=1.5)
+    link = MavlinkLink(settings, clock)
+    await link.start()
+    impostor = ScriptedVehicle()
+    await impostor.open()
+    try:
+        for sender, armed in ((vehicle, True), (impostor, False)):
+            assert sender._transport is not None
+            sender._transport.peer = ("127.0.0.1", link.local_port)
+            heard = link.counters.messages + link.counters.impostor
+            heartbeat(sender, armed)
+            await wait_until(lambda: link.counters.messages + link.counters.impostor > heard)  # noqa: B023
+        assert link.view().armed and link.counters.impostor == 1
+        link.send_setpoint(UavCommand(10.0, np.zeros(3), np.zeros(3), True))
+        await vehicle.until(lambda: bool(vehicle.of_type("SET_ACTUATOR_CONTROL_TARGET")))
+        clock.now_s += 2.0  # the first has been silent beyond link_loss_s: the next is it
+        heartbeat(impostor, armed=False)
+        await wait_until(lambda: link.counters.messages == 2)
+        assert not link.view().armed
+        link.send_setpoint(UavCommand(10.0, np.zeros(3), np.zeros(3), True))
+        await impostor.until(lambda: bool(impostor.of_type("SET_ACTUATOR_CONTROL_TARGET")))
+    finally:
+        impostor.close()
         await link.close()
