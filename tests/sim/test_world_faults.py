@@ -28,6 +28,7 @@ from sim.faults import (
 from sim.px4 import BOOT_MODE, FORCE_MAGIC, MainMode
 from sim.px4_endpoint import Px4Endpoint
 from sim.world import SimulatedWorld, WorldRefusedError
+from supervisor.app.assembly import mocap_params_from_config, plant_params_from_config
 from supervisor.app.config import load_config
 from supervisor.app.world_process import build_world
 from supervisor.mavlink.px4_messages import MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET
@@ -198,6 +199,48 @@ def test_the_world_publishes_what_the_faults_make_of_each_frame(
     run(world, 0.1)
     assert published[-1]["uav2"].tracked
     assert published[-1]["uav1"].position_m[2] == pytest.approx(truth_z, abs=0.01)
+
+
+class Firmware:
+    """A vehicle the world cannot reach into (as a real PX4 SITL process)."""
+
+    armed = False
+
+    async def start(self) -> None: ...
+
+    async def close(self) -> None: ...
+
+    def step(self, now_s: float) -> None: ...
+
+    def describe(self) -> str:
+        return "firmware"
+
+
+@pytest.mark.parametrize(
+    ("fault", "words"),
+    [
+        (LinkLost(2), "vehicle 2 is a real PX4 SITL process"),
+        (Px4Reboot(1), "cannot reboot it faithfully"),
+        (UdpLoss(0.1), "cannot drop its datagrams"),
+    ],
+)
+def test_what_the_world_cannot_do_to_real_firmware_is_refused_with_the_reason(
+    fault: Any, words: str
+) -> None:
+    config = load_config(CONFIGS / "sim.toml")
+    world = SimulatedWorld(
+        plant_params_from_config(config),
+        mocap_params_from_config(config),
+        lambda plant, uav: Firmware(),
+        qtm_port=0,
+    )
+    with pytest.raises(WorldRefusedError, match=words):
+        world.inject(fault)
+    with pytest.raises(WorldRefusedError, match="cannot put its firmware back"):
+        world.reset()
+    assert world.fault_views() == []
+    world.inject(MocapSilent(1.0))  # the mocap is the world's own
+    assert [f["kind"] for f in world.fault_views()] == ["mocap_silent"]
 
 
 # ---- the QTM stream on loopback, in real time -------------------------------------------------
