@@ -4,6 +4,10 @@
 need ``Authorization: Bearer TOKEN`` (401 otherwise); a body that does not validate gets
 422 with the reason; a request the flight modes or the queue refuse gets 409 with the
 reason; no flight process answering gets 503.
+
+``/api/sim/*`` reaches the simulated world's process (fault injection and the world reset,
+docs/faults.md), only when ``serve`` started the world itself (``sim.embedded``): else the
+mutating ones are 409 with the reason, checked right after the token and before the body.
 """
 
 from __future__ import annotations
@@ -48,6 +52,15 @@ from supervisor.flight.operator_requests import (
 )
 from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoints
 from supervisor.ipc.client import FlightClient
+from supervisor.ipc.world_client import WorldClient
+from supervisor.ipc.world_messages import (
+    ClearFaults,
+    FaultSpec,
+    ListFaults,
+    ResetWorld,
+    StartFault,
+    WorldRequest,
+)
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 HTTP_STATUS = {
@@ -57,6 +70,10 @@ HTTP_STATUS = {
     Outcome.UNAVAILABLE: 503,
 }
 TELEMETRY_STALE_S = 0.5
+NOT_EMBEDDED = (
+    "the simulated world is not embedded (sim.embedded is false): serve did not start a "
+    "simulated world, so there is nothing to inject faults into or reset"
+)
 
 
 def _json_text(value: Any) -> str:
@@ -73,9 +90,16 @@ def _answer(reply: Reply) -> JSONResponse:
     )
 
 
-def create_app(flight: FlightClient, params: BarSystemParams, arena: Arena, token: str) -> FastAPI:
+def create_app(
+    flight: FlightClient,
+    params: BarSystemParams,
+    arena: Arena,
+    token: str,
+    world: WorldClient | None = None,
+) -> FastAPI:
     """The FastAPI application serving ``flight`` (``params`` and ``arena``: the system and
-    its flight volume, for the equilibria it reports and the setpoints it checks)."""
+    its flight volume, for the equilibria it reports and the setpoints it checks) and, when
+    ``serve`` runs the simulated world itself, ``world``."""
     app = FastAPI(
         title="uavbar-supervisor",
         summary="Two PX4 quadrotors carrying a bar under MPC: arm, fly, queue setpoints, abort.",
@@ -99,6 +123,7 @@ def create_app(flight: FlightClient, params: BarSystemParams, arena: Arena, toke
     app.include_router(_operator_routes(flight), dependencies=[auth])
     app.include_router(_setpoint_routes(flight, params, arena, auth))
     app.include_router(_telemetry_route(flight))
+    app.include_router(_sim_routes(world, auth))
     if STATIC_DIR.is_dir():
         app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")
     return app
@@ -223,6 +248,58 @@ def _setpoint_routes(
     async def delete_setpoints() -> JSONResponse:
         """Drop the queue and the active setpoint: the bar holds where its reference is."""
         return _answer(await flight.request(ClearSetpointsRequest()))
+
+    return router
+
+
+def _sim_routes(world: WorldClient | None, auth: fastapi_params.Depends) -> APIRouter:
+    """Faults and reset of the embedded world: reading is open, the rest needs the token
+    (``auth``) and an embedded world."""
+    router = APIRouter()
+
+    def embedded() -> WorldClient:
+        """The world, or 409: as a route dependency it runs after the token's and before
+        the body is parsed, so without a world nothing else is said."""
+        if world is None:
+            raise HTTPException(409, NOT_EMBEDDED)
+        return world
+
+    needs_world = [auth, Depends(embedded)]
+
+    async def ask(request: WorldRequest) -> JSONResponse:
+        reply = await embedded().request(request)
+        if reply.ok:
+            return JSONResponse({"accepted": True, "embedded": True, **reply.data})
+        return _answer(reply)
+
+    @router.get("/api/sim/faults")
+    async def get_faults() -> JSONResponse:
+        """The faults in effect (kind, params, started_s and remaining_s in world seconds;
+        remaining_s null: until cleared); ``embedded`` false when there is no world."""
+        if world is None:
+            return JSONResponse({"embedded": False, "faults": []})
+        reply = await world.request(ListFaults())
+        if not reply.ok:
+            return _answer(reply)
+        return JSONResponse({"embedded": True, **reply.data})
+
+    @router.post("/api/sim/faults", dependencies=needs_world)
+    async def post_fault(body: FaultSpec) -> JSONResponse:
+        """Inject a fault into the simulated world (one of its kind on the same target is
+        replaced); the answer lists the faults in effect."""
+        return await ask(StartFault(fault=body))
+
+    @router.delete("/api/sim/faults", dependencies=needs_world)
+    async def delete_faults() -> JSONResponse:
+        """End every fault now."""
+        return await ask(ClearFaults())
+
+    @router.post("/api/sim/reset", dependencies=needs_world)
+    async def reset() -> JSONResponse:
+        """Put the simulated world back in its resting pose: the plant's initial state, the
+        simulated PX4s disarmed in their boot mode, faults cleared. Refused while a vehicle
+        is armed."""
+        return await ask(ResetWorld())
 
     return router
 

@@ -26,13 +26,21 @@ Measured on v1.15.4 and done the same way here:
 * **TIMESYNC**: a client's request (tc1 0) is answered with tc1 = our clock [ns] and ts1
   echoed; answers to our requests feed ``Timesync``, which maps vision timestamps
   (VISION_POSITION_ESTIMATE.usec, ODOMETRY.time_usec) onto our clock once converged.
+* **Reboot** (the world's ``px4_reboot`` fault, ``sim.faults``): ``power_off`` stops the
+  motors and the link at once; ``boot`` starts again as at power-on — a fresh model in its
+  boot mode, disarmed, with the parameters held before (PX4 stores them), its clock (time
+  since boot), TIMESYNC, event sequence and partner starting afresh; the first event after
+  it is announced by CURRENT_EVENT_SEQUENCE with the reset flag (as v1.15.4 does, measured
+  for ``supervisor.mavlink.session``: that message with sequence 0, then EVENT 0).
 
 The ``Px4Model`` holds the behaviour; this module moves datagrams. ``handle_datagram`` is
-the whole receive path (also what the fuzzer drives). Our clock is the world time.
+the whole receive path (also what the fuzzer drives). Our clock is the time since boot:
+the world time minus the world time of the last boot (0 until a reboot).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import random
 import struct
@@ -57,6 +65,7 @@ from sim.px4 import ParamSpec, ParamType, Px4Event, Px4Model, Px4Params, Timesyn
 from supervisor.mavlink.codec import MavlinkCodec, mavlink
 from supervisor.mavlink.events import EventCatalog, EventDefinition, encode_event_arguments
 from supervisor.mavlink.px4_messages import (
+    MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET,
     current_event_sequence_send,
     event_send,
     response_event_error_send,
@@ -109,6 +118,10 @@ class HeartbeatSchedule:
         self._rng = rng
         self._anchor_s: float | None = None
         self._delay_s = 0.0
+
+    def restart(self) -> None:
+        """The next ``due`` sends at once and anchors the schedule again (after a boot)."""
+        self._anchor_s = None
 
     def _draw(self) -> float:
         if self._rng is None:
@@ -209,6 +222,13 @@ class Px4Endpoint:
         self.heartbeats = HeartbeatSchedule(rng)
         self.outbox: deque[bytes] | None = None
         """Set to a deque to collect the frames instead of sending them (tests)."""
+        self.datagram_filter: Callable[[bool], bool] | None = None
+        """Asked for every datagram, with True for one arriving and False for one leaving;
+        False drops it — the simulated world's fault injection (``sim.faults``)."""
+        self.powered = True
+        """False from ``power_off`` to ``boot``: motors off, nothing sent or handled."""
+        self._boot_s = 0.0  # world time of the last boot: our clock counts from it
+        self._announce_reset = False
         self._transport: UdpTransport | None = None
         self._client_address: Address | None = None
         self._partner: Address | None = None
@@ -265,6 +285,9 @@ class Px4Endpoint:
 
     def _flush(self) -> None:
         frames = self.codec.outgoing()
+        keep = self.datagram_filter
+        if keep is not None:
+            frames = [frame for frame in frames if keep(False)]
         if self.outbox is not None:
             self.outbox.extend(frames)
         elif self._transport is not None:
@@ -274,8 +297,51 @@ class Px4Endpoint:
         return f"{self.host}:{self.local_port}"
 
     def clock_s(self) -> float:
-        """The world time of the last ``step`` (received messages are stamped with it)."""
+        """Our clock at the last ``step``: seconds since boot (received messages are
+        stamped with it)."""
         return self._now_s
+
+    @property
+    def armed(self) -> bool:
+        """Whether the motors are armed."""
+        return self.powered and self.model.armed
+
+    # ---- reboot and reset (the world's faults) ---------------------------------------------
+    def _fresh_model(self) -> Px4Model:
+        """A model booting with the parameters this one holds (PX4 stores every change), so
+        the ones read only at boot (MAV_SYS_ID, EKF2_EV_DELAY, ...) take effect now."""
+        held = tuple((spec.name, value) for spec, value in self.model.parameters.items())
+        params = dataclasses.replace(self.model.params, boot_parameters=held)
+        return Px4Model(system_id=self.instance + 1, params=params)
+
+    def power_off(self) -> None:
+        """Power lost (a reboot begins): motors off now, nothing sent or handled."""
+        self.powered = False
+        self.airframe.command(0.0, np.zeros(3))
+        self.codec.outgoing()  # what was queued dies with the power
+
+    def boot(self, world_s: float) -> None:
+        """Boot at world time ``world_s`` as at power-on (see the module's docstring)."""
+        self.model = self._fresh_model()
+        self.codec = MavlinkCodec(system=self.model.system_id, component=1)
+        self.timesync = Timesync()
+        self.heartbeats.restart()
+        self._next_send_s = dict.fromkeys(STREAM_PERIODS_S, 0.0)
+        self._boot_s = world_s
+        self._now_s = 0.0
+        self._gcs_heard_s = -math.inf
+        self._event_sequence = 0
+        self._sent_events.clear()
+        self._statustext_id = 0
+        self._announce_reset = True
+        self._partner = None
+        self.client_address = (self.host, self.client_port)  # as at start: PX4's remote port
+        self.powered = True
+
+    def reset_model(self) -> None:
+        """Back to the boot state without a reboot (the world's reset, disarmed): a fresh
+        model with the parameters held; link, clock and event sequence go on."""
+        self.model = self._fresh_model()
 
     # ---- receive ------------------------------------------------------------------------------
     @property
@@ -292,7 +358,12 @@ class Px4Endpoint:
 
     def handle_datagram(self, data: bytes, now_s: float) -> bool:
         """Parse and act on one datagram; malformed input is counted, never raised.
-        Returns whether it held at least one valid message."""
+        Returns whether it held at least one valid message. While powered off, or when the
+        world's faults drop it (``datagram_filter``), it never arrived."""
+        if not self.powered or (
+            self.datagram_filter is not None and not self.datagram_filter(True)
+        ):
+            return False
         self.counters.datagrams += 1
         decoded = self.codec.decode(data)
         self.counters.bad_data += decoded.bad_data
@@ -455,6 +526,11 @@ class Px4Endpoint:
         )
         self._event_sequence = (self._event_sequence + 1) & 0xFFFF
         self._sent_events.append(sent)
+        if self._announce_reset:
+            self._announce_reset = False
+            current_event_sequence_send(
+                self.codec.messages, sent.sequence, MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET
+            )
         self._emit(sent)
         text = self.catalog.text(definition.event_id, arguments)
         self.events_sent.append((event.name, text))
@@ -512,8 +588,13 @@ class Px4Endpoint:
             model.standard_mode, model.custom_mode, model.intended_custom_mode
         )
 
-    def step(self, now_s: float) -> None:
-        """Run the flight stack to ``now_s``: command the airframe, send due telemetry."""
+    def step(self, world_s: float) -> None:
+        """Run the flight stack to world time ``world_s``: command the airframe, send due
+        telemetry (powered off: motors off, nothing else)."""
+        if not self.powered:
+            self.airframe.command(0.0, np.zeros(3))
+            return
+        now_s = max(0.0, world_s - self._boot_s)
         dt = max(0.0, now_s - self._now_s)
         self._now_s = now_s
         state = self.airframe.state()

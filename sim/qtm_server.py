@@ -135,6 +135,10 @@ class QtmServer:
         """Data packets sent, over TCP and UDP together."""
         self.commands: list[str] = []
         """Every command received, in order (for tests and logs)."""
+        self.packet_filter: Callable[[bool], bool] | None = None
+        """Asked for every data packet (frame or No-More-Data) about to go to a streaming
+        client, with whether it travels over UDP; False drops it — the simulated world's
+        fault injection (``sim.faults``). The frame number counts the frame either way."""
         self._published: Mapping[str, BodyPose] = {}
         self._connections: set[_Connection] = set()
         self._server: asyncio.Server | None = None
@@ -245,14 +249,15 @@ class QtmServer:
         if not self.measuring:
             encoded_nmd = encode_packet(NoMoreDataPacket())
             for connection in streaming:
-                self._send(connection, encoded_nmd)
+                if self._passes(connection):
+                    self._send(connection, encoded_nmd)
             return
         timestamp_us, poses = self._capture()
         cache: dict[tuple[ComponentType, ...], bytes] = {}
         for connection in streaming:
             stream = connection.stream
             assert stream is not None
-            if self.frame_number % stream.divisor:
+            if self.frame_number % stream.divisor or not self._passes(connection):
                 continue
             data = cache.get(stream.components)
             if data is None:
@@ -267,6 +272,11 @@ class QtmServer:
                 data = cache[stream.components] = encode_packet(packet)
             self._send(connection, data)
             self.frames_sent += 1
+
+    def _passes(self, connection: _Connection) -> bool:
+        stream = connection.stream
+        udp = stream is not None and stream.udp_target is not None
+        return self.packet_filter is None or self.packet_filter(udp)
 
     def _send(self, connection: _Connection, data: bytes) -> None:
         stream = connection.stream

@@ -6,22 +6,33 @@ RK4 steps), capturing mocap frames on the measurement model's schedule; each fra
 published by the QTM server when the model delivers it (after its latency, with its noise
 and dropouts); the PX4 models run their control and failsafe logic on the same clock and
 command the plant through its airframe ports.
+
+Faults (``sim.faults``, docs/faults.md) are injected at run time by ``inject`` and ended by
+their time on the world's clock — the plant's time, which the vehicles step on too (checked
+at every ``advance``) — or by ``clear_faults``; each start and end is logged. ``reset``
+puts the world back in its resting pose. Both are for simulated PX4s
+(``InjectableVehicle``); what a real PX4 SITL process cannot do is refused
+(``WorldRefusedError``) with the reason.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
 
 from geometry.frames import euler_zyx_from_quaternion
 from mocap.qtm_protocol import BodyPose
+from sim.faults import ActiveFault, Fault, FaultSet, LinkLost, Px4Reboot, UdpLoss
 from sim.measurement import MocapFrame, MocapModel, MocapParams
 from sim.plant import Plant, body_slice, resting_state
 from sim.plant_params import PlantParams
@@ -50,7 +61,36 @@ class SimulatedVehicle(Protocol):
         ...
 
 
+@runtime_checkable
+class InjectableVehicle(SimulatedVehicle, Protocol):
+    """A simulated vehicle whose link and power the world's faults reach (our simulated
+    PX4, ``sim.px4_endpoint.Px4Endpoint``; a real PX4 SITL process is not one)."""
+
+    datagram_filter: Callable[[bool], bool] | None
+    powered: bool
+
+    @property
+    def armed(self) -> bool: ...
+
+    def power_off(self) -> None: ...
+
+    def boot(self, world_s: float) -> None: ...
+
+    def reset_model(self) -> None: ...
+
+
 VehicleFactory = Callable[[Plant, int], SimulatedVehicle]
+
+
+class WorldRefusedError(Exception):
+    """A valid request the world cannot carry out (now, or with these vehicles)."""
+
+
+NOT_THROUGH_THE_WORLD = (
+    "vehicle {vehicle} is a real PX4 SITL process: its MAVLink goes straight between the "
+    "supervisor and PX4 (UDP 14580+n <-> 14540+n), not through the simulated world, so the "
+    'world cannot {what}; use sim.vehicles = "simulated" for this fault'
+)
 
 
 @dataclass(frozen=True)
@@ -88,11 +128,19 @@ class SimulatedWorld:
         step_period_s: float = 0.002,
         clock: Callable[[], float] = time.monotonic,
         event_definitions: Path | None = None,
+        fault_seed: int = 0,
     ) -> None:
         self.plant = Plant(plant_params)
         self.mocap = MocapModel(mocap_params)
         self.vehicles = [vehicles(self.plant, i) for i in (1, 2)]
         self.qtm = QtmServer(list(body_names), host=qtm_host, port=qtm_port, rate_hz=None)
+        self.faults = FaultSet(body_names, fault_seed)
+        """The faults in effect (``inject``, ``clear_faults``)."""
+        self.qtm.packet_filter = self.faults.keep_mocap_packet
+        for uav, vehicle in enumerate(self.vehicles, start=1):
+            if isinstance(vehicle, InjectableVehicle):
+                vehicle.datagram_filter = functools.partial(self.faults.keep_mavlink, uav)
+        self._resting_state = self.plant.get_state()
         self.step_period_s = step_period_s
         self.event_definitions = event_definitions
         """The definitions of the events its vehicles send (PX4's libevents format)."""
@@ -127,9 +175,17 @@ class SimulatedWorld:
         await self.qtm.close()
         self._sleeper.shutdown(wait=False)
 
+    @property
+    def body_names(self) -> tuple[str, ...]:
+        """The rigid bodies the QTM server streams."""
+        return self.qtm.body_names
+
     def advance(self, until_s: float) -> None:
         """Step the plant to ``until_s`` (world time), capturing and publishing frames and
-        running the vehicles' logic between plant chunks."""
+        running the vehicles' logic between plant chunks; faults whose time is up end."""
+        ended = self.faults.expire(until_s)
+        if ended:
+            self._ended(ended, "expired", until_s)
         plant = self.plant
         step = plant.step_s
         while plant.time_s < until_s - 0.5 * step:
@@ -143,7 +199,95 @@ class SimulatedWorld:
             self._truth_reported_s = plant.time_s
             log.info("%s", self.truth.describe())
         for frame in self.mocap.poll(until_s):
-            self.qtm.publish(_poses(frame))
+            self.qtm.publish(self.faults.frame(_poses(frame)))
+
+    # ---- faults and reset ---------------------------------------------------------------------
+    def _refusal(self, fault: Fault) -> str | None:
+        """Why ``fault`` cannot be injected into these vehicles, or None."""
+        if isinstance(fault, LinkLost | Px4Reboot):
+            what = "cut its link" if isinstance(fault, LinkLost) else "reboot it faithfully"
+            vehicle = self.vehicles[fault.vehicle - 1]
+            if not isinstance(vehicle, InjectableVehicle):
+                return NOT_THROUGH_THE_WORLD.format(vehicle=fault.vehicle, what=what)
+        if isinstance(fault, UdpLoss):
+            for uav, vehicle in enumerate(self.vehicles, start=1):
+                if not isinstance(vehicle, InjectableVehicle):
+                    return NOT_THROUGH_THE_WORLD.format(vehicle=uav, what="drop its datagrams")
+        return None
+
+    def inject(self, fault: Fault) -> ActiveFault:
+        """Put ``fault`` in effect now (replacing one of its kind on the same target).
+        ``FaultError`` for a body QTM does not stream; ``WorldRefusedError`` when these
+        vehicles cannot have it."""
+        refusal = self._refusal(fault)
+        if refusal is not None:
+            raise WorldRefusedError(refusal)
+        now_s = self.plant.time_s
+        started, replaced = self.faults.start(fault, now_s)
+        if replaced is not None:
+            self._ended([replaced], "replaced", now_s)
+        log.info("fault started at %.3f s: %s", now_s, started.describe())
+        self._power_vehicles()
+        return started
+
+    def clear_faults(self) -> list[ActiveFault]:
+        """End every fault now; returns those that were in effect."""
+        now_s = self.plant.time_s
+        ended = self.faults.clear()
+        self._ended(ended, "cleared", now_s)
+        return ended
+
+    def fault_views(self) -> list[dict[str, Any]]:
+        """The faults in effect, as the API shows them."""
+        return self.faults.views(self.plant.time_s)
+
+    def _ended(self, ended: list[ActiveFault], why: str, now_s: float) -> None:
+        for fault in ended:
+            log.info("fault ended at %.3f s (%s): %s", now_s, why, fault.describe())
+        self._power_vehicles()
+
+    def _power_vehicles(self) -> None:
+        """Power each simulated PX4 off or on as the reboot faults say."""
+        for uav, vehicle in enumerate(self.vehicles, start=1):
+            if not isinstance(vehicle, InjectableVehicle):
+                continue
+            powered = self.faults.powered(uav)
+            if vehicle.powered and not powered:
+                vehicle.power_off()
+                log.info("PX4 %d: power off (rebooting)", uav)
+            elif powered and not vehicle.powered:
+                # On the clock the vehicles step on: the plant's, never ahead of it.
+                vehicle.boot(self.plant.time_s)
+                log.info("PX4 %d: booted", uav)
+
+    def reset(self) -> list[ActiveFault]:
+        """Back to the resting pose the world started in: the plant's initial state,
+        motors stopped, every simulated PX4 disarmed in its boot mode (parameters kept),
+        faults cleared (returned). ``WorldRefusedError`` while a vehicle is armed, and for
+        real PX4 SITL vehicles (their state is the firmware's, not the world's to set)."""
+        vehicles: list[InjectableVehicle] = []
+        for uav, vehicle in enumerate(self.vehicles, start=1):
+            if not isinstance(vehicle, InjectableVehicle):
+                raise WorldRefusedError(
+                    f"vehicle {uav} is a real PX4 SITL process: the world cannot put its "
+                    "firmware back in its boot state (only restarting serve does)"
+                )
+            vehicles.append(vehicle)
+        armed = [uav for uav, vehicle in enumerate(vehicles, start=1) if vehicle.armed]
+        if armed:
+            names = " and ".join(str(uav) for uav in armed)
+            raise WorldRefusedError(
+                f"vehicle {names} {'is' if len(armed) == 1 else 'are'} armed: land and "
+                "disarm first (the reset moves the vehicles)"
+            )
+        cleared = self.clear_faults()
+        self.plant.set_state(self._resting_state)
+        for uav in (1, 2):
+            self.plant.command(uav, 0.0, np.zeros(3))
+        for vehicle in vehicles:
+            vehicle.reset_model()
+        log.info("world reset at %.3f s: resting pose, PX4s in their boot mode", self.plant.time_s)
+        return cleared
 
     async def run(self) -> None:
         """Follow the wall clock until cancelled. A stall longer than ``MAX_CATCH_UP_S`` is

@@ -30,8 +30,9 @@ from supervisor.app.assembly import arena_from_config
 from supervisor.app.config import TOKEN_ENV, Config, load_config
 from supervisor.app.relay_main import relay_addresses
 from supervisor.flight.operator_requests import ShutdownRequest
-from supervisor.ipc.channel import Channel
+from supervisor.ipc.channel import Channel, WorldChannel
 from supervisor.ipc.client import FlightClient
+from supervisor.ipc.world_client import WorldClient
 from supervisor.mavlink.transport import bind_udp
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
 
@@ -63,10 +64,12 @@ def resolve_token(config: Config) -> tuple[str, bool]:
     return secrets.token_urlsafe(18), True
 
 
-def _world_main(setup: Setup, ready: multiprocessing.connection.Connection) -> None:
+def _world_main(
+    setup: Setup, ready: multiprocessing.connection.Connection, requests: socket.socket
+) -> None:
     from supervisor.app.world_process import run_world_process
 
-    run_world_process(setup.load(), ready)
+    run_world_process(setup.load(), ready, requests)
 
 
 LinkSockets = tuple[socket.socket, socket.socket]
@@ -123,20 +126,30 @@ def _start_relay(
 
 def _start_world(
     setup: Setup,
-) -> tuple[BaseProcess, multiprocessing.connection.Connection, dict[str, Any]]:
-    """The world process, the pipe whose closing stops it, and its addresses."""
+) -> tuple[BaseProcess, multiprocessing.connection.Connection, dict[str, Any], socket.socket]:
+    """The world process, the pipe whose closing stops it, its addresses, and the API's end
+    of the world channel (fault injection and reset)."""
     parent, child = SPAWN.Pipe()
-    process = SPAWN.Process(target=_world_main, args=(setup, child), name="uavbar-world")
+    requests, world_end = socket.socketpair()
+    process = SPAWN.Process(target=_world_main, args=(setup, child, world_end), name="uavbar-world")
     process.start()
     child.close()
+    world_end.close()  # the world holds its own copy
     if not parent.poll(WORLD_START_TIMEOUT_S):
         process.kill()
+        requests.close()
         raise RuntimeError("the simulated world did not start")
     addresses: dict[str, Any] = parent.recv()
     if "error" in addresses:
         process.join(5.0)
+        requests.close()
         raise RuntimeError(f"the simulated world failed: {addresses['error']}")
-    return process, parent, addresses
+    return process, parent, addresses, requests
+
+
+async def _world_client(sock: socket.socket | None) -> WorldClient | None:
+    """The API's handle on the world process, when there is one."""
+    return None if sock is None else WorldClient(await WorldChannel.open(sock))
 
 
 def _stop(process: BaseProcess | None, timeout_s: float) -> None:
@@ -158,8 +171,9 @@ async def serve(setup: Setup) -> int:
     world: BaseProcess | None = None
     world_addresses: dict[str, Any] | None = None
     world_pipe: multiprocessing.connection.Connection | None = None
+    world_channel: socket.socket | None = None
     if config.sim.embedded:
-        world, world_pipe, started = await asyncio.to_thread(_start_world, setup)
+        world, world_pipe, started, world_channel = await asyncio.to_thread(_start_world, setup)
         log.info("simulated world: QTM %s, PX4s %s", started["qtm"], ", ".join(started["vehicles"]))
         world_addresses = started
     link_sockets = _bind_link_sockets(config, world_addresses)
@@ -180,7 +194,8 @@ async def serve(setup: Setup) -> int:
     os.nice(API_NICENESS)
     commands, urgent = [await Channel.open(parent_end) for parent_end, _ in pairs]
     client = FlightClient(commands, urgent)
-    app = create_app(client, config.system.to_params(), arena_from_config(config), token)
+    sim_world = await _world_client(world_channel)
+    app = create_app(client, config.system.to_params(), arena_from_config(config), token, sim_world)
     http = HttpServer(app, http_socket)
     host = config.api.host
     log.info("uavbar-supervisor serving http://%s:%d/ (setup %s)", host, http.port, config.name)
@@ -196,6 +211,7 @@ async def serve(setup: Setup) -> int:
         async with asyncio.TaskGroup() as group:
             group.create_task(http.serve())
             flight_link = group.create_task(client.run())
+            world_link = group.create_task(sim_world.run()) if sim_world else None
             stopper = group.create_task(stop.wait())
             await asyncio.wait({flight_link, stopper}, return_when=asyncio.FIRST_COMPLETED)
             if flight_link.done() and not stop.is_set():
@@ -215,6 +231,8 @@ async def serve(setup: Setup) -> int:
                     async with asyncio.timeout(LANDING_TIMEOUT_S + 10.0):
                         await flight_link
             stopper.cancel()
+            if world_link is not None:
+                world_link.cancel()
             http.stop()
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -227,6 +245,8 @@ async def serve(setup: Setup) -> int:
         if world_pipe is not None:
             world_pipe.close()
         await client.close()
+        if sim_world is not None:
+            await sim_world.close()
     if flight_died:
         return 1
     return 0 if flight.exitcode in (0, None) or stop.is_set() else 1

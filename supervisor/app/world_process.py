@@ -1,7 +1,8 @@
 """The simulated world as a service: ``uavbar-supervisor sitl`` runs it in the foreground,
 ``serve`` (with ``sim.embedded``) in a child process. Plant, two simulated PX4s and the
 QTM server, built from the configuration, in real time until SIGINT/SIGTERM (or, as a
-child, until its parent goes away)."""
+child, until its parent goes away). As ``serve``'s child it also answers the API process's
+fault-injection and reset requests on the world channel (``handle_world_request``)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,13 @@ import asyncio
 import contextlib
 import logging
 import signal
+import socket
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from sim.faults import FaultError, parse_fault
 from sim.hil_sensors import HilSensors
 from sim.motor_mixer import QuadMixer
 from sim.plant import Plant
@@ -28,7 +31,7 @@ from sim.px4_firmware import (
     resolve_px4_dir,
 )
 from sim.px4_sitl import Px4SitlVehicle
-from sim.world import SimulatedVehicle, SimulatedWorld, VehicleFactory
+from sim.world import SimulatedVehicle, SimulatedWorld, VehicleFactory, WorldRefusedError
 from supervisor.app.assembly import (
     mocap_params_from_config,
     plant_params_from_config,
@@ -36,6 +39,16 @@ from supervisor.app.assembly import (
 )
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config
+from supervisor.flight.operator_requests import Outcome, Reply
+from supervisor.ipc.channel import ChannelClosedError, WorldChannel
+from supervisor.ipc.world_client import serve_world_requests
+from supervisor.ipc.world_messages import (
+    ClearFaults,
+    ListFaults,
+    ResetWorld,
+    StartFault,
+    WorldRequest,
+)
 from supervisor.logs.logging_setup import configure_logging
 from supervisor.runtime.cpu import name_process, raise_priority, single_threaded_blas
 
@@ -80,6 +93,7 @@ def build_world(
         qtm_host=host,
         qtm_port=qtm_port,
         event_definitions=events,
+        fault_seed=config.sim.seed,
     )
     return world
 
@@ -130,14 +144,51 @@ def _link_ports(world: SimulatedWorld) -> list[int] | None:
     return ports or None
 
 
+def handle_world_request(world: SimulatedWorld, request: WorldRequest) -> Reply:
+    """Carry out one request of the API process: a fault that is not valid is ``invalid``
+    (422), one the world cannot have or a reset while armed ``refused`` (409)."""
+    data: dict[str, Any] = {}
+    try:
+        if isinstance(request, StartFault):
+            fault = parse_fault(request.fault.model_dump(), world.body_names)
+            data["fault"] = world.inject(fault).view(world.plant.time_s)
+        elif isinstance(request, ClearFaults):
+            data["cleared"] = [ended.view(world.plant.time_s) for ended in world.clear_faults()]
+        elif isinstance(request, ResetWorld):
+            data["cleared"] = [ended.view(world.plant.time_s) for ended in world.reset()]
+            data["reset"] = True
+        else:
+            assert isinstance(request, ListFaults)
+    except FaultError as error:
+        return Reply(outcome=Outcome.INVALID, reason=str(error))
+    except WorldRefusedError as error:
+        return Reply(outcome=Outcome.REFUSED, reason=str(error))
+    data["faults"] = world.fault_views()
+    data["world_time_s"] = world.plant.time_s
+    return Reply(outcome=Outcome.OK, data=data)
+
+
+async def _answer_requests(world: SimulatedWorld, requests: socket.socket) -> None:
+    """The world channel until the API process closes it (the world runs on)."""
+    channel = await WorldChannel.open(requests)
+    try:
+        await serve_world_requests(channel, lambda request: handle_world_request(world, request))
+    except ChannelClosedError:
+        log.info("world channel closed: no more fault requests")
+    finally:
+        await channel.close()
+
+
 async def run_world(
     config: Config,
     qtm_port: int,
     vehicle_local_ports: tuple[int, int],
     on_ready: Callable[[dict[str, Any]], None],
     stop: asyncio.Event,
+    requests: socket.socket | None = None,
 ) -> None:
-    """Start the world, report its addresses, run it until ``stop`` is set."""
+    """Start the world, report its addresses, run it until ``stop`` is set (answering the
+    world channel ``requests``, when given, meanwhile)."""
     world = build_world(config, qtm_port, vehicle_local_ports)
     addresses = await world.start()
     try:
@@ -149,18 +200,25 @@ async def run_world(
                 "px4_events": str(world.event_definitions),
             }
         )
-        runner = asyncio.create_task(world.run())
+        tasks = [asyncio.create_task(world.run(), name="world")]
+        if requests is not None:  # after the runner: faults start on its clock
+            tasks.append(asyncio.create_task(_answer_requests(world, requests), name="faults"))
         await stop.wait()
-        runner.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await runner
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
     finally:
         await world.close()
 
 
-def run_world_process(config: Config, ready: Connection) -> None:
-    """Child-process entry of ``serve``: free ports, report them on ``ready``, run until
-    SIGTERM or until the parent closes its end of ``ready``."""
+def run_world_process(
+    config: Config, ready: Connection, requests: socket.socket | None = None
+) -> None:
+    """Child-process entry of ``serve``: free ports, report them on ``ready``, answer the
+    world channel ``requests``, run until SIGTERM or until the parent closes its end of
+    ``ready``."""
     configure_logging()
     single_threaded_blas()
     name_process("uavbar-world")
@@ -172,7 +230,7 @@ def run_world_process(config: Config, ready: Connection) -> None:
     async def main() -> None:
         async with stop_event(ready) as stop:
             try:
-                await run_world(config, 0, (0, 0), ready.send, stop)
+                await run_world(config, 0, (0, 0), ready.send, stop, requests)
             except Exception as error:
                 ready.send({"error": repr(error)})
                 raise

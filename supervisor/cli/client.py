@@ -1,6 +1,6 @@
 """The terminal client: ``uavbar-supervisor status|arm|takeoff|land|abort|disarm|kill|mode|
 setpoint`` against a running service's REST API, for scripts and the laptop next to the
-drones.
+drones; ``fault`` and ``reset`` for the embedded simulated world (docs/faults.md).
 
 The URL defaults to the configured ``api.host``/``api.port``; the token comes from
 ``--token`` or the environment variable ``UAVBAR_TOKEN``. Exit status: 0 done, 1 refused
@@ -86,11 +86,49 @@ def format_status(status: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+FAULT_OPTIONS = (
+    ("duration", "duration_s"),
+    ("body", "body"),
+    ("offset_m", "offset_m"),
+    ("vehicle", "vehicle"),
+    ("fraction", "fraction"),
+)
+
+
+def _fault_request(args: argparse.Namespace) -> tuple[str, str, Any]:
+    """``fault KIND [options]``, ``fault --clear``, or ``fault`` (list them). Only the options
+    given go into the body: the service says which a kind takes and which it lacks."""
+    given = [option for option, _ in FAULT_OPTIONS if getattr(args, option) is not None]
+    if args.clear:
+        if args.kind is not None or given:
+            raise UsageError("fault --clear ends every fault: give it no KIND and no option")
+        return "DELETE", "/api/sim/faults", None
+    if args.kind is None:
+        if given:
+            raise UsageError("fault: name a KIND for the options to apply to")
+        return "GET", "/api/sim/faults", None
+    for option in given:
+        value = getattr(args, option)
+        numbers = value if isinstance(value, list) else [value]
+        if any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
+            # JSON has no NaN or infinity: say so here rather than send what cannot be sent.
+            flag = "--" + option.replace("_", "-")
+            raise UsageError(f"{flag} {value}: must be finite")
+    fields = dict(FAULT_OPTIONS)
+    body: dict[str, Any] = {"kind": args.kind}
+    body.update((fields[option], getattr(args, option)) for option in given)
+    return "POST", "/api/sim/faults", body
+
+
 def _request_for(args: argparse.Namespace) -> tuple[str, str, Any]:
     """(method, path, JSON body) of the command in ``args``."""
     command = args.command
     if command == "status":
         return "GET", "/api/status", None
+    if command == "fault":
+        return _fault_request(args)
+    if command == "reset":
+        return "POST", "/api/sim/reset", None
     if command in SIMPLE_REQUESTS:
         return "POST", f"/api/{command}", None
     if command == "kill":
@@ -115,6 +153,41 @@ def _request_for(args: argparse.Namespace) -> tuple[str, str, Any]:
     return "POST", "/api/setpoints", body
 
 
+def _format_fault(fault: dict[str, Any]) -> str:
+    params = " ".join(f"{k} {v}" for k, v in fault.get("params", {}).items())
+    remaining = fault.get("remaining_s")
+    left = "until cleared" if remaining is None else f"{remaining:.1f} s left"
+    return f"{fault.get('kind')}{' ' + params if params else ''} ({left})"
+
+
+def format_faults(answer: dict[str, Any]) -> str:
+    """The answer of ``fault`` or ``reset``: what ended, then what is in effect."""
+    if not answer.get("embedded", True):
+        return "no simulated world here (sim.embedded is false): no faults"
+    lines = []
+    if answer.get("reset"):
+        lines.append("world reset: resting pose, PX4s disarmed in their boot mode")
+    lines += [f"ended: {_format_fault(fault)}" for fault in answer.get("cleared", [])]
+    faults = answer.get("faults", [])
+    lines += [f"in effect: {_format_fault(fault)}" for fault in faults]
+    if not faults:
+        lines.append("no fault in effect")
+    return "\n".join(lines)
+
+
+def _field(location: list[Any]) -> str:
+    """Where a validation error is, without FastAPI's leading "body" (the request's)."""
+    parts = location[1:] if location[:1] == ["body"] else location
+    return ".".join(str(part) for part in parts) or "body"
+
+
+def _format_detail(detail: Any) -> str:
+    """A refusal's reason; a validation error list as ``field: message`` per problem."""
+    if isinstance(detail, list) and all(isinstance(d, dict) and "msg" in d for d in detail):
+        return "; ".join(f"{_field(list(d.get('loc', [])))}: {d['msg']}" for d in detail)
+    return str(detail)
+
+
 def run_client(config: Config, args: argparse.Namespace) -> int:
     """Send the command, print the answer; returns the exit status."""
     method, path, body = _request_for(args)
@@ -130,12 +203,14 @@ def run_client(config: Config, args: argparse.Namespace) -> int:
         answer = {"detail": response.text}
     if response.status_code >= 400:
         detail = answer.get("detail", answer) if isinstance(answer, dict) else answer
-        print(f"refused ({response.status_code}): {detail}", file=sys.stderr)
+        print(f"refused ({response.status_code}): {_format_detail(detail)}", file=sys.stderr)
         return EXIT_REFUSED
     if args.json:
         print(json.dumps(answer))
     elif args.command == "status":
         print(format_status(answer))
+    elif args.command in ("fault", "reset"):
+        print(format_faults(answer))
     else:
         print(", ".join(f"{k}: {v}" for k, v in answer.items()))
     return 0
@@ -161,7 +236,30 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
     setpoint.add_argument("--theta-l", type=float, metavar="RAD", help="cable angle")
     setpoint.add_argument("--hold", type=float, default=5.0, metavar="S", help="hold time")
     setpoint.add_argument("--clear", action="store_true", help="drop queue and active")
-    parsers += [kill, mode, setpoint]
+    fault = commands.add_parser(
+        "fault",
+        help="inject a fault into the embedded simulated world (no KIND: list them; "
+        "--clear: end them all)",
+    )
+    fault.add_argument(
+        "kind",
+        nargs="?",
+        metavar="KIND",
+        help="mocap_silent, mocap_body_lost, mocap_freeze, mocap_jump, link_lost, "
+        "px4_reboot or udp_loss (docs/faults.md)",
+    )
+    fault.add_argument(
+        "--duration", type=float, metavar="S", help="seconds (default: until cleared)"
+    )
+    fault.add_argument("--body", metavar="NAME", help="a rigid body of mocap.bodies")
+    fault.add_argument("--offset-m", type=float, nargs=3, metavar=("X", "Y", "Z"), help="metres")
+    fault.add_argument("--vehicle", type=int, metavar="N", help="1 or 2")
+    fault.add_argument("--fraction", type=float, metavar="F", help="in [0, 1]")
+    fault.add_argument("--clear", action="store_true", help="end every fault")
+    reset = commands.add_parser(
+        "reset", help="put the embedded simulated world back in its resting pose (disarmed)"
+    )
+    parsers += [kill, mode, setpoint, fault, reset]
     for parser in parsers:
         add_client_options(parser)
         parser.set_defaults(handler=run_client)

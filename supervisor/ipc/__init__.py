@@ -1,1 +1,1 @@
-"""API ⇄ flight process: typed messages, the framed channel, its client and server."""
+"""API ⇄ flight and world processes: typed messages, framed channels, clients, servers."""

@@ -1,6 +1,8 @@
-"""The stream between the API process and the flight process: length-prefixed JSON
-messages (``supervisor.ipc.messages``) over a local stream socket (a ``socketpair`` made by
-``serve``). Each frame is a 4-byte big-endian length and one UTF-8 JSON object.
+"""The streams between ``serve``'s processes: length-prefixed JSON messages over a local
+stream socket (a ``socketpair`` made by ``serve``). Each frame is a 4-byte big-endian
+length and one UTF-8 JSON object, one of a typed union: ``Channel`` carries the API ⇄
+flight process messages (``supervisor.ipc.messages``), ``WorldChannel`` the API ⇄ world
+ones (``supervisor.ipc.world_messages``).
 """
 
 from __future__ import annotations
@@ -9,21 +11,25 @@ import asyncio
 import contextlib
 import socket
 import struct
+from typing import Generic, TypeVar
 
-from pydantic import ValidationError
+from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from supervisor.errors import RemoteError
 from supervisor.ipc.messages import CHANNEL_MESSAGE, ChannelMessage
+from supervisor.ipc.world_messages import WORLD_MESSAGE, WorldMessage
 
 HEADER = struct.Struct(">I")
 MAX_MESSAGE_BYTES = 1 << 20
+
+M = TypeVar("M", bound=BaseModel)
 
 
 class ChannelClosedError(RemoteError, ConnectionError):
     """The other process closed its end (or it sent something that is not a message)."""
 
 
-def encode(message: ChannelMessage) -> bytes:
+def encode(message: BaseModel) -> bytes:
     """One framed message."""
     body = message.model_dump_json().encode()
     if len(body) > MAX_MESSAGE_BYTES:
@@ -31,20 +37,21 @@ def encode(message: ChannelMessage) -> bytes:
     return HEADER.pack(len(body)) + body
 
 
-class Channel:
-    """One end of the stream, used from a single event loop."""
+async def _streams(sock: socket.socket) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+    return await asyncio.open_connection(sock=sock, limit=MAX_MESSAGE_BYTES + 8)
 
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+
+class FramedChannel(Generic[M]):
+    """One end of a stream of ``messages``, used from a single event loop."""
+
+    def __init__(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, messages: TypeAdapter[M]
+    ) -> None:
         self._reader = reader
         self._writer = writer
+        self._messages = messages
 
-    @classmethod
-    async def open(cls, sock: socket.socket) -> Channel:
-        """Wrap a connected stream socket (one end of a ``socketpair``)."""
-        reader, writer = await asyncio.open_connection(sock=sock, limit=MAX_MESSAGE_BYTES + 8)
-        return cls(reader, writer)
-
-    async def receive(self) -> ChannelMessage:
+    async def receive(self) -> M:
         """The next message; raises ``ChannelClosedError`` at the end of the stream."""
         try:
             header = await self._reader.readexactly(HEADER.size)
@@ -55,11 +62,11 @@ class Channel:
         except (asyncio.IncompleteReadError, ConnectionError) as error:
             raise ChannelClosedError(str(error)) from error
         try:
-            return CHANNEL_MESSAGE.validate_json(body)
+            return self._messages.validate_json(body)
         except ValidationError as error:
             raise ChannelClosedError(f"not a channel message: {error}") from error
 
-    def send(self, message: ChannelMessage) -> None:
+    def send(self, message: M) -> None:
         """Queue a message for sending (never blocks; see ``drain``)."""
         if self._writer.is_closing():
             raise ChannelClosedError("channel is closed")
@@ -81,3 +88,27 @@ class Channel:
         self._writer.close()
         with contextlib.suppress(ConnectionError):
             await self._writer.wait_closed()
+
+
+class Channel(FramedChannel[ChannelMessage]):
+    """API process ⇄ flight process."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        super().__init__(reader, writer, CHANNEL_MESSAGE)
+
+    @classmethod
+    async def open(cls, sock: socket.socket) -> Channel:
+        """Wrap a connected stream socket (one end of a ``socketpair``)."""
+        return cls(*await _streams(sock))
+
+
+class WorldChannel(FramedChannel[WorldMessage]):
+    """API process ⇄ simulated world's process."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        super().__init__(reader, writer, WORLD_MESSAGE)
+
+    @classmethod
+    async def open(cls, sock: socket.socket) -> WorldChannel:
+        """Wrap a connected stream socket (one end of a ``socketpair``)."""
+        return cls(*await _streams(sock))
