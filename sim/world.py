@@ -102,15 +102,26 @@ class WorldAddresses:
     vehicles: tuple[str, ...]
 
 
-def _poses(frame: MocapFrame) -> dict[str, BodyPose]:
-    return {
-        name: BodyPose.untracked(name)
-        if pose is None
-        else BodyPose(
-            name, True, pose.position_m, pose.quaternion, euler_zyx_from_quaternion(pose.quaternion)
+PLANT_BODIES = ("bar", "uav1", "uav2")
+
+
+def _poses(frame: MocapFrame, names: dict[str, str]) -> dict[str, BodyPose]:
+    """The frame's poses under the names QTM streams (``names``: plant body → QTM name)."""
+    poses = {}
+    for body, pose in frame.poses.items():
+        name = names[body]
+        poses[name] = (
+            BodyPose.untracked(name)
+            if pose is None
+            else BodyPose(
+                name,
+                True,
+                pose.position_m,
+                pose.quaternion,
+                euler_zyx_from_quaternion(pose.quaternion),
+            )
         )
-        for name, pose in frame.poses.items()
-    }
+    return poses
 
 
 class SimulatedWorld:
@@ -122,7 +133,7 @@ class SimulatedWorld:
         mocap_params: MocapParams,
         vehicles: VehicleFactory,
         *,
-        body_names: Sequence[str] = ("bar", "uav1", "uav2"),
+        body_names: Sequence[str] = PLANT_BODIES,
         qtm_host: str = "127.0.0.1",
         qtm_port: int = 22223,
         step_period_s: float = 0.002,
@@ -134,6 +145,7 @@ class SimulatedWorld:
         self.mocap = MocapModel(mocap_params)
         self.vehicles = [vehicles(self.plant, i) for i in (1, 2)]
         self.qtm = QtmServer(list(body_names), host=qtm_host, port=qtm_port, rate_hz=None)
+        self._qtm_names = dict(zip(PLANT_BODIES, body_names, strict=True))
         self.faults = FaultSet(body_names, fault_seed)
         """The faults in effect (``inject``, ``clear_faults``)."""
         self.qtm.packet_filter = self.faults.keep_mocap_packet
@@ -199,7 +211,7 @@ class SimulatedWorld:
             self._truth_reported_s = plant.time_s
             log.info("%s", self.truth.describe())
         for frame in self.mocap.poll(until_s):
-            self.qtm.publish(self.faults.frame(_poses(frame)))
+            self.qtm.publish(self.faults.frame(_poses(frame, self._qtm_names)))
 
     # ---- faults and reset ---------------------------------------------------------------------
     def _refusal(self, fault: Fault) -> str | None:

@@ -23,9 +23,9 @@ BODIES = ("bar", "uav1", "uav2")
 
 
 @contextlib.asynccontextmanager
-async def running_world() -> AsyncIterator[SimulatedWorld]:
+async def running_world(overrides: tuple[str, ...] = ()) -> AsyncIterator[SimulatedWorld]:
     # No random dropouts: every body of every frame is compared with the plant.
-    config = load_config(CONFIGS / "sim.toml", ["sim.mocap.dropout_probability=0.0"])
+    config = load_config(CONFIGS / "sim.toml", ["sim.mocap.dropout_probability=0.0", *overrides])
     world = build_world(config, qtm_port=0, vehicle_local_ports=(0, 0))
     await world.start()
     runner = asyncio.create_task(world.run())
@@ -89,3 +89,17 @@ async def test_our_client_gets_the_same_over_udp() -> None:
             pose = frame.bodies[name]
             assert pose.tracked
             assert_matches_plant(world, name, pose.position_m, pose.rotation())
+
+
+async def test_a_lab_naming_its_bodies_gets_the_plants_poses_under_those_names() -> None:
+    names = ("Bar", "Drone1", "Drone2")
+    async with (
+        running_world((f"mocap.bodies={list(names)!r}".replace("'", '"'),)) as world,
+        QtmClient("127.0.0.1", world.qtm.port) as client,
+    ):
+        frame = await client.wait_frame()
+        assert client.stats().body_names == names
+        for name, plant_name in zip(names, BODIES, strict=True):
+            pose = frame.bodies[name]
+            assert pose.tracked
+            assert_matches_plant(world, plant_name, pose.position_m, pose.rotation())
