@@ -82,6 +82,7 @@ class NoticeKind(StrEnum):
     ABORT = "abort"  # the monitors started a coordinated landing
     SWING = "swing"  # the decentralized MPC handed the bar to the centralized one
     VEHICLE = "vehicle"  # a vehicle refused what the supervisor asked (its own reason)
+    BLIND = "blind"  # the mocap was lost: the vehicles were handed to PX4's own landing
 
 
 @dataclass(frozen=True)
@@ -229,6 +230,12 @@ class FlightCore:
         if self._shaper is not None and self.modes.mode in (Mode.HOVER, Mode.TRACKING):
             self._hold_target = self._shaper.current.at_rest()
 
+    def vehicles_landed(self, now_s: float) -> None:
+        """Both PX4s have landed and disarmed on their own: a PX4 landing is over."""
+        if self.modes.mode is Mode.PX4_LANDING:
+            self.modes.handle(Event.LANDED, now_s)
+            self._entered(Mode.DISARMED, now_s)
+
     # ---- the tick -----------------------------------------------------------------------
     def tick(
         self,
@@ -251,6 +258,8 @@ class FlightCore:
         if mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
             commands = (UavCommand.off(), UavCommand.off())
             self._remember_ground(estimate)
+        elif mode is Mode.PX4_LANDING:  # nothing is sent (the flight process stops streaming)
+            commands = (UavCommand.off(), UavCommand.off())
         elif mode is Mode.TAKEOFF:
             commands, plan, reference = self._takeoff(now_s, estimate, events)
         elif mode in (Mode.HOVER, Mode.TRACKING):
@@ -308,7 +317,18 @@ class FlightCore:
             self.set_controller("centralized", now_s)
             swing = next(f for f in faults if f.response is Response.CENTRALIZE)
             return [Notice(NoticeKind.SWING, f"{swing.message}; switched to the centralized MPC")]
-        airborne = self.modes.mode.airborne and self.modes.mode is not Mode.ABORT
+        mode = self.modes.mode
+        if response is Response.PX4_LAND and mode.airborne and mode is not Mode.PX4_LANDING:
+            self.modes.handle(Event.BLIND, now_s)
+            self._entered(Mode.PX4_LANDING, now_s)
+            blind = "; ".join(f.message for f in faults if f.response is Response.PX4_LAND)
+            return [
+                Notice(
+                    NoticeKind.BLIND,
+                    f"{blind}: no longer streaming, each PX4 lands on its own (AUTO.LAND)",
+                )
+            ]
+        airborne = mode.airborne and mode not in (Mode.ABORT, Mode.PX4_LANDING)
         if response is Response.ABORT and airborne:
             self.modes.handle(Event.FAULT, now_s)
             self._entered(Mode.ABORT, now_s)
@@ -336,6 +356,11 @@ class FlightCore:
                 self._hold_target = self._shaper.current
         elif mode is Mode.TRACKING:
             self._enter_phase(Phase.TRACKING)
+        elif mode is Mode.PX4_LANDING:
+            self._enter_phase(Phase.PX4)
+            self.queue.clear()
+            self._shaper = None
+            self._hold_target = None
         elif mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
             self._enter_phase(Phase.GROUND)
             self._shaper = None

@@ -1,8 +1,8 @@
 """Flight modes: a table-driven state machine whose default is the safe state.
 
 Operator requests (``arm``, ``takeoff``, ``land``, ``disarm``, ``abort``, ``kill``) and
-internal events (``airborne``, ``track``, ``hold``, ``landed``, ``fault``) move the mode
-only along ``TRANSITIONS``. A request the table does not allow is refused with a reason
+internal events (``airborne``, ``track``, ``hold``, ``landed``, ``fault``, ``blind``) move
+the mode only along ``TRANSITIONS``. A request the table does not allow is refused with a reason
 and changes nothing; a *fault* outside the table still ends in ``abort`` (h2's rule:
 anything unexpected goes to the safe state). ``abort`` and ``kill`` are always accepted.
 """
@@ -21,6 +21,7 @@ class Mode(Enum):
     TRACKING = "tracking"
     LANDING = "landing"
     ABORT = "abort"
+    PX4_LANDING = "px4_landing"  # blind: each PX4 lands on its own, the supervisor sends nothing
     KILLED = "killed"
 
     @property
@@ -28,7 +29,9 @@ class Mode(Enum):
         return self in AIRBORNE
 
 
-AIRBORNE = frozenset({Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING, Mode.LANDING, Mode.ABORT})
+AIRBORNE = frozenset(
+    {Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING, Mode.LANDING, Mode.ABORT, Mode.PX4_LANDING}
+)
 
 
 class Event(StrEnum):
@@ -45,6 +48,7 @@ class Event(StrEnum):
     HOLD = "hold"  # the queue ran empty
     LANDED = "landed"  # motors stopped on the ground
     FAULT = "fault"  # a safety monitor asked for a landing
+    BLIND = "blind"  # the mocap is lost: the vehicles are handed to PX4's own landing
 
 
 OPERATOR_REQUESTS = (
@@ -78,6 +82,12 @@ TRANSITIONS: dict[tuple[Mode, Event], Mode] = {
     (Mode.LANDING, Event.ABORT): Mode.ABORT,
     (Mode.ABORT, Event.ABORT): Mode.ABORT,
     (Mode.KILLED, Event.ABORT): Mode.KILLED,
+    # blind (mocap lost beyond the coast limit): nothing the supervisor commands is
+    # better than PX4's own landing, so nothing leaves it, not even an abort.
+    **{(mode, Event.BLIND): Mode.PX4_LANDING for mode in AIRBORNE},
+    (Mode.PX4_LANDING, Event.ABORT): Mode.PX4_LANDING,
+    (Mode.PX4_LANDING, Event.FAULT): Mode.PX4_LANDING,
+    (Mode.PX4_LANDING, Event.LANDED): Mode.DISARMED,  # both PX4s landed and disarmed
     # faults detected by the safety monitors
     (Mode.ARMED, Event.FAULT): Mode.DISARMED,
     (Mode.DISARMED, Event.FAULT): Mode.DISARMED,

@@ -6,6 +6,7 @@
 * ``hover`` / ``tracking`` — the MPC regulates to the rate-limited reference.
 * ``lower`` — landing or abort: the MPC sets the bar down; ``descend`` — each UAV flies
   alone, moves clear of its bar end and descends; motors stop on the ground.
+* ``px4`` — blind: each PX4 lands on its own (AUTO.LAND); the supervisor sends nothing.
 
 A landing or abort that starts while the UAVs still fly alone (``climb``) goes straight to
 ``descend``: the bar has not been lifted. A change outside ``PHASE_TRANSITIONS`` is a bug of
@@ -27,9 +28,18 @@ class Phase(StrEnum):
     TRACKING = "tracking"
     LOWER = "lower"
     DESCEND = "descend"
+    PX4 = "px4"
 
 
-_AIRBORNE = (Phase.CLIMB, Phase.LIFT, Phase.HOVER, Phase.TRACKING, Phase.LOWER, Phase.DESCEND)
+_AIRBORNE = (
+    Phase.CLIMB,
+    Phase.LIFT,
+    Phase.HOVER,
+    Phase.TRACKING,
+    Phase.LOWER,
+    Phase.DESCEND,
+    Phase.PX4,
+)
 
 PHASE_TRANSITIONS: frozenset[tuple[Phase, Phase]] = frozenset(
     {
@@ -45,6 +55,7 @@ PHASE_TRANSITIONS: frozenset[tuple[Phase, Phase]] = frozenset(
         (Phase.TRACKING, Phase.LOWER),
         (Phase.LOWER, Phase.DESCEND),
         *((phase, Phase.GROUND) for phase in _AIRBORNE),  # landed, or killed
+        *((phase, Phase.PX4) for phase in _AIRBORNE),  # blind
         *((phase, phase) for phase in Phase),  # e.g. an abort during a landing
     }
 )

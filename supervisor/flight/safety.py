@@ -26,11 +26,13 @@ class Response(Enum):
     COAST = "coast"  # keep flying on the prediction / shifted plan, report
     CENTRALIZE = "centralize"  # the decentralized MPC hands the bar to the centralized one
     ABORT = "abort"  # coordinated landing
+    PX4_LAND = "px4_land"  # blind: stop streaming, each PX4 lands on its own (AUTO.LAND)
 
 
 # When monitors disagree the most severe response wins, as in PX4's failsafe framework,
-# which takes the most severe of the actions its checks ask for.
-SEVERITY = {Response.COAST: 0, Response.CENTRALIZE: 1, Response.ABORT: 2}
+# which takes the most severe of the actions its checks ask for. Blind beats abort: an
+# abort flown on a frozen estimate is a blind command.
+SEVERITY = {Response.COAST: 0, Response.CENTRALIZE: 1, Response.ABORT: 2, Response.PX4_LAND: 3}
 
 
 @dataclass(frozen=True)
@@ -89,7 +91,7 @@ class SafetyMonitor:
         faults: list[Fault] = []
         lim = self.limits
         if estimate.unhealthy:
-            response = Response.ABORT if estimate.age_s > lim.mocap_coast_s else Response.COAST
+            response = Response.PX4_LAND if estimate.age_s > lim.mocap_coast_s else Response.COAST
             faults.append(
                 Fault(
                     "mocap",

@@ -338,6 +338,9 @@ class MavlinkLink:
     async def set_hold(self) -> None:
         await self.command(176, 1.0, 4.0, 3.0)  # AUTO.LOITER, as MAVSDK's offboard.stop()
 
+    async def land(self) -> None:
+        await self.command(176, 1.0, 4.0, 6.0)  # AUTO.LAND
+
     # ---- parameters ----------------------------------------------------------------------------
     async def _parameter_exchange(self, name: str, send: Callable[[], None]) -> ParamValue | None:
         """Send once with ``send`` and wait ``ack_timeout_s`` for ``name``'s PARAM_VALUE."""

@@ -50,6 +50,7 @@ from supervisor.vehicles.sequences import (
     check_failsafe_parameters,
     disarm_all,
     kill_all,
+    land_all,
 )
 
 TELEMETRY_PERIOD_S = 0.04
@@ -211,7 +212,7 @@ class FlightProcess:
         connected = (self.links[0].connected, self.links[1].connected)
         result = self.driver.decide(started, connected, timing.lateness_s)
         latency_ms = wait_ms = math.nan
-        if self.streaming:
+        if self.streaming and result.mode is not Mode.PX4_LANDING:
             for link, command in zip(self.links, result.commands, strict=True):
                 link.send_setpoint(command)
             if newest is not None and math.isfinite(newest.receive_time_s):
@@ -229,6 +230,7 @@ class FlightProcess:
             self._on_ground.set()
         self._react(before, result.mode)
         self._notice_self_disarm(started)
+        self._follow_px4_landing(started)
         self.driver.finish(  # logs, then the next tick's model while no frame waits
             result,
             compute_total_ms=compute_s * 1e3,
@@ -275,12 +277,32 @@ class FlightProcess:
         self.core.notices.append((now_s, Notice(NoticeKind.VEHICLE, text)))
         self._sequence(self._disarm_vehicles())
 
+    def _follow_px4_landing(self, now_s: float) -> None:
+        """Handed to PX4's own landing, the system is on the ground once both vehicles say
+        they have landed and disarmed (PX4 disarms COM_DISARM_LAND after touch-down)."""
+        if self.core.modes.mode is not Mode.PX4_LANDING:
+            return
+        views = [link.view() for link in self.links]
+        if all(view.connected and not view.armed for view in views):
+            self.core.vehicles_landed(now_s)
+
     def _react(self, before: Mode, after: Mode) -> None:
         """Vehicle sequences the tick core's own mode changes call for."""
         if before is after:
             return
-        if after is Mode.DISARMED and before.airborne:  # landed (after a landing or an abort)
+        if after is Mode.PX4_LANDING:  # blind: not one more setpoint, PX4 lands each
+            self.streaming = False
+            self._sequence(self._land_vehicles())
+        elif after is Mode.DISARMED and before is Mode.PX4_LANDING:
+            self._close_log()
+        elif after is Mode.DISARMED and before.airborne:  # landed (after a landing or an abort)
             self._sequence(self._disarm_vehicles())
+
+    async def _land_vehicles(self) -> None:
+        failures = await land_all(self.links)
+        if failures:
+            text = "PX4's landing refused: " + "; ".join(failures)
+            self.core.notices.append((self.clock(), Notice(NoticeKind.VEHICLE, text)))
 
     def _sequence(self, coroutine: Coroutine[Any, Any, None]) -> None:
         task = asyncio.get_running_loop().create_task(coroutine)

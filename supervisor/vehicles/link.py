@@ -40,6 +40,10 @@ class VehicleLink(Protocol):
         """Leave offboard for a mode that needs no stream."""
         ...
 
+    async def land(self) -> None:
+        """Leave offboard for the vehicle's own landing (AUTO.LAND)."""
+        ...
+
     def send_setpoint(self, command: UavCommand) -> None:
         """Send this tick's setpoint (never blocks)."""
         ...

@@ -73,6 +73,11 @@ async def disarm_all(links: tuple[VehicleLink, ...]) -> list[str]:
     return failures + await _each(links, "set_hold")
 
 
+async def land_all(links: tuple[VehicleLink, ...]) -> list[str]:
+    """Hand every vehicle to its own landing at once; returns the failures."""
+    return await _each(links, "land")
+
+
 async def kill_all(links: tuple[VehicleLink, ...]) -> list[str]:
     """Force-disarm every vehicle at once; returns the failures."""
     return await _each(links, "kill")

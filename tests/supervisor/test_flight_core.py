@@ -11,6 +11,7 @@ from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
+from supervisor.flight.safety import SafetyLimits
 from tests.conftest import CONFIGS
 
 CONFIG = load_config(CONFIGS / "sim.toml")
@@ -33,3 +34,28 @@ def test_take_off_needs_every_body_measured_and_fresh() -> None:
     core.tick(0.0, Estimate(x, 0.02, ("uav2",)))
     core.request(Event.ARM, 0.0)
     assert core.request(Event.TAKEOFF, 0.02).accepted
+
+
+def test_mocap_lost_beyond_the_coast_limit_hands_the_vehicles_to_px4s_landing() -> None:
+    """A gap within the coast limit is flown through; beyond it, the core stops commanding
+    (the flight process streams nothing in ``px4_landing``) and says so; then nothing moves
+    it but both PX4s having landed."""
+    params = CONFIG.system.to_params()
+    x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    core = flight_core_from_config(CONFIG, clock=time.perf_counter)
+    core.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07))
+    coast_s = SafetyLimits().mocap_coast_s
+    for k, age_s in enumerate((0.02, 0.06, coast_s - 0.005)):
+        result = core.tick(0.02 * (k + 1), Estimate(x, age_s, ("bar", "uav1", "uav2")))
+        assert result.mode is Mode.HOVER and not result.notices
+    result = core.tick(0.1, Estimate(x, coast_s + 0.02, ("bar", "uav1", "uav2")))
+    assert result.mode is Mode.PX4_LANDING and result.phase.value == "px4"
+    [notice] = result.notices
+    assert notice.kind == "blind" and "each PX4 lands on its own" in notice.text
+    for now_s in (0.12, 0.14):  # mocap back, a fault, an abort: still PX4's landing
+        result = core.tick(now_s, Estimate(x, 0.005, ()))
+        assert result.mode is Mode.PX4_LANDING and not any(c.motors_on for c in result.commands)
+    assert core.request(Event.ABORT, 0.15).accepted and core.modes.mode is Mode.PX4_LANDING
+    assert not core.request(Event.LAND, 0.15).accepted
+    core.vehicles_landed(0.2)
+    assert core.modes.mode is Mode.DISARMED

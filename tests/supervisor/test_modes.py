@@ -30,8 +30,10 @@ def test_every_request_in_every_mode(mode: Mode, event: Event) -> None:
     result = modes.handle(event, 2.0)
     if event in ("abort", "kill"):
         assert result.accepted  # the way out is always open
-        assert modes.mode in (Mode.ABORT, Mode.KILLED, Mode.DISARMED)
+        assert modes.mode in (Mode.ABORT, Mode.KILLED, Mode.DISARMED, Mode.PX4_LANDING)
         assert modes.mode is not Mode.ABORT or mode.airborne
+        # Blind, PX4's own landing is already the way out: an abort leaves it alone.
+        assert modes.mode is not Mode.PX4_LANDING or mode is Mode.PX4_LANDING
     elif (mode, event) in TRANSITIONS:
         assert result.accepted and modes.mode is TRANSITIONS[(mode, event)]
     else:
@@ -43,9 +45,21 @@ def test_every_request_in_every_mode(mode: Mode, event: Event) -> None:
 def test_a_fault_always_ends_in_a_safe_mode(mode: Mode) -> None:
     modes = FlightModes(mode)
     assert modes.handle(Event.FAULT, 3.0).accepted
-    assert modes.mode in (Mode.ABORT, Mode.DISARMED, Mode.KILLED)
-    if mode.airborne:
+    assert modes.mode in (Mode.ABORT, Mode.DISARMED, Mode.KILLED, Mode.PX4_LANDING)
+    if mode is Mode.PX4_LANDING:
+        assert modes.mode is Mode.PX4_LANDING  # nothing the supervisor flies is better
+    elif mode.airborne:
         assert modes.mode is Mode.ABORT
+
+
+@pytest.mark.parametrize("mode", list(Mode))
+def test_blind_hands_every_airborne_mode_to_px4s_landing(mode: Mode) -> None:
+    modes = FlightModes(mode)
+    result = modes.handle(Event.BLIND, 3.0)
+    assert result.accepted is mode.airborne
+    assert modes.mode is (Mode.PX4_LANDING if mode.airborne else mode)
+    if mode.airborne:
+        assert modes.handle(Event.LANDED, 4.0).accepted and modes.mode is Mode.DISARMED
 
 
 def test_takeoff_refusal_says_why() -> None:

@@ -1,0 +1,64 @@
+"""End to end, from a stable 1 m hover on the embedded simulator: what the supervisor does
+about a fault injected into the world (docs/safety.md, the fault table). The world's own
+view of the flight (sim/truth.py: worst tilt, fastest descent) is read from its log."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks.service import running_service
+from benchmarks.tick import world_truth
+from supervisor.flight.safety import SafetyLimits
+from supervisor.logs.flight_log import read_flight_log
+from tests.test_faults_e2e import fault
+from tests.test_service import TOKEN, flight_logs, take_off
+
+pytestmark = pytest.mark.slow
+
+TICK_MS = 20.0
+
+
+async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_px4(
+    tmp_path: Path,
+) -> None:
+    """0.05 s of silence: nothing happens. 5 s: within one tick of the coast limit the
+    supervisor stops streaming and each PX4 lands on its own (AUTO.LAND); both land and
+    disarm, no UAV tilts beyond 30°, nothing descends faster than 1 m/s above 0.2 m."""
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        await take_off(service, http)
+        await asyncio.sleep(2.0)  # a stable hover
+        await fault(http, kind="mocap_silent", duration_s=0.05)
+        await asyncio.sleep(1.0)
+        status = await service.status(http)
+        assert status["mode"] == "hover" and status["streaming"] and not status["notices"]
+
+        await fault(http, kind="mocap_silent", duration_s=5.0)
+        status = await service.wait_for(
+            http, lambda s: s["mode"] == "px4_landing", 5.0, "the hand-over to PX4"
+        )
+        assert not status["streaming"]
+        assert "each PX4 lands on its own" in status["notices"][-1]["message"]
+        await service.wait_for(
+            http,
+            lambda s: [u["px4_mode"] for u in s["uavs"]] == ["AUTO.LAND", "AUTO.LAND"],
+            2.0,
+            "both PX4s landing",
+        )
+        status = await service.wait_for(
+            http, lambda s: s["mode"] == "disarmed", 60.0, "landed and disarmed by PX4"
+        )
+        assert status["armed"] == [False, False]
+    [path] = flight_logs(tmp_path)
+    log = read_flight_log(path)
+    handed = log.modes.index("px4_landing")
+    coast_ms = SafetyLimits().mocap_coast_s * 1e3
+    # Blind for longer than the coast limit, by less than one tick.
+    assert coast_ms < log.mocap_age_ms[handed] <= coast_ms + TICK_MS + 5.0
+    assert np.all(np.asarray(log.mocap_age_ms[:handed]) <= coast_ms)
+    truth = world_truth(service.output)
+    assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert truth["max_descent_mps"] <= 1.0, truth
