@@ -41,6 +41,7 @@ As PX4 v1.15.4 does, measured on its SITL build:
 
 from __future__ import annotations
 
+import logging
 import math
 import struct
 from collections import deque
@@ -54,6 +55,8 @@ from geometry.arrays import FloatArray
 from geometry.frames import euler_zyx_from_quaternion, rotation_from_quaternion
 from sim.ports import AirframeState
 from sim.px4_control import HoldController, RateController
+
+log = logging.getLogger(__name__)
 
 FORCE_MAGIC = 21196
 COMMANDER_PERIOD_S = 0.1
@@ -486,6 +489,7 @@ class Px4Model:
         self.armed = False
         self.intended: Mode = BOOT_MODE
         self.failsafe: FailsafeAction | None = None
+        self.setpoints_in_failsafe = 0
         self.terminated = False
         self.setpoint: Setpoint | None = None
         self.last_vision_s = -math.inf
@@ -644,8 +648,7 @@ class Px4Model:
         p = self.params
         rates_flu = np.array([rates_frd[0], -rates_frd[1], -rates_frd[2]])
         thrust_n = float(np.clip(thrust, 0.0, 1.0)) * p.thrust_max_n * p.thrust_scale
-        self.setpoint = Setpoint("rates", thrust_n, rates_flu, now_s)
-        self._setpoint_times.append(now_s)
+        self._record(Setpoint("rates", thrust_n, rates_flu, now_s))
 
     def actuator_setpoint(self, controls: FloatArray, now_s: float) -> None:
         """SET_ACTUATOR_CONTROL_TARGET group 0: roll, pitch, yaw torque (FRD) and thrust."""
@@ -655,8 +658,20 @@ class Px4Model:
         torque_frd = np.clip(controls[:3], -1.0, 1.0) * p.torque_max_nm
         torque_flu = np.array([torque_frd[0], -torque_frd[1], -torque_frd[2]])
         thrust_n = float(np.clip(controls[3], 0.0, 1.0)) * p.thrust_max_n * p.thrust_scale
-        self.setpoint = Setpoint("actuator", thrust_n, torque_flu, now_s)
-        self._setpoint_times.append(now_s)
+        self._record(Setpoint("actuator", thrust_n, torque_flu, now_s))
+
+    def _record(self, setpoint: Setpoint) -> None:
+        if self.failsafe is not None:
+            # The stream back ends the failsafe (below): whoever sends flies the vehicle again.
+            if not self.setpoints_in_failsafe:
+                log.warning(
+                    "PX4 %d: an offboard setpoint arrived in its failsafe (%s)",
+                    self.system_id,
+                    self.failsafe.name.lower(),
+                )
+            self.setpoints_in_failsafe += 1
+        self.setpoint = setpoint
+        self._setpoint_times.append(setpoint.time_s)
 
     def vision(self, now_s: float, sample_s: float | None = None) -> None:
         """An external vision pose (VISION_POSITION_ESTIMATE or ODOMETRY) arrived at

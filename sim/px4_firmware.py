@@ -20,6 +20,7 @@ import fcntl
 import hashlib
 import logging
 import os
+import resource
 import shutil
 import signal
 import socket
@@ -45,6 +46,9 @@ OFFBOARD_REMOTE_PORT = 14540  # where it sends: the supervisor listens here
 MAX_INSTANCE = 9  # above 9 PX4 sends every instance's offboard link to 14549
 STOP_TIMEOUT_S = 5.0
 PR_SET_PDEATHSIG = 1
+PR_CAPBSET_DROP = 24
+CAP_SYS_NICE = 23
+PX4_PRIORITY = 4  # SCHED_FIFO: below the world that feeds it (5) and the flight process (10)
 
 
 class FirmwareError(RuntimeError):
@@ -197,10 +201,19 @@ class LabParameters:
         return "\n".join(lines) + "\n"
 
 
-def _die_with_parent() -> None:
-    """In the child before exec: SIGTERM when the world process dies, however it dies."""
+def _prepare_child() -> None:
+    """In the child before exec: SIGTERM when the world process dies, however it dies; and
+    PX4's threads kept below the supervisor. As root PX4 gives its threads SCHED_FIFO 40–99
+    (measured), above the flight process and the world feeding its sensors; a real PX4 has
+    its own processor. Without CAP_SYS_NICE its requests fail and PX4 (by design) creates
+    the threads with the scheduling they inherit: ``PX4_PRIORITY`` where the machine allows
+    real-time scheduling, else the world's own."""
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    with contextlib.suppress(OSError):
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PX4_PRIORITY))
+    libc.prctl(PR_CAPBSET_DROP, CAP_SYS_NICE)
+    resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))
 
 
 class Px4Process:
@@ -243,7 +256,7 @@ class Px4Process:
                 stdin=asyncio.subprocess.DEVNULL,
                 stdout=output,
                 stderr=asyncio.subprocess.STDOUT,
-                preexec_fn=_die_with_parent,
+                preexec_fn=_prepare_child,
                 start_new_session=True,
             )
         log.info("PX4 instance %d started (pid %d, %s)", self.instance, self.pid, self.working_dir)

@@ -5,6 +5,8 @@ view of the flight (sim/truth.py: worst tilt, fastest descent) is read from its 
 from __future__ import annotations
 
 import asyncio
+import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +17,7 @@ from benchmarks.tick import world_truth
 from supervisor.flight.safety import SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_faults_e2e import fault
+from tests.test_px4_sitl import OFFBOARD_LOSS_TIMEOUT_S, flight_process_pid
 from tests.test_service import TOKEN, flight_logs, take_off
 
 pytestmark = pytest.mark.slow
@@ -59,6 +62,43 @@ async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_
     # Blind for longer than the coast limit, by less than one tick.
     assert coast_ms < log.mocap_age_ms[handed] <= coast_ms + TICK_MS + 5.0
     assert np.all(np.asarray(log.mocap_age_ms[:handed]) <= coast_ms)
+    truth = world_truth(service.output)
+    assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert truth["max_descent_mps"] <= 1.0, truth
+
+
+@pytest.mark.parametrize("freeze_s", [0.3, 1.0, 5.0])
+async def test_a_frozen_flight_process_never_flips_a_uav_nor_commands_one_in_failsafe(
+    tmp_path: Path, freeze_s: float
+) -> None:
+    """SIGSTOP the flight process mid-hover. Below PX4's offboard-loss timeout (0.5 s) the
+    flight goes on; beyond it each PX4's failsafe lands, the supervisor resumes without a
+    word to a vehicle in failsafe, hands over and follows the landing to the ground."""
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        await take_off(service, http)
+        await asyncio.sleep(2.0)
+        flight = flight_process_pid(service)
+        os.kill(flight, signal.SIGSTOP)
+        await asyncio.sleep(freeze_s)
+        os.kill(flight, signal.SIGCONT)
+        if freeze_s < OFFBOARD_LOSS_TIMEOUT_S:
+            await asyncio.sleep(3.0)
+            status = await service.status(http)
+            assert status["mode"] == "hover" and status["streaming"], status["notices"]
+            assert (await http.post("/api/land")).status_code == 200
+        else:
+            status = await service.wait_for(
+                http, lambda s: s["mode"] in ("px4_landing", "disarmed"), 5.0, "handed over"
+            )
+            assert not status["streaming"]
+            # Either seen first: a PX4 in its failsafe, or the mocap older than the limit.
+            said = " ".join(n["message"] for n in status["notices"])
+            assert "out of offboard" in said or "stale" in said, said
+        status = await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
+        await service.wait_for(
+            http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
+        )
+    assert not [line for line in service.output if "arrived in its failsafe" in line]
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth
     assert truth["max_descent_mps"] <= 1.0, truth

@@ -230,6 +230,19 @@ class FlightCore:
         if self._shaper is not None and self.modes.mode in (Mode.HOVER, Mode.TRACKING):
             self._hold_target = self._shaper.current.at_rest()
 
+    def hand_over_to_px4(self, why: str, now_s: float) -> Notice | None:
+        """Airborne, stop commanding: each PX4 lands on its own (the flight process stops
+        the stream and sets AUTO.LAND). The notice, or None when already handed over or on
+        the ground."""
+        mode = self.modes.mode
+        if not mode.airborne or mode is Mode.PX4_LANDING:
+            return None
+        self.modes.handle(Event.BLIND, now_s)
+        self._entered(Mode.PX4_LANDING, now_s)
+        return Notice(
+            NoticeKind.BLIND, f"{why}: no longer streaming, each PX4 lands on its own (AUTO.LAND)"
+        )
+
     def vehicles_landed(self, now_s: float) -> None:
         """Both PX4s have landed and disarmed on their own: a PX4 landing is over."""
         if self.modes.mode is Mode.PX4_LANDING:
@@ -318,16 +331,10 @@ class FlightCore:
             swing = next(f for f in faults if f.response is Response.CENTRALIZE)
             return [Notice(NoticeKind.SWING, f"{swing.message}; switched to the centralized MPC")]
         mode = self.modes.mode
-        if response is Response.PX4_LAND and mode.airborne and mode is not Mode.PX4_LANDING:
-            self.modes.handle(Event.BLIND, now_s)
-            self._entered(Mode.PX4_LANDING, now_s)
+        if response is Response.PX4_LAND:
             blind = "; ".join(f.message for f in faults if f.response is Response.PX4_LAND)
-            return [
-                Notice(
-                    NoticeKind.BLIND,
-                    f"{blind}: no longer streaming, each PX4 lands on its own (AUTO.LAND)",
-                )
-            ]
+            notice = self.hand_over_to_px4(blind, now_s)
+            return [notice] if notice is not None else []
         airborne = mode.airborne and mode not in (Mode.ABORT, Mode.PX4_LANDING)
         if response is Response.ABORT and airborne:
             self.modes.handle(Event.FAULT, now_s)

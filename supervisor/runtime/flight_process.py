@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import gc
+import logging
 import math
 import time
 from collections import deque
@@ -53,10 +54,14 @@ from supervisor.vehicles.sequences import (
     land_all,
 )
 
+log = logging.getLogger(__name__)
+
 TELEMETRY_PERIOD_S = 0.04
 TELEMETRY_BACKLOG_BYTES = 1 << 20
 LANDING_TIMEOUT_S = 90.0
 FULL_COLLECTION_TICKS = 250  # a full garbage collection every 5 s, between two ticks
+RESUME_GAP_S = 0.2  # a gap between two ticks this long: the process was frozen
+RESUME_READ_S = 0.06  # then this long to read the backlog (frames arrive one per read)
 
 
 @dataclass(frozen=True)
@@ -113,6 +118,8 @@ class FlightProcess:
         self._sequences: set[asyncio.Task[None]] = set()
         self._mocap_rate = (0, clock(), 0.0)  # frames, since, rate
         self._frames_since_tick = 0
+        self._last_tick_s = math.inf  # the start of the last tick (none yet)
+        self._reading_until_s = -math.inf  # after a freeze, no tick before this
         self._newest_frame: MocapFrame | None = None
 
     @property
@@ -204,6 +211,17 @@ class FlightProcess:
 
     def _tick(self, timing: TickTiming) -> None:
         started = self.clock()
+        # Back from a freeze (a stall, SIGSTOP): what the mocap and the vehicles did meanwhile
+        # is still in the socket buffers. Decide and send nothing until it has been read: a
+        # vehicle may be in its failsafe by now, and must not be told anything.
+        gap_s = started - self._last_tick_s
+        self._last_tick_s = started
+        if gap_s > RESUME_GAP_S:
+            log.warning("no tick for %.2f s: reading what came meanwhile first", gap_s)
+            self._reading_until_s = started + RESUME_READ_S
+        if started < self._reading_until_s:
+            return
+        self._hand_over_vehicles_out_of_offboard(started)
         self._fuse(self.mocap.drain())
         newest = self._newest_frame if self._frames_since_tick else None
         self._count_frames(self._frames_since_tick, started)
@@ -214,7 +232,8 @@ class FlightProcess:
         latency_ms = wait_ms = math.nan
         if self.streaming and result.mode is not Mode.PX4_LANDING:
             for link, command in zip(self.links, result.commands, strict=True):
-                link.send_setpoint(command)
+                if link.connected:  # a lost vehicle is left to its own failsafe
+                    link.send_setpoint(command)
             if newest is not None and math.isfinite(newest.receive_time_s):
                 latency_ms = (self.clock() - newest.receive_time_s) * 1e3
                 wait_ms = (started - newest.receive_time_s) * 1e3
@@ -277,6 +296,24 @@ class FlightProcess:
         self.core.notices.append((now_s, Notice(NoticeKind.VEHICLE, text)))
         self._sequence(self._disarm_vehicles())
 
+    def _hand_over_vehicles_out_of_offboard(self, now_s: float) -> None:
+        """Flying under the supervisor, a vehicle that shows another mode than offboard has
+        left it (its failsafe after a stall, or a pilot): the MPC no longer flies both, so
+        none is commanded; each PX4 lands on its own."""
+        mode = self.core.modes.mode
+        if not (self.streaming and mode.airborne and mode is not Mode.PX4_LANDING):
+            return
+        left = [
+            f"vehicle {i} in {view.px4_mode}"
+            for i, view in enumerate((link.view() for link in self.links), start=1)
+            if view.connected and view.px4_mode not in ("OFFBOARD", "unknown")
+        ]
+        if not left:
+            return
+        notice = self.core.hand_over_to_px4(" and ".join(left) + ", out of offboard", now_s)
+        if notice is not None:
+            self.core.notices.append((now_s, notice))
+
     def _follow_px4_landing(self, now_s: float) -> None:
         """Handed to PX4's own landing, the system is on the ground once both vehicles say
         they have landed and disarmed (PX4 disarms COM_DISARM_LAND after touch-down)."""
@@ -299,7 +336,9 @@ class FlightProcess:
             self._sequence(self._disarm_vehicles())
 
     async def _land_vehicles(self) -> None:
-        failures = await land_all(self.links)
+        """AUTO.LAND for every vehicle still in offboard (one in its failsafe is left to it)."""
+        in_offboard = tuple(link for link in self.links if link.view().px4_mode == "OFFBOARD")
+        failures = await land_all(in_offboard)
         if failures:
             text = "PX4's landing refused: " + "; ".join(failures)
             self.core.notices.append((self.clock(), Notice(NoticeKind.VEHICLE, text)))
