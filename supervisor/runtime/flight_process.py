@@ -221,12 +221,12 @@ class FlightProcess:
             self._reading_until_s = started + RESUME_READ_S
         if started < self._reading_until_s:
             return
+        before = self.core.modes.mode
         self._hand_over_vehicles_out_of_offboard(started)
         self._fuse(self.mocap.drain())
         newest = self._newest_frame if self._frames_since_tick else None
         self._count_frames(self._frames_since_tick, started)
         self._frames_since_tick = 0
-        before = self.core.modes.mode
         connected = (self.links[0].connected, self.links[1].connected)
         result = self.driver.decide(started, connected, timing.lateness_s)
         latency_ms = wait_ms = math.nan
