@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import re
 import signal
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from supervisor.flight.safety import SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_faults_e2e import fault
 from tests.test_px4_sitl import OFFBOARD_LOSS_TIMEOUT_S, flight_process_pid
-from tests.test_service import TOKEN, flight_logs, take_off
+from tests.test_service import TOKEN, flight_logs, ready, take_off
 
 pytestmark = pytest.mark.slow
 
@@ -102,3 +103,21 @@ async def test_a_frozen_flight_process_never_flips_a_uav_nor_commands_one_in_fai
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth
     assert truth["max_descent_mps"] <= 1.0, truth
+
+
+async def test_arming_with_a_uav_a_metre_from_its_bar_end_is_refused_with_the_reason(
+    tmp_path: Path,
+) -> None:
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        await ready(service, http)
+        await fault(http, kind="mocap_jump", body="uav1", offset_m=[1.0, 0.0, 0.0])
+        await asyncio.sleep(0.5)
+        refused = await http.post("/api/arm")
+        assert refused.status_code == 409, refused.text
+        assert re.search(r"cannot arm: UAV 1 stands 1\.\d\d m from its bar end", refused.text)
+        status = await service.status(http)
+        assert status["mode"] == "disarmed" and status["armed"] == [False, False]
+        assert (await http.delete("/api/sim/faults")).status_code == 200
+        await asyncio.sleep(0.5)
+        assert (await http.post("/api/arm")).status_code == 200
+        assert (await http.post("/api/disarm")).status_code == 200

@@ -43,6 +43,7 @@ from geometry.state import (
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, FlightModes, Mode, Transition
 from supervisor.flight.phases import Phase, next_phase
+from supervisor.flight.preflight import resting_pose_problems
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
 from supervisor.flight.setpoints import (
@@ -172,11 +173,23 @@ class FlightCore:
                 self.modes.mode,
                 "cannot take off without fresh motion capture of all bodies",
             )
+        if event is Event.ARM and self.modes.mode is Mode.DISARMED:
+            refusal = self._not_ready_to_arm()
+            if refusal:
+                return Transition(False, self.modes.mode, f"cannot arm: {refusal}")
         before = self.modes.mode
         result = self.modes.handle(event, now_s)
         if result.accepted and result.mode is not before:
             self._entered(result.mode, now_s)
         return result
+
+    def _not_ready_to_arm(self) -> str:
+        """Why the system must not arm (empty: it may): every body measured and fresh, and
+        the resting pose the take-off starts from (``supervisor.flight.preflight``)."""
+        if not self._mocap_fresh():
+            return "no fresh motion capture of all bodies"
+        assert self._last_estimate is not None
+        return "; ".join(resting_pose_problems(self._last_estimate.x, self.params))
 
     def _mocap_fresh(self) -> bool:
         """Every body measured, none older than the safety monitor's coasting limit: one

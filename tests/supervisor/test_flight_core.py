@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
 
 from controllers.equilibria import Reference, bar_equilibrium
+from geometry.state import BAR_PITCH, uav_slices
 from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.estimation import Estimate
@@ -25,8 +27,12 @@ def test_take_off_needs_every_body_measured_and_fresh() -> None:
     for estimate in (Estimate(nan, 0.01, ("uav1",)), Estimate(x, 0.5, ("bar",))):
         core = flight_core_from_config(CONFIG, clock=time.perf_counter)
         core.tick(0.0, estimate)
-        core.request(Event.ARM, 0.0)
-        refused = core.request(Event.TAKEOFF, 0.02)
+        refused = core.request(Event.ARM, 0.0)
+        assert not refused.accepted and "motion capture" in refused.reason
+        core.tick(0.02, Estimate(x, 0.005, ()))
+        assert core.request(Event.ARM, 0.02).accepted  # armed on fresh mocap, then lost
+        core.tick(0.04, estimate)
+        refused = core.request(Event.TAKEOFF, 0.04)
         assert not refused.accepted and "motion capture" in refused.reason
         assert core.modes.mode is Mode.ARMED
     # One dropped frame (the newest sample of a body untracked, 20 ms old) is no reason.
@@ -59,3 +65,26 @@ def test_mocap_lost_beyond_the_coast_limit_hands_the_vehicles_to_px4s_landing() 
     assert not core.request(Event.LAND, 0.15).accepted
     core.vehicles_landed(0.2)
     assert core.modes.mode.value == "disarmed"
+
+
+def test_arming_needs_the_resting_pose_a_take_off_starts_from() -> None:
+    """Each UAV by its own bar end, the bar level, the UAVs upright; the refusal says what
+    is wrong, and nothing changes."""
+    params = CONFIG.system.to_params()
+    x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    core = flight_core_from_config(CONFIG, clock=time.perf_counter)
+    displaced, tilted, tipped = x.copy(), x.copy(), x.copy()
+    displaced[uav_slices(1)[0]][0] += 1.0
+    tilted[uav_slices(2)[2]][0] = math.radians(30.0)
+    tipped[BAR_PITCH] = math.radians(10.0)
+    for pose, words in (
+        (displaced, "UAV 1 stands 1.00 m from its bar end"),
+        (tilted, "UAV 2 is tilted 30°"),
+        (tipped, "the bar is not level"),
+    ):
+        core.tick(0.0, Estimate(pose, 0.005, ()))
+        refused = core.request(Event.ARM, 0.0)
+        assert not refused.accepted and words in refused.reason, refused.reason
+        assert core.modes.mode is Mode.DISARMED
+    core.tick(0.02, Estimate(x, 0.005, ()))
+    assert core.request(Event.ARM, 0.02).accepted

@@ -1,0 +1,48 @@
+"""Pre-arm checks of the resting pose: before the motors spin, the measured bodies must be
+the system the take-off expects — each UAV standing by its own bar end, the bar lying
+level, the UAVs upright. After an abort that left the bar twisted and a UAV a metre away,
+a take-off would start by dragging the bar. Pure; SI units."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from controllers.params import BarSystemParams
+from geometry.arrays import FloatArray
+from geometry.frames import rotation_from_euler_zyx
+from geometry.state import bar_ends, uav_euler, uav_position
+
+
+@dataclass(frozen=True)
+class RestingLimits:
+    """How far the measured pose may be from the resting pose a take-off starts from."""
+
+    uav_from_bar_end_m: float = 0.25  # horizontal, UAV centre to its cable's bar end
+    bar_end_height_difference_m: float = 0.1
+    uav_tilt_rad: float = math.radians(15.0)
+
+
+def resting_pose_problems(
+    x: FloatArray, params: BarSystemParams, limits: RestingLimits = RestingLimits()
+) -> list[str]:
+    """What is wrong with the resting pose ``x`` (the 36-state), in words; empty: ready."""
+    problems = []
+    ends = bar_ends(x, params.arms_m)
+    for i in (1, 2):
+        offset = float(np.linalg.norm((uav_position(x, i) - ends[i - 1])[0:2]))
+        if offset > limits.uav_from_bar_end_m:
+            problems.append(
+                f"UAV {i} stands {offset:.2f} m from its bar end "
+                f"(at most {limits.uav_from_bar_end_m:.2f} m)"
+            )
+        z_axis_z = float(rotation_from_euler_zyx(*uav_euler(x, i))[2, 2])
+        tilt = math.acos(max(-1.0, min(1.0, z_axis_z)))
+        if tilt > limits.uav_tilt_rad:
+            problems.append(f"UAV {i} is tilted {math.degrees(tilt):.0f}°")
+    rise = abs(float(ends[0][2] - ends[1][2]))
+    if rise > limits.bar_end_height_difference_m:
+        problems.append(f"the bar is not level (its ends {rise:.2f} m apart in height)")
+    return problems
