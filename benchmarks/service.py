@@ -34,6 +34,19 @@ class RunningService:
         headers = {"Authorization": f"Bearer {self.token}"}
         return httpx.AsyncClient(base_url=self.url, headers=headers, timeout=10.0, **options)
 
+    def child_pid(self, name: str) -> int:
+        """The child of ``serve`` that named itself ``name`` (``uavbar-flight``, ...:
+        ``supervisor.runtime.cpu.name_process``)."""
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+                comm = (stat.parent / "comm").read_text().strip()
+            except OSError:
+                continue
+            if parent == self.process.pid and comm == name:
+                return int(stat.parent.name)
+        raise LookupError(f"serve has no child process named {name}")
+
     async def status(self, http: httpx.AsyncClient) -> dict[str, Any]:
         response = await http.get("/api/status")
         response.raise_for_status()

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from controllers.equilibria import Reference, bar_equilibrium
 from controllers.params import BarSystemParams, UavParams
+from geometry.state import bar_ends, uav_slices
 from supervisor.app.config import load_config
+from supervisor.flight.estimation import Estimate
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 LAB_INERTIA = (0.0348, 0.0459, 0.0977)
@@ -36,3 +40,12 @@ def uneven_params() -> BarSystemParams:
         (0.9, 1.2),
         9.81,
     )
+
+
+def resting_estimate(params: BarSystemParams) -> Estimate:
+    """A fresh, healthy estimate of the system resting on the ground: the bar level at
+    2 cm, each UAV standing on its own bar end."""
+    x = bar_equilibrium(params, Reference((0.0, 0.0, 0.02))).x
+    for i, end in enumerate(bar_ends(x, params.arms_m), start=1):
+        x[uav_slices(i)[0]] = end + np.array([0.0, 0.0, 0.05])
+    return Estimate(x, 0.005, ())

@@ -36,16 +36,7 @@ GCS_LOCAL_PORT = 18570  # PX4's end of that link: 18570 + instance
 
 
 def flight_process_pid(service: RunningService) -> int:
-    """The child of ``serve`` named ``uavbar-flight`` (``supervisor.runtime.cpu.name_process``)."""
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
-            name = (stat.parent / "comm").read_text().strip()
-        except OSError:
-            continue
-        if parent == service.process.pid and name == "uavbar-flight":
-            return int(stat.parent.name)
-    raise AssertionError("no flight process found")
+    return service.child_pid("uavbar-flight")
 
 
 @dataclass

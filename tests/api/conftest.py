@@ -26,7 +26,7 @@ from supervisor.ipc.client import FlightClient
 from supervisor.ipc.messages import TelemetryMessage
 from supervisor.ipc.server import serve_requests
 from supervisor.vehicles.types import VehicleView
-from tests.conftest import CONFIGS
+from tests.conftest import CONFIGS, resting_estimate
 
 TOKEN = "test-token-123"
 
@@ -47,6 +47,7 @@ class ApiUnderTest:
 async def api() -> AsyncIterator[ApiUnderTest]:
     config = load_config(CONFIGS / "sim.toml")
     core = flight_core_from_config(config, clock=time.perf_counter)
+    core.tick(0.0, resting_estimate(config.system.to_params()))  # ready to arm
     pairs = [socket.socketpair() for _ in range(2)]
     flight_side = [await Channel.open(b) for _, b in pairs]
     commands, urgent = [await Channel.open(a) for a, _ in pairs]

@@ -1,0 +1,155 @@
+"""The fault table's figures (docs/safety.md): each fault from a stable 1 m hover on the
+embedded simulator, one ``serve`` per case — what the supervisor did, when, and what the
+world saw (sim/truth.py: the worst UAV tilt, the fastest descent above 0.2 m).
+
+    python -m benchmarks.faults [--json] [--case NAME ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import signal
+import sys
+import tempfile
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from benchmarks.service import RunningService, running_service
+from benchmarks.tick import world_truth
+from supervisor.logs.flight_log import read_flight_log
+
+TOKEN = "faults-benchmark-token"
+Case = Callable[[RunningService, httpx.AsyncClient], Awaitable[dict[str, Any]]]
+
+
+async def hover(service: RunningService, http: httpx.AsyncClient) -> Path:
+    """Take off and hover 2 s; the flight's log."""
+    await service.wait_for(
+        http,
+        lambda s: s["mocap"]["healthy"] and all(u["connected"] for u in s["uavs"]),
+        60.0,
+        "healthy mocap and both links",
+    )
+    for step in ("arm", "takeoff"):
+        (await http.post(f"/api/{step}")).raise_for_status()
+    status = await service.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
+    await asyncio.sleep(2.0)
+    return Path(status["log"])
+
+
+async def inject(http: httpx.AsyncClient, **fault: Any) -> float:
+    response = await http.post("/api/sim/faults", json=fault)
+    response.raise_for_status()
+    return time.monotonic()
+
+
+async def until_down(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+    """Land if still flying; the status once disarmed."""
+    status = await service.status(http)
+    if status["mode"] in ("hover", "tracking"):
+        (await http.post("/api/land")).raise_for_status()
+    return await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "on the ground")
+
+
+def said(status: dict[str, Any]) -> str:
+    return " | ".join(n["message"] for n in status["notices"]) or "-"
+
+
+def mocap_silent(duration_s: float) -> Case:
+    async def case(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+        log_path = await hover(service, http)
+        injected = await inject(http, kind="mocap_silent", duration_s=duration_s)
+        if duration_s < 1.0:
+            await asyncio.sleep(1.0)
+            status = await service.status(http)
+            return {"mode_after_1s": status["mode"], "notices": said(status)}
+        await service.wait_for(
+            http,
+            lambda s: [u["px4_mode"] for u in s["uavs"]] == ["AUTO.LAND", "AUTO.LAND"],
+            5.0,
+            "both PX4s landing",
+        )
+        both_landing_s = time.monotonic() - injected
+        status = await until_down(service, http)
+        log = read_flight_log(log_path)
+        handed = log.modes.index("px4_landing")
+        return {
+            "mocap_age_at_hand_over_ms": round(float(log.mocap_age_ms[handed]), 1),
+            "both_in_auto_land_after_s": round(both_landing_s, 2),
+            "notices": said(status),
+        }
+
+    return case
+
+
+def frozen_flight_process(freeze_s: float) -> Case:
+    async def case(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+        await hover(service, http)
+        flight = service.child_pid("uavbar-flight")
+        os.kill(flight, signal.SIGSTOP)
+        await asyncio.sleep(freeze_s)
+        os.kill(flight, signal.SIGCONT)
+        await asyncio.sleep(3.0)
+        mode = (await service.status(http))["mode"]
+        status = await until_down(service, http)
+        failsafe_setpoints = sum("arrived in its failsafe" in line for line in service.output)
+        return {
+            "mode_3s_after": mode,
+            "setpoints_to_a_vehicle_in_failsafe": failsafe_setpoints,
+            "notices": said(status),
+        }
+
+    return case
+
+
+async def displaced_arm(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+    await service.wait_for(http, lambda s: s["mocap"]["healthy"], 60.0, "healthy mocap")
+    await inject(http, kind="mocap_jump", body="uav1", offset_m=[1.0, 0.0, 0.0])
+    await asyncio.sleep(0.5)
+    refused = await http.post("/api/arm")
+    return {"arm_status": refused.status_code, "reason": refused.json().get("detail")}
+
+
+CASES: dict[str, Case] = {
+    "mocap_silent_0.05s": mocap_silent(0.05),
+    "mocap_silent_5s": mocap_silent(5.0),
+    "sigstop_flight_0.3s": frozen_flight_process(0.3),
+    "sigstop_flight_1s": frozen_flight_process(1.0),
+    "sigstop_flight_5s": frozen_flight_process(5.0),
+    "arm_with_uav1_1m_away": displaced_arm,
+}
+
+
+async def run(name: str) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as scratch:
+        async with running_service(TOKEN, Path(scratch)) as service, service.client() as http:
+            result = await CASES[name](service, http)
+        truth = world_truth(service.output)
+    return {
+        "case": name,
+        **result,
+        **{k: truth[k] for k in ("max_uav_tilt_deg", "max_descent_mps") if k in truth},
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--case", action="append", choices=sorted(CASES), default=None)
+    args = parser.parse_args(argv)
+    for name in args.case or list(CASES):
+        print(f"# {name} …", file=sys.stderr, flush=True)
+        result = asyncio.run(run(name))
+        print(json.dumps(result) if args.json else "  ".join(f"{k}={v}" for k, v in result.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
