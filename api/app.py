@@ -96,10 +96,12 @@ def create_app(
     arena: Arena,
     token: str,
     world: WorldClient | None = None,
+    processes: Callable[[], dict[str, Any]] | None = None,
 ) -> FastAPI:
     """The FastAPI application serving ``flight`` (``params`` and ``arena``: the system and
     its flight volume, for the equilibria it reports and the setpoints it checks) and, when
-    ``serve`` runs the simulated world itself, ``world``."""
+    ``serve`` runs the simulated world itself, ``world``; ``processes``: serve's process
+    table for the status."""
     app = FastAPI(
         title="uavbar-supervisor",
         summary="Two PX4 quadrotors carrying a bar under MPC: arm, fly, queue setpoints, abort.",
@@ -119,7 +121,7 @@ def create_app(
         )
 
     auth = Depends(_bearer_check(token))
-    app.include_router(_status_routes(flight, params))
+    app.include_router(_status_routes(flight, params, processes))
     app.include_router(_operator_routes(flight), dependencies=[auth])
     app.include_router(_setpoint_routes(flight, params, arena, auth))
     app.include_router(_telemetry_route(flight))
@@ -146,7 +148,11 @@ def _bearer_check(token: str) -> Callable[[str | None], None]:
     return authorized
 
 
-def _status_routes(flight: FlightClient, params: BarSystemParams) -> APIRouter:
+def _status_routes(
+    flight: FlightClient,
+    params: BarSystemParams,
+    processes: Callable[[], dict[str, Any]] | None,
+) -> APIRouter:
     router = APIRouter()
 
     @router.get("/api/status")
@@ -156,6 +162,8 @@ def _status_routes(flight: FlightClient, params: BarSystemParams) -> APIRouter:
             return JSONResponse({"detail": "no telemetry from the flight process yet"}, 503)
         body = dict(flight.latest)
         body["stale"] = flight.telemetry_age_s > TELEMETRY_STALE_S or not flight.connected
+        if processes is not None:
+            body["processes"] = processes()
         return JSONResponse(body)
 
     @router.get("/api/equilibria")

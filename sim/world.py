@@ -172,6 +172,9 @@ class SimulatedWorld:
 
     async def start(self) -> WorldAddresses:
         """Bind every endpoint; the world does not move until ``run``."""
+        # The plant's kernels compile on first use (seconds on a fresh machine, then cached):
+        # here, on a throwaway plant, rather than inside the first frame of ``run``.
+        Plant(self.plant.params).advance(self.plant.step_s)
         await self.qtm.start()
         for vehicle in self.vehicles:
             await vehicle.start()

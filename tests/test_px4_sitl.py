@@ -127,7 +127,7 @@ async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) ->
         assert "AUTO.LAND" in {mode for _, mode in watch.modes}, (i, watch.modes)
     assert landed_at is not None, "the UAVs did not land within 25 s"
     assert worst_tilt < 30.0, worst_tilt
-    assert status["stale"]
+    assert status["stale"] and not status["processes"]["flight"]["alive"]
 
 
 def _param_set(name: str, value: int) -> list[bytes]:

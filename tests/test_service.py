@@ -114,6 +114,11 @@ async def test_a_whole_flight_over_http(tmp_path: Path, vehicles: str) -> None:
         service.client() as http,
     ):
         await ready(service, http)
+        processes = (await service.status(http))["processes"]
+        assert set(processes) == {"api", "flight", "world", "relay"}
+        assert all(p["alive"] for p in processes.values())
+        assert processes["flight"]["pid"] == service.child_pid("uavbar-flight")
+        assert processes["api"]["pid"] == service.process.pid
         await refused_without_token(service)
         await take_off(service, http)
         response = await http.post("/api/setpoints", json=SETPOINTS)

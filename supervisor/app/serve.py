@@ -152,6 +152,16 @@ async def _world_client(sock: socket.socket | None) -> WorldClient | None:
     return None if sock is None else WorldClient(await WorldChannel.open(sock))
 
 
+def process_table(children: dict[str, BaseProcess | None]) -> dict[str, dict[str, Any]]:
+    """``serve``'s processes for the status: name → PID and whether it is alive (this one,
+    the API, always is; a child that was never started is left out)."""
+    table: dict[str, dict[str, Any]] = {"api": {"pid": os.getpid(), "alive": True}}
+    for name, process in children.items():
+        if process is not None:
+            table[name] = {"pid": process.pid, "alive": process.is_alive()}
+    return table
+
+
 def _stop(process: BaseProcess | None, timeout_s: float) -> None:
     if process is None or not process.is_alive():
         return
@@ -195,7 +205,15 @@ async def serve(setup: Setup) -> int:
     commands, urgent = [await Channel.open(parent_end) for parent_end, _ in pairs]
     client = FlightClient(commands, urgent)
     sim_world = await _world_client(world_channel)
-    app = create_app(client, config.system.to_params(), arena_from_config(config), token, sim_world)
+    children = {"flight": flight, "world": world, "relay": relay[0] if relay else None}
+    app = create_app(
+        client,
+        config.system.to_params(),
+        arena_from_config(config),
+        token,
+        sim_world,
+        processes=lambda: process_table(children),
+    )
     http = HttpServer(app, http_socket)
     host = config.api.host
     log.info("uavbar-supervisor serving http://%s:%d/ (setup %s)", host, http.port, config.name)

@@ -80,7 +80,8 @@ async def sim_api() -> AsyncIterator[SimApi]:
             group.create_task(server.serve()),
         ]
         url = f"http://127.0.0.1:{server.port}"
-        async with httpx.AsyncClient(base_url=url, timeout=5.0) as http:
+        # Generous: on a busy machine the world's first steps share this event loop.
+        async with httpx.AsyncClient(base_url=url, timeout=30.0) as http:
             yield SimApi(url, world, http)
         server.stop()
         for task in tasks[:-1]:
