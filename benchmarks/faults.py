@@ -31,15 +31,7 @@ Case = Callable[[RunningService, httpx.AsyncClient], Awaitable[dict[str, Any]]]
 
 async def hover(service: RunningService, http: httpx.AsyncClient) -> Path:
     """Take off and hover 2 s; the flight's log."""
-    await service.wait_for(
-        http,
-        lambda s: s["mocap"]["healthy"] and all(u["connected"] for u in s["uavs"]),
-        60.0,
-        "healthy mocap and both links",
-    )
-    for step in ("arm", "takeoff"):
-        (await http.post(f"/api/{step}")).raise_for_status()
-    status = await service.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
+    status = await service.take_off(http)
     await asyncio.sleep(2.0)
     return Path(status["log"])
 

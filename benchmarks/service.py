@@ -20,6 +20,11 @@ import httpx
 START_TIMEOUT_S = 120.0
 
 
+def all_connected(status: dict[str, Any]) -> bool:
+    """Healthy mocap and both vehicle links, as the status shows them."""
+    return bool(status["mocap"]["healthy"]) and all(u["connected"] for u in status["uavs"])
+
+
 @dataclass
 class RunningService:
     """A started ``serve``: its base URL, token, and the process."""
@@ -46,6 +51,15 @@ class RunningService:
             if parent == self.process.pid and comm == name:
                 return int(stat.parent.name)
         raise LookupError(f"serve has no child process named {name}")
+
+    async def take_off(self, http: httpx.AsyncClient) -> dict[str, Any]:
+        """Wait for healthy mocap and both links, arm, take off; the status once hovering."""
+        await self.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
+        for step in ("arm", "takeoff"):
+            response = await http.post(f"/api/{step}")
+            if response.status_code != 200:
+                raise RuntimeError(f"{step} refused: {response.text}")
+        return await self.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
 
     async def status(self, http: httpx.AsyncClient) -> dict[str, Any]:
         response = await http.get("/api/status")

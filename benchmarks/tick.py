@@ -99,15 +99,7 @@ async def fly(service: RunningService, duration_s: float) -> str:
     """Arm, take off, fly the paper's setpoints until ``duration_s`` has passed, land.
     Returns the flight log's path."""
     async with service.client() as http:
-        await service.wait_for(
-            http,
-            lambda s: s["mocap"]["healthy"] and all(u["connected"] for u in s["uavs"]),
-            60.0,
-            "healthy mocap and both links",
-        )
-        for step in ("arm", "takeoff"):
-            (await http.post(f"/api/{step}")).raise_for_status()
-        status = await service.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
+        status = await service.take_off(http)
         log = str(status["log"])
         started = time.monotonic()
         while time.monotonic() - started < duration_s:

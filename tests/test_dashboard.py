@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from playwright.async_api import Browser, Page, async_playwright, expect
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import RunningService, all_connected, running_service
 from tests.test_px4_sitl import PX4_REFUSAL, require_gps_for_arming
-from tests.test_service import all_connected, require_px4
+from tests.test_service import require_px4
 
 CHROMIUM = shutil.which("chromium")
 SCREENSHOT = Path(__file__).resolve().parent.parent / "docs" / "images" / "dashboard.png"

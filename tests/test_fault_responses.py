@@ -18,8 +18,8 @@ from benchmarks.tick import world_truth
 from supervisor.flight.safety import SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_faults_e2e import fault
-from tests.test_px4_sitl import OFFBOARD_LOSS_TIMEOUT_S, flight_process_pid
-from tests.test_service import TOKEN, flight_logs, ready, take_off
+from tests.test_px4_sitl import OFFBOARD_LOSS_TIMEOUT_S
+from tests.test_service import TOKEN, flight_logs, ready
 
 pytestmark = pytest.mark.slow
 
@@ -33,7 +33,7 @@ async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_
     supervisor stops streaming and each PX4 lands on its own (AUTO.LAND); both land and
     disarm, no UAV tilts beyond 30°, nothing descends faster than 1 m/s above 0.2 m."""
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
-        await take_off(service, http)
+        await service.take_off(http)
         await asyncio.sleep(2.0)  # a stable hover
         await fault(http, kind="mocap_silent", duration_s=0.05)
         await asyncio.sleep(1.0)
@@ -76,9 +76,9 @@ async def test_a_frozen_flight_process_never_flips_a_uav_nor_commands_one_in_fai
     flight goes on; beyond it each PX4's failsafe lands, the supervisor resumes without a
     word to a vehicle in failsafe, hands over and follows the landing to the ground."""
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
-        await take_off(service, http)
+        await service.take_off(http)
         await asyncio.sleep(2.0)
-        flight = flight_process_pid(service)
+        flight = service.child_pid("uavbar-flight")
         os.kill(flight, signal.SIGSTOP)
         await asyncio.sleep(freeze_s)
         os.kill(flight, signal.SIGCONT)

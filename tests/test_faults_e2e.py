@@ -19,7 +19,7 @@ import pytest
 import qtm_rt
 
 from benchmarks.service import RunningService, running_service
-from tests.test_service import TOKEN, ready, take_off
+from tests.test_service import TOKEN, ready
 
 pytestmark = pytest.mark.slow
 
@@ -126,7 +126,7 @@ async def test_reset_refused_while_armed_then_the_resting_pose_is_back(tmp_path:
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
         await ready(service, http)
         resting = (await service.status(http))["bar"]["position"]
-        await take_off(service, http)
+        await service.take_off(http)
         response = await http.post("/api/setpoints", json={"bar_position": [0.6, 0.3, 1.0]})
         assert response.status_code == 200
         await service.wait_for(

@@ -26,17 +26,13 @@ from supervisor.mavlink.codec import MavlinkCodec
 from supervisor.mavlink.events import EventCatalog
 from supervisor.mavlink.parameters import MAV_PARAM_TYPE_INT32, encode_param_value
 from supervisor.mavlink.session import px4_mode_name
-from tests.test_service import TOKEN, ready, require_px4, take_off
+from tests.test_service import TOKEN, ready, require_px4
 
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
 OFFBOARD_LOSS_TIMEOUT_S = 0.5  # vehicles.offboard_loss_timeout_s, written as COM_OF_LOSS_T
 GCS_PORT = 14550  # PX4 SITL's ground-station link, every instance
 GCS_LOCAL_PORT = 18570  # PX4's end of that link: 18570 + instance
-
-
-def flight_process_pid(service: RunningService) -> int:
-    return service.child_pid("uavbar-flight")
 
 
 @dataclass
@@ -97,14 +93,14 @@ async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) ->
     async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
         world = next(line for line in service.output if "simulated world: QTM" in line)
         qtm_host, qtm_port = re.search(r"QTM (\S+):(\d+)", world).groups()  # type: ignore[union-attr]
-        await take_off(service, http)
+        await service.take_off(http)
         await asyncio.sleep(3.0)
         async with QtmClient(qtm_host, int(qtm_port)) as mocap:
             await mocap.wait_frame()
             watches = {1: Px4Watch(), 2: Px4Watch()}
             listener = asyncio.create_task(watch_px4s(catalog, watches, time.monotonic() + 27.0))
             await asyncio.sleep(1.0)
-            os.kill(flight_process_pid(service), signal.SIGKILL)
+            os.kill(service.child_pid("uavbar-flight"), signal.SIGKILL)
             killed = time.monotonic()
             worst_tilt, landed_at = 0.0, None
             while time.monotonic() < killed + 25.0:

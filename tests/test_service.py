@@ -12,7 +12,7 @@ import httpx
 import numpy as np
 import pytest
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import RunningService, all_connected, running_service
 from controllers.params import BarSystemParams
 from geometry.state import P_B, bar_ends, uav_position
 from sim.px4_firmware import FirmwareError, resolve_px4_dir
@@ -41,20 +41,8 @@ def flight_logs(folder: Path) -> list[Path]:
     return sorted(folder.glob("flight-*.jsonl"))
 
 
-def all_connected(status: dict[str, Any]) -> bool:
-    return bool(status["mocap"]["healthy"]) and all(u["connected"] for u in status["uavs"])
-
-
 async def ready(service: RunningService, http: httpx.AsyncClient) -> None:
     await service.wait_for(http, all_connected, 30.0, "healthy mocap and both links")
-
-
-async def take_off(service: RunningService, http: httpx.AsyncClient) -> None:
-    await ready(service, http)
-    for request in ("arm", "takeoff"):
-        response = await http.post(f"/api/{request}")
-        assert response.status_code == 200, response.text
-    await service.wait_for(http, lambda s: s["mode"] == "hover", 60.0, "hover")
 
 
 async def refused_without_token(service: RunningService) -> None:
@@ -120,7 +108,7 @@ async def test_a_whole_flight_over_http(tmp_path: Path, vehicles: str) -> None:
         assert processes["flight"]["pid"] == service.child_pid("uavbar-flight")
         assert processes["api"]["pid"] == service.process.pid
         await refused_without_token(service)
-        await take_off(service, http)
+        await service.take_off(http)
         response = await http.post("/api/setpoints", json=SETPOINTS)
         assert response.status_code == 200 and response.json()["queued"] == 2
         for index, setpoint in enumerate(SETPOINTS):
@@ -157,7 +145,7 @@ async def test_a_whole_flight_over_http(tmp_path: Path, vehicles: str) -> None:
 @pytest.mark.slow
 async def test_abort_mid_flight_lands_and_disarms(tmp_path: Path) -> None:
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
-        await take_off(service, http)
+        await service.take_off(http)
         await http.post("/api/setpoints", json={"bar_position": [1.0, 0.0, 1.2], "hold_s": 5.0})
         await service.wait_for(http, lambda s: s["mode"] == "tracking", 10.0, "tracking")
         response = await http.post("/api/abort")
@@ -181,7 +169,7 @@ async def test_both_command_modes_hover_within_5_cm(tmp_path: Path, command_mode
         running_service(TOKEN, tmp_path, overrides) as service,
         service.client() as http,
     ):
-        await take_off(service, http)
+        await service.take_off(http)
         errors = []
         for _ in range(50):
             status = await service.status(http)

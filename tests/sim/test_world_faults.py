@@ -5,9 +5,7 @@ loopback as the official Qualisys SDK and our own client see it."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-from collections.abc import AsyncIterator
 from typing import Any
 
 import numpy as np
@@ -34,6 +32,7 @@ from supervisor.app.world_process import build_world
 from supervisor.mavlink.px4_messages import MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET
 from tests.conftest import CONFIGS
 from tests.sim.test_px4_endpoint import Bench, Resting, of_type
+from tests.sim.test_world import running_world
 
 ARM, DISARM = (1.0, FORCE_MAGIC, 0, 0, 0, 0, 0), (0.0, FORCE_MAGIC, 0, 0, 0, 0, 0)
 
@@ -244,20 +243,6 @@ def test_what_the_world_cannot_do_to_real_firmware_is_refused_with_the_reason(
 
 
 # ---- the QTM stream on loopback, in real time -------------------------------------------------
-@contextlib.asynccontextmanager
-async def running_world() -> AsyncIterator[SimulatedWorld]:
-    world = world_of()
-    await world.start()
-    runner = asyncio.create_task(world.run())
-    try:
-        yield world
-    finally:
-        runner.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await runner
-        await world.close()
-
-
 async def test_mocap_silent_stops_both_clients_frames_then_they_resume_with_a_gap() -> None:
     async with running_world() as world, QtmClient("127.0.0.1", world.qtm.port) as ours:
         connection = await qtm_rt.connect("127.0.0.1", port=world.qtm.port, version="1.25")
