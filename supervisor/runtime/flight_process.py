@@ -62,6 +62,8 @@ LANDING_TIMEOUT_S = 90.0
 FULL_COLLECTION_TICKS = 250  # a full garbage collection every 5 s, between two ticks
 RESUME_GAP_S = 0.2  # a gap between two ticks this long: the process was frozen
 RESUME_READ_S = 0.06  # then this long to read the backlog (frames arrive one per read)
+PX4_OF_LOSS_T_S = 1.0  # COM_OF_LOSS_T's default, when the setup does not set it
+OFFBOARD_LOSS_MARGIN_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,7 @@ class FlightProcess:
         if gap_s > RESUME_GAP_S:
             log.warning("no tick for %.2f s: reading what came meanwhile first", gap_s)
             self._reading_until_s = started + RESUME_READ_S
+            self._hand_over_after_freeze(gap_s, started)
         if started < self._reading_until_s:
             return
         before = self.core.modes.mode
@@ -295,6 +298,21 @@ class FlightProcess:
         handle_request(self.core, ModeRequest(kind="disarm"), now_s)
         self.core.notices.append((now_s, Notice(NoticeKind.VEHICLE, text)))
         self._sequence(self._disarm_vehicles())
+
+    def _hand_over_after_freeze(self, gap_s: float, now_s: float) -> None:
+        """A freeze as long as PX4's offboard-loss timeout (less a margin, counting the
+        backlog's reading): each PX4 is in its failsafe, or about to be, whatever its last
+        report said (its mode shows up to a heartbeat later). One more setpoint would take
+        it out of that failsafe, so none is sent: every vehicle is handed to its landing."""
+        timeout_s = self.settings.failsafe_parameters.get("COM_OF_LOSS_T", PX4_OF_LOSS_T_S)
+        if gap_s + RESUME_READ_S < timeout_s - OFFBOARD_LOSS_MARGIN_S:
+            return
+        before = self.core.modes.mode
+        why = f"no tick for {gap_s:.2f} s, beyond PX4's offboard-loss timeout ({timeout_s:g} s)"
+        notice = self.core.hand_over_to_px4(why, now_s)
+        if notice is not None:
+            self.core.notices.append((now_s, notice))
+            self._react(before, self.core.modes.mode)
 
     def _hand_over_vehicles_out_of_offboard(self, now_s: float) -> None:
         """Flying under the supervisor, a vehicle that shows another mode than offboard has
