@@ -42,11 +42,11 @@ ROOMS = {
     "runtime": {"flight", "vehicles", "ipc", "logs"},
     "app": {"flight", "vehicles", "mavlink", "ipc", "runtime", "logs"},
     "simulate": {"flight", "logs", "runtime", "app"},
-    "cli": {"flight", "logs", "runtime", "app", "simulate"},
+    "cli": {"flight", "logs", "runtime", "app", "simulate", "ipc"},
 }
 # Beyond the rooms: who may reach the world simulator, the API and the benchmarks.
 ROOMS_USING_SIM = {"app", "simulate"}
-COMPOSITION_ROOT = {"supervisor/app/serve.py": "api"}
+COMPOSITION_ROOT = {"supervisor/app/serve.py": "api", "supervisor/app/api_process.py": "api"}
 BENCH_COMMAND = {"supervisor/cli/main.py": "benchmarks"}
 
 # Pure cores: computation only — no event loop, sockets, clocks, threads or processes.

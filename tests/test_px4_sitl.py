@@ -83,7 +83,7 @@ def tilt_deg(quaternion: np.ndarray) -> float:
 async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) -> None:
     """SIGKILL the flight process mid-hover: each PX4 leaves offboard within COM_OF_LOSS_T
     + 0.2 s (its failsafe event), lands (AUTO.LAND) with no UAV tilting beyond 30°, and the
-    API stays up saying its status is stale."""
+    API stays up and says why; serve starts the flight process again."""
     require_px4()
     catalog = EventCatalog.load(resolve_px4_dir(None) / "etc" / "extras" / "all_events.json.xz")
     overrides = [
@@ -123,7 +123,9 @@ async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) ->
         assert "AUTO.LAND" in {mode for _, mode in watch.modes}, (i, watch.modes)
     assert landed_at is not None, "the UAVs did not land within 25 s"
     assert worst_tilt < 30.0, worst_tilt
-    assert status["stale"] and not status["processes"]["flight"]["alive"]
+    assert status["processes"]["flight"]["restarts"] == 1
+    said = " ".join(n["message"] for n in status["notices"])
+    assert "the flight process died (killed by SIGKILL)" in said, said
 
 
 def _param_set(name: str, value: int) -> list[bytes]:

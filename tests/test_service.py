@@ -106,7 +106,7 @@ async def test_a_whole_flight_over_http(tmp_path: Path, vehicles: str) -> None:
         assert set(processes) == {"api", "flight", "world", "relay"}
         assert all(p["alive"] for p in processes.values())
         assert processes["flight"]["pid"] == service.child_pid("uavbar-flight")
-        assert processes["api"]["pid"] == service.process.pid
+        assert processes["api"]["pid"] == service.child_pid("uavbar-api")
         await refused_without_token(service)
         await service.take_off(http)
         response = await http.post("/api/setpoints", json=SETPOINTS)

@@ -1,15 +1,17 @@
 """The flight process's entry point: connect mocap and both vehicles as configured (or to
-the embedded world's addresses), then run ``FlightProcess`` until SIGTERM, a shutdown
-request, or the API process going away (each of which lands first)."""
+the embedded world's addresses), then run ``FlightProcess`` until SIGTERM or ``serve``
+going away (each of which lands first). A restarted flight process says why it was
+restarted (a notice) and flies nothing until the operator arms it again."""
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import signal
 import socket
 import time
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +23,10 @@ from supervisor.app.assembly import (
     link_configs_from_config,
 )
 from supervisor.app.config import Config, host_port
-from supervisor.ipc.channel import Channel
+from supervisor.flight.core import Notice, NoticeKind
 from supervisor.logs.logging_setup import queued_logging
 from supervisor.mavlink.link import MavlinkLink
-from supervisor.runtime.cpu import name_process, raise_priority, single_threaded_blas
+from supervisor.runtime.cpu import raise_priority, single_threaded_blas, title_process
 from supervisor.runtime.flight_process import FlightProcess, FlightSettings
 from supervisor.runtime.tick_driver import TickDriver
 
@@ -33,16 +35,23 @@ log = logging.getLogger(__name__)
 OFFBOARD_LOSS_LAND = 4  # COM_OBL_RC_ACT: land when the offboard stream stops
 
 
+@dataclass(frozen=True)
+class FlightStart:
+    """What ``serve`` hands a flight process: the socket it accepts operators on and the
+    token they present, the links' sockets, whether the relay forwards the mocap, and why
+    this process was started again (None: the first start)."""
+
+    listener: socket.socket
+    token: str
+    link_sockets: tuple[socket.socket, socket.socket]
+    relayed: bool
+    restarted_because: str | None = None
+
+
 async def fly(
-    config: Config,
-    commands: Channel,
-    urgent: Channel,
-    world: dict[str, Any] | None,
-    link_sockets: tuple[socket.socket, socket.socket] | None = None,
-    relayed: bool = False,
+    config: Config, start: FlightStart, world: dict[str, Any] | None, parent: Connection
 ) -> None:
-    """Run the flight process on already opened channels (and the links' sockets, bound by
-    ``serve``)."""
+    """Run the flight process until SIGTERM or until ``parent`` closes its end."""
     if world is not None:
         qtm_host, qtm_port = host_port(world["qtm"])
         vehicles = [host_port(address) for address in world["vehicles"]]
@@ -53,7 +62,7 @@ async def fly(
     else:
         qtm_host, qtm_port = config.mocap.host, config.mocap.port
         link_configs = link_configs_from_config(config)
-    sockets = link_sockets or (None, None)
+    sockets = start.link_sockets
     links = (
         MavlinkLink(link_configs[0], sock=sockets[0]),
         MavlinkLink(link_configs[1], sock=sockets[1]),
@@ -67,7 +76,7 @@ async def fly(
                     config.mpc.dt_s,
                     config.mocap.phase_lock,
                     config.name,
-                    forward_mocap=not relayed,
+                    forward_mocap=not start.relayed,
                     failsafe_parameters={
                         "COM_OF_LOSS_T": config.vehicles.offboard_loss_timeout_s,
                         "COM_OBL_RC_ACT": OFFBOARD_LOSS_LAND,
@@ -82,38 +91,25 @@ async def fly(
                 links,
                 Path(config.log.folder),
             )
+            if start.restarted_because is not None:
+                text = f"{start.restarted_because}; started again, flying nothing until armed"
+                process.core.notices.append((process.clock(), Notice(NoticeKind.PROCESS, text)))
             loop = asyncio.get_running_loop()
             loop.add_signal_handler(signal.SIGTERM, process.stop)
-            loop.add_signal_handler(signal.SIGINT, lambda: None)  # the API process decides
-            await process.run(commands, urgent)
+            loop.add_signal_handler(signal.SIGINT, lambda: None)  # serve decides
+            loop.add_reader(parent.fileno(), process.stop)  # serve is gone
+            await process.run(start.listener, start.token)
     finally:
         for link in links:
             await link.close()
 
 
 def run_flight_process(
-    config: Config,
-    commands: socket.socket,
-    urgent: socket.socket,
-    world: dict[str, Any] | None,
-    link_sockets: tuple[socket.socket, socket.socket],
-    relayed: bool,
+    config: Config, start: FlightStart, world: dict[str, Any] | None, parent: Connection
 ) -> None:
-    """Child-process entry of ``serve`` (``relayed``: the relay process forwards the mocap
-    to the vehicles)."""
+    """Child-process entry of ``serve``."""
     single_threaded_blas()
-    name_process("uavbar-flight")
-
-    async def main() -> None:
-        command_channel = await Channel.open(commands)
-        urgent_channel = await Channel.open(urgent)
-        try:
-            await fly(config, command_channel, urgent_channel, world, link_sockets, relayed)
-        finally:
-            for channel in (command_channel, urgent_channel):
-                with contextlib.suppress(Exception):
-                    await channel.close()
-
+    title_process("flight")
     with queued_logging():
         log.info("flight process: %s", raise_priority())
-        asyncio.run(main())
+        asyncio.run(fly(config, start, world, parent))

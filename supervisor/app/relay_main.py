@@ -17,7 +17,7 @@ from supervisor.logs.logging_setup import configure_logging
 from supervisor.mavlink.codec import MavlinkCodec
 from supervisor.mavlink.relay import MocapRelay, VisionTarget
 from supervisor.mavlink.vision import VisionEncoder
-from supervisor.runtime.cpu import name_process, raise_priority
+from supervisor.runtime.cpu import raise_priority, title_process
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ def run_relay_process(
     """Child-process entry: relay through the links' ``sockets`` until SIGTERM or until
     ``parent`` closes."""
     configure_logging()
-    name_process("uavbar-relay")
+    title_process("relay")
     addresses = relay_addresses(config, world)
     assert addresses is not None, "serve starts the relay only with known addresses"
     qtm_host, qtm_port = (

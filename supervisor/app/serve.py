@@ -1,10 +1,14 @@
 """``uavbar-supervisor serve``: the service, composed from config.
 
-Three processes (docs/architecture.md): this one serves the API; a flight process runs
-mocap, the vehicle links and the control loop; with ``sim.embedded`` a third runs the
-simulated world, which the flight process then reaches over loopback exactly as it would
-reach a lab. SIGINT/SIGTERM (or the flight process ending) stops everything in order: the
-flight process lands whatever is airborne and disarms, then the world stops, then HTTP.
+``serve`` itself only starts and watches its processes (docs/architecture.md): the API
+process serves HTTP; the flight process runs mocap, the vehicle links and the control
+loop; the mocap relay forwards the mocap to each PX4; with ``sim.embedded`` the world
+process runs the simulated world, which the flight process reaches over loopback exactly
+as it would reach a lab. The API, flight and relay processes are started again when they
+die (the flight process then flies nothing until armed again; each PX4's failsafe has the
+vehicles meanwhile). SIGINT/SIGTERM stops everything in order: the flight process lands
+whatever is airborne and disarms while the API still answers, then the relay and the world
+stop, then the API.
 """
 
 from __future__ import annotations
@@ -12,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import multiprocessing
 import multiprocessing.connection
 import os
 import secrets
@@ -24,23 +27,20 @@ from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any
 
-from api.app import create_app
-from api.server import HttpServer, bind
-from supervisor.app.assembly import arena_from_config
+from api.server import bind
+from supervisor.app.api_process import READY, ApiStart
+from supervisor.app.children import SPAWN, Child, Lifeline, stop_child
 from supervisor.app.config import TOKEN_ENV, Config, load_config
+from supervisor.app.flight_main import FlightStart
 from supervisor.app.relay_main import relay_addresses
-from supervisor.flight.operator_requests import ShutdownRequest
-from supervisor.ipc.channel import Channel, WorldChannel
-from supervisor.ipc.client import FlightClient
-from supervisor.ipc.world_client import WorldClient
+from supervisor.ipc.rendezvous import Rendezvous, listen_unix, write_discovery
 from supervisor.mavlink.transport import bind_udp
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
 
 log = logging.getLogger(__name__)
 
-SPAWN = multiprocessing.get_context("spawn")
 WORLD_START_TIMEOUT_S = 60.0
-API_NICENESS = 5
+API_START_TIMEOUT_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -64,210 +64,247 @@ def resolve_token(config: Config) -> tuple[str, bool]:
     return secrets.token_urlsafe(18), True
 
 
-def _world_main(
-    setup: Setup, ready: multiprocessing.connection.Connection, requests: socket.socket
-) -> None:
-    from supervisor.app.world_process import run_world_process
-
-    run_world_process(setup.load(), ready, requests)
-
-
 LinkSockets = tuple[socket.socket, socket.socket]
 
 
+def _world_main(setup: Setup, ready: Lifeline, listener: socket.socket) -> None:
+    from supervisor.app.world_process import run_world_process
+
+    run_world_process(setup.load(), ready, listener)
+
+
 def _flight_main(
-    setup: Setup,
-    commands: socket.socket,
-    urgent: socket.socket,
-    world: Any,
-    link_sockets: LinkSockets,
-    relayed: bool,
+    setup: Setup, start: FlightStart, world: dict[str, Any] | None, parent: Lifeline
 ) -> None:
     from supervisor.app.flight_main import run_flight_process
 
-    run_flight_process(setup.load(), commands, urgent, world, link_sockets, relayed)
+    run_flight_process(setup.load(), start, world, parent)
 
 
 def _relay_main(
-    setup: Setup,
-    world: Any,
-    link_sockets: LinkSockets,
-    parent: multiprocessing.connection.Connection,
+    setup: Setup, world: dict[str, Any] | None, link_sockets: LinkSockets, parent: Lifeline
 ) -> None:
     from supervisor.app.relay_main import run_relay_process
 
     run_relay_process(setup.load(), world, link_sockets, parent)
 
 
+def _api_main(setup: Setup, start: ApiStart, parent: Lifeline) -> None:
+    from supervisor.app.api_process import run_api_process
+
+    run_api_process(setup.load(), start, parent)
+
+
 def _bind_link_sockets(config: Config, world: dict[str, Any] | None) -> LinkSockets:
     """The vehicle links' UDP sockets, bound here so that the flight process and the mocap
-    relay both send from them (``supervisor.mavlink.relay``)."""
+    relay both send from them (``supervisor.mavlink.relay``), and a restarted flight
+    process from the same address again."""
     ports = (world.get("link_ports") or [0, 0]) if world is not None else config.vehicles.ports
     host = config.vehicles.bind_host
     return bind_udp(host, ports[0]), bind_udp(host, ports[1])
 
 
-def _start_relay(
-    setup: Setup, config: Config, world: dict[str, Any] | None, link_sockets: LinkSockets
-) -> tuple[BaseProcess, multiprocessing.connection.Connection] | None:
-    """The mocap relay process and the pipe whose closing stops it, when the vehicles'
-    addresses are known (else the flight process forwards the mocap itself)."""
-    if relay_addresses(config, world) is None:
-        log.info("mocap relay: vehicle addresses unknown, the flight process forwards mocap")
-        return None
+def _spawn(name: str, target: Any, *args: Any) -> tuple[BaseProcess, Lifeline]:
+    """Start ``target(*args, lifeline)`` as process ``name``; serve keeps the other end."""
     parent, child = SPAWN.Pipe()
-    process = SPAWN.Process(
-        target=_relay_main, args=(setup, world, link_sockets, child), name="uavbar-relay"
-    )
+    process = SPAWN.Process(target=target, args=(*args, child), name=name)
     process.start()
     child.close()
     return process, parent
 
 
 def _start_world(
-    setup: Setup,
-) -> tuple[BaseProcess, multiprocessing.connection.Connection, dict[str, Any], socket.socket]:
-    """The world process, the pipe whose closing stops it, its addresses, and the API's end
-    of the world channel (fault injection and reset)."""
+    setup: Setup, listener: socket.socket
+) -> tuple[BaseProcess, Lifeline, dict[str, Any]]:
+    """The world process, its lifeline (which also brings its addresses)."""
     parent, child = SPAWN.Pipe()
-    requests, world_end = socket.socketpair()
-    process = SPAWN.Process(target=_world_main, args=(setup, child, world_end), name="uavbar-world")
+    process = SPAWN.Process(target=_world_main, args=(setup, child, listener), name="uavbar-world")
     process.start()
     child.close()
-    world_end.close()  # the world holds its own copy
     if not parent.poll(WORLD_START_TIMEOUT_S):
         process.kill()
-        requests.close()
         raise RuntimeError("the simulated world did not start")
     addresses: dict[str, Any] = parent.recv()
     if "error" in addresses:
         process.join(5.0)
-        requests.close()
         raise RuntimeError(f"the simulated world failed: {addresses['error']}")
-    return process, parent, addresses, requests
+    return process, parent, addresses
 
 
-async def _world_client(sock: socket.socket | None) -> WorldClient | None:
-    """The API's handle on the world process, when there is one."""
-    return None if sock is None else WorldClient(await WorldChannel.open(sock))
+class Service:
+    """``serve``'s processes and what they share."""
 
+    def __init__(self, setup: Setup, config: Config, token: str) -> None:
+        self.setup = setup
+        self.config = config
+        self.token = token
+        self.rendezvous = Rendezvous.create()
+        self.http_socket = bind(config.api.host, config.api.port)
+        self.world_addresses: dict[str, Any] | None = None
+        self.link_sockets: LinkSockets | None = None
+        self.children: dict[str, Child] = {}
+        self._flight_listener: socket.socket | None = None
+        self._table_pipe: multiprocessing.connection.Connection | None = None
+        self._api_ready = asyncio.Event()
 
-def process_table(children: dict[str, BaseProcess | None]) -> dict[str, dict[str, Any]]:
-    """``serve``'s processes for the status: name → PID and whether it is alive (this one,
-    the API, always is; a child that was never started is left out)."""
-    table: dict[str, dict[str, Any]] = {"api": {"pid": os.getpid(), "alive": True}}
-    for name, process in children.items():
-        if process is not None:
-            table[name] = {"pid": process.pid, "alive": process.is_alive()}
-    return table
+    @property
+    def port(self) -> int:
+        return int(self.http_socket.getsockname()[1])
 
+    def process_table(self) -> dict[str, dict[str, Any]]:
+        """Name → PID, alive and restarts, for the status (a child never started is left
+        out)."""
+        return {name: child.view() for name, child in self.children.items()}
 
-def _stop(process: BaseProcess | None, timeout_s: float) -> None:
-    if process is None or not process.is_alive():
-        return
-    if process.pid is not None:
-        os.kill(process.pid, signal.SIGTERM)
-    process.join(timeout_s)
-    if process.is_alive():
-        process.kill()
-        process.join(5.0)
+    def publish_table(self, *_: Any) -> None:
+        if self._table_pipe is not None:
+            with contextlib.suppress(OSError):
+                self._table_pipe.send(self.process_table())
+
+    async def start(self) -> None:
+        config = self.config
+        if config.sim.embedded:
+            listener = listen_unix(self.rendezvous.world)
+            process, lifeline, started = await asyncio.to_thread(_start_world, self.setup, listener)
+            listener.close()
+            log.info(
+                "simulated world: QTM %s, PX4s %s", started["qtm"], ", ".join(started["vehicles"])
+            )
+            self.world_addresses = started
+            world = Child("world", lambda _: (process, lifeline), restartable=False)
+            self._watch(world)
+        self.link_sockets = _bind_link_sockets(config, self.world_addresses)
+        if relay_addresses(config, self.world_addresses) is not None:
+            self._watch(Child("relay", self._start_relay, restartable=True))
+        else:
+            log.info("mocap relay: vehicle addresses unknown, the flight process forwards mocap")
+        self._flight_listener = listen_unix(self.rendezvous.flight)
+        self._watch(Child("flight", self._start_flight, restartable=True))
+        self._watch(Child("api", self._start_api, restartable=True))
+        try:
+            async with asyncio.timeout(API_START_TIMEOUT_S):
+                await self._api_ready.wait()
+        except TimeoutError:
+            raise RuntimeError("the API process did not start") from None
+
+    def _watch(self, child: Child) -> None:
+        child.on_exit = self._ended
+        self.children[child.name] = child
+        child.start()
+        self.publish_table()
+
+    def _ended(self, child: Child, how: str) -> None:
+        if child.name == "flight":
+            log.error(
+                "the flight process died (%s): nothing commands the vehicles now, each PX4's "
+                "offboard-loss failsafe takes over; starting it again (it flies nothing until "
+                "armed)",
+                how,
+            )
+        elif child.name == "world":
+            log.error("the simulated world died (%s): no mocap, no vehicles", how)
+        else:
+            log.error("the %s process died (%s)", child.name, how)
+        asyncio.get_running_loop().call_soon(self.publish_table)
+
+    def _start_relay(self, _: str | None) -> tuple[BaseProcess, Lifeline]:
+        return _spawn(
+            "uavbar-relay", _relay_main, self.setup, self.world_addresses, self.link_sockets
+        )
+
+    def _start_flight(self, because: str | None) -> tuple[BaseProcess, Lifeline]:
+        assert self.link_sockets is not None and self._flight_listener is not None
+        start = FlightStart(
+            self._flight_listener,
+            self.token,
+            self.link_sockets,
+            "relay" in self.children,
+            because,
+        )
+        return _spawn("uavbar-flight", _flight_main, self.setup, start, self.world_addresses)
+
+    def _start_api(self, _: str | None) -> tuple[BaseProcess, Lifeline]:
+        if self._table_pipe is not None:
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(self._table_pipe.fileno())
+            self._table_pipe.close()
+        ours, theirs = SPAWN.Pipe()
+        start = ApiStart(
+            self.http_socket, self.rendezvous, self.token, self.config.sim.embedded, theirs
+        )
+        started = _spawn("uavbar-api", _api_main, self.setup, start)
+        theirs.close()
+        self._table_pipe = ours
+        asyncio.get_running_loop().add_reader(ours.fileno(), self._api_says)
+        asyncio.get_running_loop().call_soon(self.publish_table)
+        return started
+
+    def _api_says(self) -> None:
+        assert self._table_pipe is not None
+        try:
+            while self._table_pipe.poll():
+                if self._table_pipe.recv() == READY:
+                    self._api_ready.set()
+                    self.publish_table()
+        except (EOFError, OSError):
+            asyncio.get_running_loop().remove_reader(self._table_pipe.fileno())
+
+    async def stop(self) -> None:
+        """Land and stop the flight process (the API answering meanwhile), then the rest;
+        a child that ends meanwhile (Ctrl-C reaches them all) is not started again."""
+        for child in self.children.values():
+            child.stopped = True
+        order = [
+            ("flight", LANDING_TIMEOUT_S + 10.0),
+            ("relay", 5.0),
+            ("world", 10.0),
+            ("api", 5.0),
+        ]
+        for name, timeout_s in order:
+            if name in self.children:
+                await stop_child(self.children[name], timeout_s)
+        if self._table_pipe is not None:
+            asyncio.get_running_loop().remove_reader(self._table_pipe.fileno())
+            self._table_pipe.close()
+        for sock in (*(self.link_sockets or ()), self.http_socket):
+            sock.close()
+        if self._flight_listener is not None:
+            self._flight_listener.close()
+        self.rendezvous.remove()
 
 
 async def serve(setup: Setup) -> int:
-    """Run the service until a signal or the flight process ends; returns the exit status."""
+    """Run the service until SIGINT or SIGTERM; returns the exit status."""
     config = setup.load()
     token, generated = resolve_token(config)
-    http_socket = bind(config.api.host, config.api.port)
-    world: BaseProcess | None = None
-    world_addresses: dict[str, Any] | None = None
-    world_pipe: multiprocessing.connection.Connection | None = None
-    world_channel: socket.socket | None = None
-    if config.sim.embedded:
-        world, world_pipe, started, world_channel = await asyncio.to_thread(_start_world, setup)
-        log.info("simulated world: QTM %s, PX4s %s", started["qtm"], ", ".join(started["vehicles"]))
-        world_addresses = started
-    link_sockets = _bind_link_sockets(config, world_addresses)
-    relay = _start_relay(setup, config, world_addresses, link_sockets)
-    pairs = [socket.socketpair() for _ in range(2)]
-    flight = SPAWN.Process(
-        target=_flight_main,
-        args=(setup, pairs[0][1], pairs[1][1], world_addresses, link_sockets, relay is not None),
-        name="uavbar-flight",
-    )
-    flight.start()
-    for _, child_end in pairs:
-        child_end.close()
-    for sock in link_sockets:
-        sock.close()  # the children hold their own copies
-    # The flight process and the world it flies come first on a busy machine: requests
-    # and WebSocket clients may wait, ticks and mocap frames may not.
-    os.nice(API_NICENESS)
-    commands, urgent = [await Channel.open(parent_end) for parent_end, _ in pairs]
-    client = FlightClient(commands, urgent)
-    sim_world = await _world_client(world_channel)
-    children = {"flight": flight, "world": world, "relay": relay[0] if relay else None}
-    app = create_app(
-        client,
-        config.system.to_params(),
-        arena_from_config(config),
-        token,
-        sim_world,
-        processes=lambda: process_table(children),
-    )
-    http = HttpServer(app, http_socket)
-    host = config.api.host
-    log.info("uavbar-supervisor serving http://%s:%d/ (setup %s)", host, http.port, config.name)
-    if generated:
-        log.info("API token (generated; set %s or api.token to choose one): %s", TOKEN_ENV, token)
-
+    service = Service(setup, config, token)
     stop = asyncio.Event()
-    flight_died = False
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    discovery: Path | None = None
     try:
-        async with asyncio.TaskGroup() as group:
-            group.create_task(http.serve())
-            flight_link = group.create_task(client.run())
-            world_link = group.create_task(sim_world.run()) if sim_world else None
-            stopper = group.create_task(stop.wait())
-            await asyncio.wait({flight_link, stopper}, return_when=asyncio.FIRST_COMPLETED)
-            if flight_link.done() and not stop.is_set():
-                await asyncio.to_thread(flight.join, 5.0)
-                if flight.exitcode != 0:
-                    flight_died = True
-                    log.error(
-                        "the flight process died (exit status %s): nothing commands the "
-                        "vehicles now, each PX4's offboard-loss failsafe takes over; the API "
-                        "stays up (its status is marked stale); Ctrl-C stops",
-                        flight.exitcode,
-                    )
-                    await stopper
-            if not flight_link.done():
-                await client.request(ShutdownRequest())
-                with contextlib.suppress(TimeoutError):
-                    async with asyncio.timeout(LANDING_TIMEOUT_S + 10.0):
-                        await flight_link
-            stopper.cancel()
-            if world_link is not None:
-                world_link.cancel()
-            http.stop()
+        await service.start()
+        host = config.api.host
+        url = f"http://{host}:{service.port}"
+        discovery = write_discovery(
+            service.port,
+            {"url": url, "pid": os.getpid(), "operator_socket": str(service.rendezvous.flight)},
+        )
+        log.info("uavbar-supervisor serving %s/ (setup %s)", url, config.name)
+        if generated:
+            log.info(
+                "API token (generated; set %s or api.token to choose one): %s", TOKEN_ENV, token
+            )
+        await stop.wait()
+        log.info("stopping: landing whatever is airborne, then stopping every process")
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
-        await asyncio.to_thread(_stop, flight, 10.0)
-        if relay is not None:
-            await asyncio.to_thread(_stop, relay[0], 5.0)
-            relay[1].close()
-        await asyncio.to_thread(_stop, world, 10.0)
-        if world_pipe is not None:
-            world_pipe.close()
-        await client.close()
-        if sim_world is not None:
-            await sim_world.close()
-    if flight_died:
-        return 1
-    return 0 if flight.exitcode in (0, None) or stop.is_set() else 1
+        await service.stop()
+        if discovery is not None:
+            discovery.unlink(missing_ok=True)
+    return 0
 
 
 def run_serve(config_path: Path, overrides: Sequence[str]) -> int:

@@ -40,7 +40,7 @@ from supervisor.app.assembly import (
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config
 from supervisor.flight.operator_requests import Outcome, Reply
-from supervisor.ipc.channel import ChannelClosedError, WorldChannel
+from supervisor.ipc.channel import ChannelClosedError, ChannelServer, WorldChannel
 from supervisor.ipc.world_client import serve_world_requests
 from supervisor.ipc.world_messages import (
     ClearFaults,
@@ -50,7 +50,7 @@ from supervisor.ipc.world_messages import (
     WorldRequest,
 )
 from supervisor.logs.logging_setup import configure_logging
-from supervisor.runtime.cpu import name_process, raise_priority, single_threaded_blas
+from supervisor.runtime.cpu import raise_priority, single_threaded_blas, title_process
 
 log = logging.getLogger(__name__)
 
@@ -168,15 +168,13 @@ def handle_world_request(world: SimulatedWorld, request: WorldRequest) -> Reply:
     return Reply(outcome=Outcome.OK, data=data)
 
 
-async def _answer_requests(world: SimulatedWorld, requests: socket.socket) -> None:
-    """The world channel until the API process closes it (the world runs on)."""
-    channel = await WorldChannel.open(requests)
+async def _answer_connection(world: SimulatedWorld, channel: WorldChannel) -> None:
+    """One connection of the world channel until its API process closes it (the world
+    runs on, and a restarted API process connects again)."""
     try:
         await serve_world_requests(channel, lambda request: handle_world_request(world, request))
     except ChannelClosedError:
-        log.info("world channel closed: no more fault requests")
-    finally:
-        await channel.close()
+        log.info("world channel closed: no more fault requests on it")
 
 
 async def run_world(
@@ -185,10 +183,10 @@ async def run_world(
     vehicle_local_ports: tuple[int, int],
     on_ready: Callable[[dict[str, Any]], None],
     stop: asyncio.Event,
-    requests: socket.socket | None = None,
+    listener: socket.socket | None = None,
 ) -> None:
-    """Start the world, report its addresses, run it until ``stop`` is set (answering the
-    world channel ``requests``, when given, meanwhile)."""
+    """Start the world, report its addresses, run it until ``stop`` is set (answering every
+    connection of the world channel to ``listener``, when given, meanwhile)."""
     world = build_world(config, qtm_port, vehicle_local_ports)
     addresses = await world.start()
     try:
@@ -200,28 +198,30 @@ async def run_world(
                 "px4_events": str(world.event_definitions),
             }
         )
-        tasks = [asyncio.create_task(world.run(), name="world")]
-        if requests is not None:  # after the runner: faults start on its clock
-            tasks.append(asyncio.create_task(_answer_requests(world, requests), name="faults"))
+        runner = asyncio.create_task(world.run(), name="world")
+        server = ChannelServer()
+        if listener is not None:  # after the runner: faults start on its clock
+            await server.start(
+                listener, WorldChannel, lambda channel: _answer_connection(world, channel)
+            )
         await stop.wait()
-        for task in tasks:
-            task.cancel()
-        for task in tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        await server.close()
+        runner.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await runner
     finally:
         await world.close()
 
 
 def run_world_process(
-    config: Config, ready: Connection, requests: socket.socket | None = None
+    config: Config, ready: Connection, listener: socket.socket | None = None
 ) -> None:
     """Child-process entry of ``serve``: free ports, report them on ``ready``, answer the
-    world channel ``requests``, run until SIGTERM or until the parent closes its end of
-    ``ready``."""
+    world channel's connections to ``listener``, run until SIGTERM or until the parent
+    closes its end of ``ready``."""
     configure_logging()
     single_threaded_blas()
-    name_process("uavbar-world")
+    title_process("world")
     # The world's frames and PX4's sensor samples are punctual: a late one is a real gap to
     # whoever reads it (PX4 children inherit this). Below the flight process, whose ticks
     # the simulated world must never delay.
@@ -230,7 +230,7 @@ def run_world_process(
     async def main() -> None:
         async with stop_event(ready) as stop:
             try:
-                await run_world(config, 0, (0, 0), ready.send, stop, requests)
+                await run_world(config, 0, (0, 0), ready.send, stop, listener)
             except Exception as error:
                 ready.send({"error": repr(error)})
                 raise

@@ -3,9 +3,10 @@ setpoint`` against a running service's REST API, for scripts and the laptop next
 drones; ``fault`` and ``reset`` for the embedded simulated world (docs/faults.md).
 
 The URL defaults to the configured ``api.host``/``api.port``; the token comes from
-``--token`` or the environment variable ``UAVBAR_TOKEN``. Exit status: 0 done, 1 refused
-(the reason is printed), 3 the service cannot be reached (2 is a usage error, as for every
-command).
+``--token`` or the environment variable ``UAVBAR_TOKEN``. ``abort`` and ``kill`` give the
+API 0.3 s, then go straight to the flight process (``supervisor.cli.direct``). Exit
+status: 0 done, 1 refused (the reason is printed), 3 the service cannot be reached (2 is a
+usage error, as for every command).
 """
 
 from __future__ import annotations
@@ -20,11 +21,14 @@ from typing import Any
 import httpx
 
 from supervisor.app.config import TOKEN_ENV, Config
+from supervisor.cli.direct import DirectPathError, direct_request
 from supervisor.cli.usage import UsageError
 
 EXIT_REFUSED = 1
 EXIT_UNREACHABLE = 3
 SIMPLE_REQUESTS = ("arm", "takeoff", "land", "abort", "disarm")
+URGENT_COMMANDS = ("abort", "kill")
+URGENT_HTTP_TIMEOUT_S = 0.3
 
 
 def add_client_options(parser: argparse.ArgumentParser) -> None:
@@ -40,9 +44,32 @@ def _base_url(config: Config, args: argparse.Namespace) -> str:
     return f"http://{host}:{config.api.port}"
 
 
+def _token(args: argparse.Namespace) -> str | None:
+    return args.token or os.environ.get(TOKEN_ENV)
+
+
 def _headers(args: argparse.Namespace) -> dict[str, str]:
-    token = args.token or os.environ.get(TOKEN_ENV)
+    token = _token(args)
     return {"Authorization": f"Bearer {token}"} if token else {}
+
+
+def _urgent_directly(url: str, args: argparse.Namespace, why: Exception) -> int:
+    """Abort or kill through the flight process's own socket (the API did not answer)."""
+    try:
+        reply, took_s = direct_request(url, _token(args), args.command)
+    except DirectPathError as error:
+        print(f"cannot reach the service at {url}: {why}; directly: {error}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    print(f"the API did not answer ({why}): sent straight to the flight process", file=sys.stderr)
+    if reply.get("outcome") != "ok":
+        print(f"refused: {reply.get('reason')}", file=sys.stderr)
+        return EXIT_REFUSED
+    if args.json:
+        print(json.dumps({**reply.get("data", {}), "direct": True, "took_s": took_s}))
+    else:
+        answer = {**reply.get("data", {}), "direct": True}
+        print(", ".join(f"{k}: {v}" for k, v in answer.items()) + f" ({took_s * 1e3:.0f} ms)")
+    return 0
 
 
 def _format_position(values: Any) -> str:
@@ -192,9 +219,15 @@ def run_client(config: Config, args: argparse.Namespace) -> int:
     """Send the command, print the answer; returns the exit status."""
     method, path, body = _request_for(args)
     url = _base_url(config, args)
+    urgent = args.command in URGENT_COMMANDS
+    timeout_s = URGENT_HTTP_TIMEOUT_S if urgent else 10.0
     try:
-        response = httpx.request(method, url + path, json=body, headers=_headers(args), timeout=10)
+        response = httpx.request(
+            method, url + path, json=body, headers=_headers(args), timeout=timeout_s
+        )
     except httpx.HTTPError as error:
+        if urgent:
+            return _urgent_directly(url, args, error)
         print(f"cannot reach the service at {url}: {error}", file=sys.stderr)
         return EXIT_UNREACHABLE
     try:

@@ -84,6 +84,7 @@ class NoticeKind(StrEnum):
     SWING = "swing"  # the decentralized MPC handed the bar to the centralized one
     VEHICLE = "vehicle"  # a vehicle refused what the supervisor asked (its own reason)
     BLIND = "blind"  # the mocap was lost: the vehicles were handed to PX4's own landing
+    PROCESS = "process"  # serve restarted the flight process (it had died)
 
 
 @dataclass(frozen=True)

@@ -95,19 +95,8 @@ class SetpointsQuery(_Message):
     kind: Literal["setpoints"] = "setpoints"
 
 
-class ShutdownRequest(_Message):
-    """Land what is airborne, disarm and stop the flight process."""
-
-    kind: Literal["shutdown"] = "shutdown"
-
-
 Request = Annotated[
-    ModeRequest
-    | ControllerRequest
-    | QueueRequest
-    | ClearSetpointsRequest
-    | SetpointsQuery
-    | ShutdownRequest,
+    ModeRequest | ControllerRequest | QueueRequest | ClearSetpointsRequest | SetpointsQuery,
     Field(discriminator="kind"),
 ]
 

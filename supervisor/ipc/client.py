@@ -1,8 +1,10 @@
 """The API process's handle on the flight process: requests with replies, the latest
 telemetry, and a fan-out of telemetry to subscribers (WebSocket clients).
 
-Two channels: ``commands`` carries ordinary requests and the telemetry stream; ``urgent``
-carries only abort and kill, so that they never wait behind anything else.
+Two connections to the flight process's listening socket: ``commands`` carries ordinary
+requests and the telemetry stream; ``urgent`` carries only abort and kill, so that they
+never wait behind anything else. ``stay_connected`` connects again whenever the flight
+process goes away (``serve`` restarts it), so one client lasts the API process's life.
 """
 
 from __future__ import annotations
@@ -11,15 +13,27 @@ import asyncio
 import contextlib
 import itertools
 import time
+from pathlib import Path
 from typing import Any
 
 from supervisor.flight.operator_requests import Outcome, Reply, Request, is_urgent
 from supervisor.ipc.channel import Channel, ChannelClosedError
-from supervisor.ipc.messages import ReplyMessage, RequestMessage, TelemetryMessage
+from supervisor.ipc.messages import HelloMessage, ReplyMessage, RequestMessage, TelemetryMessage
 
 # supervisor.vehicles.sequences.arm_for_offboard: 1.2 s of proof of life, then two commands
 # of up to 3 × 0.5 s each on a slow link.
 ARM_TIMEOUT_S = 8.0
+RECONNECT_S = 0.2
+
+
+async def connect_to_flight(path: Path, token: str) -> tuple[Channel, Channel]:
+    """The API process's two connections to the flight process at ``path``."""
+    channels = []
+    for role in ("commands", "urgent"):
+        channel = await Channel.connect(path)
+        channel.send(HelloMessage(role=role, token=token))
+        channels.append(channel)
+    return channels[0], channels[1]
 
 
 def _unavailable(reason: str) -> Reply:
@@ -51,15 +65,37 @@ class TelemetrySubscription:
 class FlightClient:
     """Requests to, and telemetry from, the flight process."""
 
-    def __init__(self, commands: Channel, urgent: Channel, timeout_s: float = 2.0) -> None:
-        self._channels = {"commands": commands, "urgent": urgent}
+    def __init__(
+        self, commands: Channel | None, urgent: Channel | None, timeout_s: float = 2.0
+    ) -> None:
+        self._channels: dict[str, Channel] = {}
         self._timeout_s = timeout_s
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future[Reply]] = {}
         self._subscribers: set[TelemetrySubscription] = set()
         self.latest: dict[str, Any] | None = None
         self.latest_at_s = -float("inf")
+        self.connected = False
+        if commands is not None and urgent is not None:
+            self.attach(commands, urgent)
+
+    def attach(self, commands: Channel, urgent: Channel) -> None:
+        """Talk to the flight process on these channels from now on."""
+        self._channels = {"commands": commands, "urgent": urgent}
         self.connected = True
+
+    async def stay_connected(self, path: Path, token: str) -> None:
+        """Connect to the flight process at ``path``, run, and connect again whenever it
+        goes away, for ever (cancel to stop)."""
+        while True:
+            try:
+                self.attach(*await connect_to_flight(path, token))
+            except ChannelClosedError:
+                await asyncio.sleep(RECONNECT_S)
+                continue
+            await self.run()
+            await self.close()
+            await asyncio.sleep(RECONNECT_S)
 
     @property
     def telemetry_age_s(self) -> float:

@@ -1,8 +1,9 @@
 """The messages on a channel between the API process and the flight process, typed.
 
-Each is a JSON object discriminated on ``type``: a ``request`` (an operator request with
-the ``id`` its reply repeats), a ``reply``, or ``telemetry`` (the status the flight process
-pushes at 25 Hz). JSON has no NaN: the serializer writes non-finite numbers as null.
+Each is a JSON object discriminated on ``type``: a ``hello`` (the first message of a
+connection to the flight process: its role and the API token), a ``request`` (an operator
+request with the ``id`` its reply repeats), a ``reply``, or ``telemetry`` (the status the
+flight process pushes at 25 Hz). JSON has no NaN: the serializer writes non-finite numbers as null.
 """
 
 from __future__ import annotations
@@ -16,6 +17,20 @@ from supervisor.flight.operator_requests import Reply, Request
 
 class _Envelope(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, ser_json_inf_nan="null")
+
+
+ConnectionRole = Literal["commands", "urgent", "operator"]
+
+
+class HelloMessage(_Envelope):
+    """Who connects: ``commands`` (every request, and the telemetry stream) and ``urgent``
+    (abort and kill, never behind anything else) are the API process's, and need the
+    token; ``operator`` is the terminal client's direct path: abort, and kill with the
+    token."""
+
+    type: Literal["hello"] = "hello"
+    role: ConnectionRole
+    token: str | None = None
 
 
 class RequestMessage(_Envelope):
@@ -35,7 +50,7 @@ class TelemetryMessage(_Envelope):
     status: dict[str, Any]
 
 
-ChannelMessage = RequestMessage | ReplyMessage | TelemetryMessage
+ChannelMessage = HelloMessage | RequestMessage | ReplyMessage | TelemetryMessage
 CHANNEL_MESSAGE: TypeAdapter[ChannelMessage] = TypeAdapter(
     Annotated[ChannelMessage, Field(discriminator="type")]
 )

@@ -18,15 +18,19 @@ WORLD_GONE = "the simulated world's process is not running"
 class WorldClient:
     """Requests to the simulated world's process (fault injection, reset)."""
 
-    def __init__(self, channel: WorldChannel, timeout_s: float = 2.0) -> None:
+    def __init__(self, channel: WorldChannel | None, timeout_s: float = 2.0) -> None:
+        """``channel`` None: the world could not be reached (every request is answered
+        ``unavailable``)."""
         self._channel = channel
         self._timeout_s = timeout_s
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future[Reply]] = {}
-        self.connected = True
+        self.connected = channel is not None
 
     async def run(self) -> None:
         """Receive replies until the world process goes away."""
+        if self._channel is None:
+            return
         try:
             while True:
                 message = await self._channel.receive()
@@ -44,7 +48,7 @@ class WorldClient:
 
     async def request(self, request: WorldRequest) -> Reply:
         """Send a request and wait for its reply (``unavailable`` when no world answers)."""
-        if not self.connected:
+        if not self.connected or self._channel is None:
             return Reply(outcome=Outcome.UNAVAILABLE, reason=WORLD_GONE)
         request_id = next(self._ids)
         future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
@@ -62,8 +66,9 @@ class WorldClient:
             self._pending.pop(request_id, None)
 
     async def close(self) -> None:
-        with contextlib.suppress(ChannelClosedError):
-            await self._channel.close()
+        if self._channel is not None:
+            with contextlib.suppress(ChannelClosedError):
+                await self._channel.close()
 
 
 WorldRequestHandler = Callable[[WorldRequest], Reply]

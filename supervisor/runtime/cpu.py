@@ -12,6 +12,7 @@ import contextlib
 import ctypes
 import os
 
+import setproctitle
 from threadpoolctl import threadpool_limits
 
 REALTIME_PRIORITY = 10
@@ -38,6 +39,13 @@ def raise_priority(priority: int = REALTIME_PRIORITY) -> str:
 def single_threaded_blas() -> None:
     """Limit every BLAS/OpenMP pool loaded in this process to one thread, for good."""
     threadpool_limits(limits=1)
+
+
+def title_process(role: str) -> None:
+    """Title this process ``uavbar-supervisor ROLE`` (what ``ps -o args`` shows) and name it
+    ``uavbar-ROLE`` (the command name ``top`` and ``pgrep -x`` see)."""
+    setproctitle.setproctitle(f"uavbar-supervisor {role}")
+    name_process(f"uavbar-{role}")  # after the title, which sets a truncated name of its own
 
 
 def name_process(name: str) -> None:

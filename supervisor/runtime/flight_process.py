@@ -1,11 +1,14 @@
 """The flight process: mocap in, the 20 ms control loop, vehicle links out, the flight log,
-and the channels to the API process. It runs in its own process so that nothing the API
-does (requests, WebSockets, the GIL they hold) can delay a tick.
+and the operator's connections. It runs in its own process so that nothing the API does
+(requests, WebSockets, the GIL they hold) can delay a tick.
 
-One event loop, one ``TaskGroup``: the control loop on absolute deadlines, one request
-server per channel (abort and kill have their own), and the telemetry publisher. Operator
-requests are applied between ticks. The setpoint stream to the vehicles runs from arming
-until they are disarmed; when the control loop stops, setpoints stop.
+One event loop: the control loop on absolute deadlines, and the connections accepted on
+the flight process's listening socket (``supervisor.ipc.rendezvous``) — the API process's
+two (commands with the telemetry stream; abort and kill on their own), again after an API
+restart, and the terminal client's direct abort. A connection closing ends only itself:
+the flight process stops (landing first) on ``stop``. Operator requests are applied
+between ticks. The setpoint stream to the vehicles runs from arming until they are
+disarmed; when the control loop stops, setpoints stop.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import contextlib
 import gc
 import logging
 import math
+import socket
 import time
 from collections import deque
 from collections.abc import Callable, Coroutine, Mapping
@@ -33,13 +37,12 @@ from supervisor.flight.operator_requests import (
     Outcome,
     Reply,
     Request,
-    ShutdownRequest,
     handle_request,
 )
 from supervisor.flight.telemetry import MocapView, build_telemetry
-from supervisor.ipc.channel import Channel, ChannelClosedError
-from supervisor.ipc.messages import TelemetryMessage
-from supervisor.ipc.server import serve_requests
+from supervisor.ipc.channel import Channel, ChannelClosedError, ChannelServer
+from supervisor.ipc.messages import ReplyMessage, TelemetryMessage
+from supervisor.ipc.server import HELLO_TIMEOUT_S, Admission, admit, refusal, serve_requests
 from supervisor.logs.flight_log import FlightLogWriter
 from supervisor.runtime.phase_lock import MocapPhaseLock
 from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
@@ -130,31 +133,56 @@ class FlightProcess:
         return self.driver.core
 
     # ---- lifecycle ------------------------------------------------------------------------
-    async def run(self, commands: Channel, urgent: Channel) -> None:
-        """Fly until ``stop``; the channels close with the API process (which also stops)."""
+    async def run(self, listener: socket.socket, token: str) -> None:
+        """Fly until ``stop``, answering every connection to ``listener`` that presents
+        ``token`` (or asks only to abort) meanwhile."""
+        server = ChannelServer()
+        await server.start(listener, Channel, lambda c: self._connection(c, token))
         try:
             async with asyncio.TaskGroup() as group:
                 control = group.create_task(self._control_loop(), name="control-loop")
-                servers = [
-                    group.create_task(self._serve(commands)),
-                    group.create_task(self._serve(urgent)),
-                    group.create_task(self._publish(commands)),
-                ]
                 await self._stopping.wait()
                 await self._land_if_airborne()
-                for task in servers:
-                    task.cancel()
                 control.cancel()
         finally:
+            await server.close()
             self.streaming = False
             self._close_log()
 
-    async def _serve(self, channel: Channel) -> None:
-        """Answer requests; the API process going away lands the system like a stop."""
+    async def _connection(self, channel: Channel, token: str) -> None:
+        """One connection: its hello, then its requests (and, for the API's commands
+        connection, the telemetry stream) until it closes."""
         try:
-            await serve_requests(channel, self.handle)
-        except ChannelClosedError:
-            self.stop()
+            async with asyncio.timeout(HELLO_TIMEOUT_S):
+                hello = await channel.receive()
+            admission = admit(hello, token)
+            if isinstance(admission, str):
+                channel.send(
+                    ReplyMessage(id=0, reply=Reply(outcome=Outcome.REFUSED, reason=admission))
+                )
+                await channel.drain()
+                log.warning("connection refused: %s", admission)
+                return
+            log.info("%s connection opened", admission.role)
+            publisher = (
+                asyncio.create_task(self._publish(channel))
+                if admission.role == "commands"
+                else None
+            )
+            try:
+                await serve_requests(channel, lambda r: self._admitted(admission, r))
+            finally:
+                if publisher is not None:
+                    publisher.cancel()
+                log.info("%s connection closed", admission.role)
+        except (ChannelClosedError, TimeoutError):
+            return
+
+    async def _admitted(self, admission: Admission, request: Request) -> Reply:
+        refused = refusal(admission, request)
+        if refused is not None:
+            return Reply(outcome=Outcome.REFUSED, reason=refused)
+        return await self.handle(request)
 
     def stop(self) -> None:
         """Land (if airborne), disarm, then return from ``run``."""
@@ -373,10 +401,7 @@ class FlightProcess:
 
     # ---- requests ---------------------------------------------------------------------------
     async def handle(self, request: Request) -> Reply:
-        """Apply one operator request (the channels call this); returns the reply."""
-        if isinstance(request, ShutdownRequest):
-            self.stop()
-            return Reply(outcome=Outcome.OK)
+        """Apply one operator request (the connections call this); returns the reply."""
         if not isinstance(request, ModeRequest):
             return handle_request(self.core, request, self.clock())
         event = Event(request.kind)
@@ -398,8 +423,17 @@ class FlightProcess:
     async def _arm(self, request: ModeRequest) -> Reply:
         if (self.core.modes.mode, Event.ARM) not in TRANSITIONS:
             return handle_request(self.core, request, self.clock())  # the table's refusal
+        # Armed although the supervisor is on the ground: in PX4's own failsafe landing
+        # (after a flight process died) or armed by someone else; not the supervisor's to fly.
+        failures = [
+            f"UAV {i} is armed already (PX4 in {view.px4_mode}): wait until it has landed and "
+            "disarmed"
+            for i, view in enumerate((link.view() for link in self.links), start=1)
+            if view.armed
+        ]
         expected = self.settings.failsafe_parameters
-        failures = await check_failsafe_parameters(self.links, expected) if expected else []
+        if expected and not failures:
+            failures = await check_failsafe_parameters(self.links, expected)
         if not failures:
             self.streaming = True  # idle setpoints: PX4's proof of life before offboard
             failures = await arm_for_offboard(self.links, self.proof_of_life_s)
