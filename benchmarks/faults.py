@@ -101,6 +101,71 @@ def frozen_flight_process(freeze_s: float) -> Case:
     return case
 
 
+async def link_lost(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+    """Vehicle 1's link lost for good: what the connected one does with the bar."""
+    await hover(service, http)
+    injected = await inject(http, kind="link_lost", vehicle=1)
+    status = await service.wait_for(
+        http, lambda s: s["mode"] == "disarmed" and s["armed"][1] is False, 90.0, "down"
+    )
+    return {"down_after_s": round(time.monotonic() - injected, 1), "notices": said(status)}
+
+
+async def killed_flight_process(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+    await hover(service, http)
+    os.kill(service.child_pid("uavbar-flight"), signal.SIGKILL)
+    killed = time.monotonic()
+    await service.wait_for(
+        http,
+        lambda s: s["processes"]["flight"]["restarts"] == 1 and not s["stale"],
+        30.0,
+        "the flight process back",
+    )
+    back_s = time.monotonic() - killed
+    refused = await http.post("/api/arm")
+    status = await service.wait_for(
+        http, lambda s: s["armed"] == [False, False], 60.0, "both PX4s disarmed"
+    )
+    return {
+        "flight_process_back_after_s": round(back_s, 2),
+        "arm_while_landing": refused.status_code,
+        "both_disarmed_after_s": round(time.monotonic() - killed, 1),
+        "notices": said(status),
+    }
+
+
+async def killed_api_process(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+    """The API process frozen: the terminal client's abort goes straight to the flight
+    process; then the API process killed and back."""
+    await hover(service, http)
+    api = service.child_pid("uavbar-api")
+    os.kill(api, signal.SIGSTOP)
+    started = time.monotonic()
+    client = await asyncio.create_subprocess_exec(
+        sys.executable,
+        *("-m", "supervisor.cli.main", "abort", "--url", service.url, "--json"),
+        env={**os.environ, "UAVBAR_TOKEN": TOKEN},
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.DEVNULL,
+    )
+    out, _ = await client.communicate()
+    cli_s = time.monotonic() - started
+    os.kill(api, signal.SIGKILL)
+    killed = time.monotonic()
+    await service.wait_for(
+        http, lambda s: s["processes"]["api"]["restarts"] == 1, 30.0, "the API back"
+    )
+    back_s = time.monotonic() - killed
+    status = await until_down(service, http)
+    answer = json.loads(out or b"{}")
+    return {
+        "direct_abort_exchange_ms": round(answer.get("took_s", float("nan")) * 1e3, 1),
+        "abort_command_wall_s": round(cli_s, 2),
+        "api_back_after_s": round(back_s, 2),
+        "notices": said(status),
+    }
+
+
 async def displaced_arm(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
     await service.wait_for(http, lambda s: s["mocap"]["healthy"], 60.0, "healthy mocap")
     await inject(http, kind="mocap_jump", body="uav1", offset_m=[1.0, 0.0, 0.0])
@@ -115,8 +180,12 @@ CASES: dict[str, Case] = {
     "sigstop_flight_0.3s": frozen_flight_process(0.3),
     "sigstop_flight_1s": frozen_flight_process(1.0),
     "sigstop_flight_5s": frozen_flight_process(5.0),
+    "link_lost_uav1": link_lost,
+    "sigkill_flight": killed_flight_process,
+    "sigkill_api": killed_api_process,
     "arm_with_uav1_1m_away": displaced_arm,
 }
+TRUTH = ("min_tension_hanging_n", "slack_events", "max_uav_tilt_deg", "max_descent_mps")
 
 
 async def run(name: str) -> dict[str, Any]:
@@ -127,7 +196,7 @@ async def run(name: str) -> dict[str, Any]:
     return {
         "case": name,
         **result,
-        **{k: truth[k] for k in ("max_uav_tilt_deg", "max_descent_mps") if k in truth},
+        **{k: truth[k] for k in TRUTH if k in truth},
     }
 
 

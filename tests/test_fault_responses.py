@@ -116,9 +116,39 @@ async def test_arming_with_a_uav_a_metre_from_its_bar_end_is_refused_with_the_re
         refused = await http.post("/api/arm")
         assert refused.status_code == 409, refused.text
         assert re.search(r"cannot arm: UAV 1 stands 1\.\d\d m from its bar end", refused.text)
+        await asyncio.sleep(1.5)  # a heartbeat later: no vehicle was armed meanwhile
         status = await service.status(http)
         assert status["mode"] == "disarmed" and status["armed"] == [False, False]
         assert (await http.delete("/api/sim/faults")).status_code == 200
         await asyncio.sleep(0.5)
         assert (await http.post("/api/arm")).status_code == 200
         assert (await http.post("/api/disarm")).status_code == 200
+
+
+async def test_one_vehicle_lost_the_other_sets_the_bar_down_and_both_end_disarmed(
+    tmp_path: Path,
+) -> None:
+    """Vehicle 1's link lost for good: it is left to its PX4's failsafe landing; UAV 2's
+    own MPC sets its bar end down (phase ``set_down``) and lands; no cable goes slack while
+    the bar hangs, nothing tilts beyond 30° or descends faster than 1 m/s; once the link
+    is back both vehicles show themselves disarmed."""
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        await service.take_off(http)
+        await asyncio.sleep(2.0)
+        await fault(http, kind="link_lost", vehicle=1)
+        status = await service.wait_for(
+            http, lambda s: s["phase"] == "set_down", 5.0, "UAV 2 setting the bar down"
+        )
+        assert status["mode"] == "abort" and status["controller"] == "decentralized"
+        said = " ".join(n["message"] for n in status["notices"])
+        assert "vehicle 1 link lost: UAV 2 sets its bar end down alone" in said, said
+        await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
+        assert (await http.delete("/api/sim/faults")).status_code == 200
+        await service.wait_for(
+            http, lambda s: s["armed"] == [False, False], 20.0, "both vehicles disarmed"
+        )
+    truth = world_truth(service.output)
+    assert truth["slack_events"] == 0, truth
+    assert truth["min_tension_hanging_n"] > 0.0, truth
+    assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert truth["max_descent_mps"] <= 1.0, truth

@@ -348,7 +348,7 @@ class VehiclesSection(_Section):
     ) = 1.0
     ack_timeout_s: PositiveFloat = 0.5
     retries: Annotated[int, Field(ge=1, le=10)] = 3
-    link_loss_s: PositiveFloat = 1.5
+    link_loss_s: PositiveFloat = 0.75
     # COM_OF_LOSS_T: how long PX4 waits for the next setpoint before its offboard-loss
     # failsafe (COM_OBL_RC_ACT = land) takes over. Short, so a held command is not flown
     # for long when the control loop stops.

@@ -28,6 +28,7 @@ from geometry.state import (
     BAR_STATES,
     W_I,
     bar_axis,
+    bar_axis_from_angles,
     bar_ends,
     bar_position,
     bar_velocity,
@@ -57,6 +58,8 @@ from supervisor.vehicles.types import UavCommand
 
 CONTROLLERS = ("centralized", "decentralized")
 NOTICES_KEPT = 20
+SET_DOWN_FAST_MPS = 0.5  # the landing bound above 0.2 m (docs/safety.md)
+SET_DOWN_LEVEL_M = 0.1  # the connected UAV's bar end higher than this: catch up
 
 
 @dataclass(frozen=True)
@@ -81,6 +84,7 @@ class CoreSettings:
 
 class NoticeKind(StrEnum):
     ABORT = "abort"  # the monitors started a coordinated landing
+    LAND_OTHER = "land_other"  # a vehicle was lost: the other sets the bar down alone
     SWING = "swing"  # the decentralized MPC handed the bar to the centralized one
     VEHICLE = "vehicle"  # a vehicle refused what the supervisor asked (its own reason)
     BLIND = "blind"  # the mocap was lost: the vehicles were handed to PX4's own landing
@@ -112,6 +116,8 @@ class TickResult:
     record: TickRecord
     events: list[Event] = field(default_factory=list)
     notices: list[Notice] = field(default_factory=list)
+    commanded: tuple[bool, bool] = (True, True)
+    """Which vehicles are sent this tick's command (False: left to its PX4's failsafe)."""
 
 
 class FlightCore:
@@ -164,6 +170,11 @@ class FlightCore:
         self._last_tick_s: float | None = None
         self._dt_s = 0.0
         self._low_since_s: float | None = None
+        self.left_to_px4: int | None = None
+        """The vehicle (1 or 2) whose link was lost in this flight: it is left to its PX4's
+        failsafe for the rest of the flight, even if its link comes back."""
+        self._set_down_end = np.zeros(3)  # the connected UAV's bar-end target (set_down)
+        self._set_down_yaw = 0.0
 
     # ---- operator interface -------------------------------------------------------------
     def request(self, event: Event, now_s: float) -> Transition:
@@ -175,7 +186,7 @@ class FlightCore:
                 "cannot take off without fresh motion capture of all bodies",
             )
         if event is Event.ARM and self.modes.mode is Mode.DISARMED:
-            refusal = self._not_ready_to_arm()
+            refusal = self.not_ready_to_arm()
             if refusal:
                 return Transition(False, self.modes.mode, f"cannot arm: {refusal}")
         before = self.modes.mode
@@ -184,7 +195,7 @@ class FlightCore:
             self._entered(result.mode, now_s)
         return result
 
-    def _not_ready_to_arm(self) -> str:
+    def not_ready_to_arm(self) -> str:
         """Why the system must not arm (empty: it may): every body measured and fresh, and
         the resting pose the take-off starts from (``supervisor.flight.preflight``)."""
         if not self._mocap_fresh():
@@ -302,12 +313,16 @@ class FlightCore:
             links_connected,
             reference.bar_yaw_rad if reference is not None else None,
         )
-        notices = self._respond(faults, now_s)
+        notices = self._respond(faults, links_connected, now_s)
         self.notices.extend((now_s, notice) for notice in notices)
         # A vehicle whose link is lost is left to its own failsafe: it gets no commands.
+        commanded = (
+            links_connected[0] and self.left_to_px4 != 1,
+            links_connected[1] and self.left_to_px4 != 2,
+        )
         commands = (
-            commands[0] if links_connected[0] else UavCommand.off(),
-            commands[1] if links_connected[1] else UavCommand.off(),
+            commands[0] if commanded[0] else UavCommand.off(),
+            commands[1] if commanded[1] else UavCommand.off(),
         )
         for event in events:
             before = self.modes.mode
@@ -334,10 +349,21 @@ class FlightCore:
             mocap_age_ms=estimate.age_s * 1e3,
         )
         return TickResult(
-            commands, self.modes.mode, self.phase, plan, reference, faults, record, events, notices
+            commands,
+            self.modes.mode,
+            self.phase,
+            plan,
+            reference,
+            faults,
+            record,
+            events,
+            notices,
+            commanded,
         )
 
-    def _respond(self, faults: list[Fault], now_s: float) -> list[Notice]:
+    def _respond(
+        self, faults: list[Fault], links_connected: tuple[bool, bool], now_s: float
+    ) -> list[Notice]:
         """Carry out the one response the faults call for (``chosen_response``)."""
         response = chosen_response(faults)
         if response is Response.CENTRALIZE and self.controller == "decentralized":
@@ -349,12 +375,41 @@ class FlightCore:
             blind = "; ".join(f.message for f in faults if f.response is Response.PX4_LAND)
             notice = self.hand_over_to_px4(blind, now_s)
             return [notice] if notice is not None else []
+        if response is Response.LAND_OTHER and self.left_to_px4 is None:
+            lost = 1 if not links_connected[0] else 2
+            return self._land_other(lost, now_s)
         airborne = mode.airborne and mode not in (Mode.ABORT, Mode.PX4_LANDING)
         if response is Response.ABORT and airborne:
             self.modes.handle(Event.FAULT, now_s)
             self._entered(Mode.ABORT, now_s)
             return [Notice(NoticeKind.ABORT, "; ".join(f.message for f in faults))]
         return []
+
+    def _land_other(self, lost: int, now_s: float) -> list[Notice]:
+        """Vehicle ``lost`` is gone: leave it to its PX4's failsafe landing for the rest of
+        the flight and let the other set its bar end down alone (``set_down``), or, when
+        the UAVs fly alone anyway, descend with the abort."""
+        mode = self.modes.mode
+        if not mode.airborne or mode is Mode.PX4_LANDING:
+            return []
+        self.left_to_px4 = lost
+        if mode is not Mode.ABORT:
+            self.modes.handle(Event.FAULT, now_s)
+            self._entered(Mode.ABORT, now_s)
+        other = 3 - lost
+        x = self._last_estimate.x if self._last_estimate is not None else None
+        hanging = self.phase in (Phase.LIFT, Phase.HOVER, Phase.TRACKING, Phase.LOWER)
+        if hanging and x is not None and np.all(np.isfinite(x)):
+            self._enter_phase(Phase.SET_DOWN)
+            self._set_down_end = bar_ends(x, self.params.arms_m)[other - 1].copy()
+            self._set_down_yaw = bar_yaw(x)
+            self._yaw_hold = uav_yaws(x)
+            self.set_controller("decentralized", now_s)  # its agent models one UAV alone
+            action = f"UAV {other} sets its bar end down alone"
+        else:
+            action = f"UAV {other} descends"
+        text = f"vehicle {lost} link lost: {action}; UAV {lost} is left to its PX4 failsafe"
+        return [Notice(NoticeKind.LAND_OTHER, text)]
 
     # ---- phases ---------------------------------------------------------------------------
     def _entered(self, mode: Mode, now_s: float) -> None:
@@ -386,6 +441,7 @@ class FlightCore:
             self._enter_phase(Phase.GROUND)
             self._shaper = None
             self._hold_target = None
+            self.left_to_px4 = None
             for c in self.controllers.values():
                 c.reset()
 
@@ -568,6 +624,8 @@ class FlightCore:
         self, now_s: float, estimate: Estimate, events: list[Event]
     ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
         x = estimate.x
+        if self.phase is Phase.SET_DOWN:
+            return self._set_down(now_s, x)
         if self.phase is Phase.LOWER:
             if self._shaper is None:
                 self._shaper = ReferenceShaper(
@@ -593,8 +651,13 @@ class FlightCore:
             self._pd_targets[k][2] = max(ground_z - 0.05, self._pd_targets[k][2] - dt_descend)
         commands = self._pd_commands(x, (0.0, 0.0))
         # Down once both have stayed at their ground height for a while: velocity
-        # estimates are too noisy near zero to decide on one tick.
-        low = all(uav_position(x, i)[2] < self._ground_uav_z[i - 1] + 0.05 for i in (1, 2))
+        # estimates are too noisy near zero to decide on one tick. A vehicle left to its
+        # PX4 lands on its own.
+        low = all(
+            uav_position(x, i)[2] < self._ground_uav_z[i - 1] + 0.05
+            for i in (1, 2)
+            if i != self.left_to_px4
+        )
         if not low:
             self._low_since_s = None
         elif self._low_since_s is None:
@@ -604,3 +667,32 @@ class FlightCore:
             events.append(Event.LANDED)
             return (UavCommand.off(), UavCommand.off()), None, None
         return commands, None, None
+
+    def _set_down(
+        self, now_s: float, x: FloatArray
+    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+        """The connected UAV lowers its bar end to the ground at the abort rate, faster
+        (``SET_DOWN_FAST_MPS``) while the other end, with the lost UAV's failsafe landing,
+        is lower; its decentralized agent tracks the end, the bar level at the held yaw."""
+        assert self.left_to_px4 is not None
+        other = 3 - self.left_to_px4
+        ends = bar_ends(x, self.params.arms_m)
+        mine, theirs = ends[other - 1], ends[self.left_to_px4 - 1]
+        behind = mine[2] - theirs[2] > SET_DOWN_LEVEL_M
+        rate = SET_DOWN_FAST_MPS if behind else self.settings.abort_rates.position_mps
+        self._set_down_end[2] = max(self._ground_bar_z, self._set_down_end[2] - rate * self._dt_s)
+        n_b = bar_axis_from_angles(0.0, self._set_down_yaw)
+        arm = self.params.arms_m[other - 1]
+        centre = self._set_down_end + (arm if other == 1 else -arm) * n_b
+        reference = Reference(
+            (float(centre[0]), float(centre[1]), float(centre[2])),
+            self._set_down_yaw,
+            self._yaw_hold,
+            0.0,
+        )
+        commands, plan = self._mpc(now_s, x, reference)
+        if mine[2] < self._ground_bar_z + 0.03:
+            self._enter_phase(Phase.DESCEND)
+            self._yaw_hold = uav_yaws(x)
+            self._set_descend_targets(x)
+        return commands, plan, reference

@@ -6,6 +6,9 @@
 * ``hover`` / ``tracking`` — the MPC regulates to the rate-limited reference.
 * ``lower`` — landing or abort: the MPC sets the bar down; ``descend`` — each UAV flies
   alone, moves clear of its bar end and descends; motors stop on the ground.
+* ``set_down`` — one vehicle's link lost with the bar hanging: the connected UAV's own
+  (decentralized) MPC sets its bar end down while the lost one is left to its PX4's
+  failsafe landing; then ``descend``.
 * ``px4`` — blind: each PX4 lands on its own (AUTO.LAND); the supervisor sends nothing.
 
 A landing or abort that starts while the UAVs still fly alone (``climb``) goes straight to
@@ -27,6 +30,7 @@ class Phase(StrEnum):
     HOVER = "hover"
     TRACKING = "tracking"
     LOWER = "lower"
+    SET_DOWN = "set_down"
     DESCEND = "descend"
     PX4 = "px4"
 
@@ -37,6 +41,7 @@ _AIRBORNE = (
     Phase.HOVER,
     Phase.TRACKING,
     Phase.LOWER,
+    Phase.SET_DOWN,
     Phase.DESCEND,
     Phase.PX4,
 )
@@ -54,6 +59,9 @@ PHASE_TRANSITIONS: frozenset[tuple[Phase, Phase]] = frozenset(
         (Phase.TRACKING, Phase.HOVER),
         (Phase.TRACKING, Phase.LOWER),
         (Phase.LOWER, Phase.DESCEND),
+        *((phase, Phase.SET_DOWN) for phase in (Phase.LIFT, Phase.HOVER, Phase.TRACKING)),
+        (Phase.LOWER, Phase.SET_DOWN),
+        (Phase.SET_DOWN, Phase.DESCEND),
         *((phase, Phase.GROUND) for phase in _AIRBORNE),  # landed, or killed
         *((phase, Phase.PX4) for phase in _AIRBORNE),  # blind
         *((phase, phase) for phase in Phase),  # e.g. an abort during a landing

@@ -26,13 +26,20 @@ class Response(Enum):
     COAST = "coast"  # keep flying on the prediction / shifted plan, report
     CENTRALIZE = "centralize"  # the decentralized MPC hands the bar to the centralized one
     ABORT = "abort"  # coordinated landing
+    LAND_OTHER = "land_other"  # one vehicle lost: the other sets the bar down alone
     PX4_LAND = "px4_land"  # blind: stop streaming, each PX4 lands on its own (AUTO.LAND)
 
 
 # When monitors disagree the most severe response wins, as in PX4's failsafe framework,
 # which takes the most severe of the actions its checks ask for. Blind beats abort: an
 # abort flown on a frozen estimate is a blind command.
-SEVERITY = {Response.COAST: 0, Response.CENTRALIZE: 1, Response.ABORT: 2, Response.PX4_LAND: 3}
+SEVERITY = {
+    Response.COAST: 0,
+    Response.CENTRALIZE: 1,
+    Response.ABORT: 2,
+    Response.LAND_OTHER: 3,
+    Response.PX4_LAND: 4,
+}
 
 
 @dataclass(frozen=True)
@@ -102,9 +109,11 @@ class SafetyMonitor:
             )
         if not np.all(np.isfinite(estimate.x)) and estimate.age_s <= lim.mocap_coast_s:
             faults.append(Fault("numeric", "NaN or inf in the estimated state", Response.ABORT))
-        for i, connected in enumerate(links_connected, start=1):
-            if not connected:
-                faults.append(Fault("link", f"vehicle {i} link lost", Response.ABORT))
+        lost = [i for i, connected in enumerate(links_connected, start=1) if not connected]
+        if len(lost) == 1:
+            faults.append(Fault("link", f"vehicle {lost[0]} link lost", Response.LAND_OTHER))
+        elif lost:
+            faults.append(Fault("link", "both vehicle links lost", Response.PX4_LAND))
         x = estimate.x
         if np.all(np.isfinite(x)):
             self._geofence(x, faults)

@@ -262,8 +262,10 @@ class FlightProcess:
         result = self.driver.decide(started, connected, timing.lateness_s)
         latency_ms = wait_ms = math.nan
         if self.streaming and result.mode is not Mode.PX4_LANDING:
-            for link, command in zip(self.links, result.commands, strict=True):
-                if link.connected:  # a lost vehicle is left to its own failsafe
+            for link, command, commanded in zip(
+                self.links, result.commands, result.commanded, strict=True
+            ):
+                if link.connected and commanded:  # a lost vehicle is left to its failsafe
                     link.send_setpoint(command)
             if newest is not None and math.isfinite(newest.receive_time_s):
                 latency_ms = (self.clock() - newest.receive_time_s) * 1e3
@@ -352,7 +354,9 @@ class FlightProcess:
         left = [
             f"vehicle {i} in {view.px4_mode}"
             for i, view in enumerate((link.view() for link in self.links), start=1)
-            if view.connected and view.px4_mode not in ("OFFBOARD", "unknown")
+            if view.connected
+            and view.px4_mode not in ("OFFBOARD", "unknown")
+            and i != self.core.left_to_px4  # lost before, in its failsafe: expected
         ]
         if not left:
             return
@@ -421,8 +425,9 @@ class FlightProcess:
         return reply
 
     async def _arm(self, request: ModeRequest) -> Reply:
-        if (self.core.modes.mode, Event.ARM) not in TRANSITIONS:
-            return handle_request(self.core, request, self.clock())  # the table's refusal
+        if (self.core.modes.mode, Event.ARM) not in TRANSITIONS or self.core.not_ready_to_arm():
+            # The table's or the pre-arm checks' refusal, before any vehicle is armed.
+            return handle_request(self.core, request, self.clock())
         # Armed although the supervisor is on the ground: in PX4's own failsafe landing
         # (after a flight process died) or armed by someone else; not the supervisor's to fly.
         failures = [

@@ -118,3 +118,19 @@ def test_the_most_severe_response_is_chosen() -> None:
     assert chosen_response([coast]) is Response.COAST
     assert chosen_response([coast, swing]) is Response.CENTRALIZE
     assert chosen_response([swing, fence, coast]) is Response.ABORT
+
+
+def test_one_link_lost_asks_the_other_to_land_both_lost_hands_over_to_px4() -> None:
+    monitor = SafetyMonitor(PARAMS, arena_from_config(CONFIG))
+    estimate = Estimate(hovering_state(0.0), 0.005, ())
+    for connected, response, message in (
+        ((False, True), Response.LAND_OTHER, "vehicle 1 link lost"),
+        ((True, False), Response.LAND_OTHER, "vehicle 2 link lost"),
+        ((False, False), Response.PX4_LAND, "both vehicle links lost"),
+    ):
+        [fault] = monitor.check(0.0, estimate, Mode.HOVER, None, connected)
+        assert (fault.monitor, fault.message, fault.response) == ("link", message, response)
+    assert monitor.check(0.0, estimate, Mode.HOVER, None, (True, True)) == []
+    land_other = Fault("link", "vehicle 1 link lost", Response.LAND_OTHER)
+    abort = Fault("tilt", "UAV 2 tilted", Response.ABORT)
+    assert chosen_response([abort, land_other]) is Response.LAND_OTHER
