@@ -40,19 +40,24 @@ async def fly(
     world: dict[str, Any] | None,
     link_sockets: tuple[socket.socket, socket.socket] | None = None,
     relayed: bool = False,
+    signing_keys: dict[int, bytes] | None = None,
 ) -> None:
     """Run the flight process on already opened channels (and the links' sockets, bound by
-    ``serve``)."""
+    ``serve``; ``signing_keys`` by system id, read by ``serve``)."""
     if world is not None:
         qtm_host, qtm_port = host_port(world["qtm"])
         vehicles = [host_port(address) for address in world["vehicles"]]
         ports = world.get("link_ports") or (0, 0)
         link_configs = link_configs_from_config(
-            config, (vehicles[0], vehicles[1]), (ports[0], ports[1]), world.get("px4_events")
+            config,
+            (vehicles[0], vehicles[1]),
+            (ports[0], ports[1]),
+            world.get("px4_events"),
+            signing_keys,
         )
     else:
         qtm_host, qtm_port = config.mocap.host, config.mocap.port
-        link_configs = link_configs_from_config(config)
+        link_configs = link_configs_from_config(config, signing_keys=signing_keys)
     sockets = link_sockets or (None, None)
     links = (
         MavlinkLink(link_configs[0], sock=sockets[0]),
@@ -98,6 +103,7 @@ def run_flight_process(
     world: dict[str, Any] | None,
     link_sockets: tuple[socket.socket, socket.socket],
     relayed: bool,
+    signing_keys: dict[int, bytes] | None = None,
 ) -> None:
     """Child-process entry of ``serve`` (``relayed``: the relay process forwards the mocap
     to the vehicles)."""
@@ -108,7 +114,9 @@ def run_flight_process(
         command_channel = await Channel.open(commands)
         urgent_channel = await Channel.open(urgent)
         try:
-            await fly(config, command_channel, urgent_channel, world, link_sockets, relayed)
+            await fly(
+                config, command_channel, urgent_channel, world, link_sockets, relayed, signing_keys
+            )
         finally:
             for channel in (command_channel, urgent_channel):
                 with contextlib.suppress(Exception):

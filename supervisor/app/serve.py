@@ -29,6 +29,7 @@ from api.server import HttpServer, bind
 from supervisor.app.assembly import arena_from_config
 from supervisor.app.config import TOKEN_ENV, Config, load_config
 from supervisor.app.relay_main import relay_addresses
+from supervisor.app.signing_keys import load_signing_keys, signing_keys_path
 from supervisor.flight.operator_requests import ShutdownRequest
 from supervisor.ipc.channel import Channel, WorldChannel
 from supervisor.ipc.client import FlightClient
@@ -73,6 +74,7 @@ def _world_main(
 
 
 LinkSockets = tuple[socket.socket, socket.socket]
+SigningKeys = dict[int, bytes] | None
 
 
 def _flight_main(
@@ -82,10 +84,11 @@ def _flight_main(
     world: Any,
     link_sockets: LinkSockets,
     relayed: bool,
+    signing_keys: SigningKeys,
 ) -> None:
     from supervisor.app.flight_main import run_flight_process
 
-    run_flight_process(setup.load(), commands, urgent, world, link_sockets, relayed)
+    run_flight_process(setup.load(), commands, urgent, world, link_sockets, relayed, signing_keys)
 
 
 def _relay_main(
@@ -93,22 +96,37 @@ def _relay_main(
     world: Any,
     link_sockets: LinkSockets,
     parent: multiprocessing.connection.Connection,
+    signing_keys: SigningKeys,
 ) -> None:
     from supervisor.app.relay_main import run_relay_process
 
-    run_relay_process(setup.load(), world, link_sockets, parent)
+    run_relay_process(setup.load(), world, link_sockets, parent, signing_keys)
 
 
 def _bind_link_sockets(config: Config, world: dict[str, Any] | None) -> LinkSockets:
     """The vehicle links' UDP sockets, bound here so that the flight process and the mocap
-    relay both send from them (``supervisor.mavlink.relay``)."""
+    relay both send from them (``supervisor.mavlink.relay``), on the configured interface
+    (loopback for the embedded world)."""
     ports = (world.get("link_ports") or [0, 0]) if world is not None else config.vehicles.ports
-    host = config.vehicles.bind_host
+    host = config.link_bind_host()
     return bind_udp(host, ports[0]), bind_udp(host, ports[1])
 
 
+def _signing_keys(config: Config) -> SigningKeys:
+    """The vehicles' signing keys by system id when ``vehicles.signing`` is on (read once,
+    here, so that a bad key file stops ``serve`` before anything starts)."""
+    v = config.vehicles
+    if not v.signing:
+        return None
+    return load_signing_keys(signing_keys_path(v.signing_keys), v.system_ids)
+
+
 def _start_relay(
-    setup: Setup, config: Config, world: dict[str, Any] | None, link_sockets: LinkSockets
+    setup: Setup,
+    config: Config,
+    world: dict[str, Any] | None,
+    link_sockets: LinkSockets,
+    signing_keys: SigningKeys,
 ) -> tuple[BaseProcess, multiprocessing.connection.Connection] | None:
     """The mocap relay process and the pipe whose closing stops it, when the vehicles'
     addresses are known (else the flight process forwards the mocap itself)."""
@@ -117,7 +135,9 @@ def _start_relay(
         return None
     parent, child = SPAWN.Pipe()
     process = SPAWN.Process(
-        target=_relay_main, args=(setup, world, link_sockets, child), name="uavbar-relay"
+        target=_relay_main,
+        args=(setup, world, link_sockets, child, signing_keys),
+        name="uavbar-relay",
     )
     process.start()
     child.close()
@@ -176,6 +196,8 @@ def _stop(process: BaseProcess | None, timeout_s: float) -> None:
 async def serve(setup: Setup) -> int:
     """Run the service until a signal or the flight process ends; returns the exit status."""
     config = setup.load()
+    config.link_bind_host()  # a lab without its interface: refused before anything starts
+    signing_keys = _signing_keys(config)
     token, generated = resolve_token(config)
     http_socket = bind(config.api.host, config.api.port)
     world: BaseProcess | None = None
@@ -187,11 +209,19 @@ async def serve(setup: Setup) -> int:
         log.info("simulated world: QTM %s, PX4s %s", started["qtm"], ", ".join(started["vehicles"]))
         world_addresses = started
     link_sockets = _bind_link_sockets(config, world_addresses)
-    relay = _start_relay(setup, config, world_addresses, link_sockets)
+    relay = _start_relay(setup, config, world_addresses, link_sockets, signing_keys)
     pairs = [socket.socketpair() for _ in range(2)]
     flight = SPAWN.Process(
         target=_flight_main,
-        args=(setup, pairs[0][1], pairs[1][1], world_addresses, link_sockets, relay is not None),
+        args=(
+            setup,
+            pairs[0][1],
+            pairs[1][1],
+            world_addresses,
+            link_sockets,
+            relay is not None,
+            signing_keys,
+        ),
         name="uavbar-flight",
     )
     flight.start()
