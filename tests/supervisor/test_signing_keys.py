@@ -36,7 +36,7 @@ def test_a_key_file_others_may_use_is_refused(tmp_path: Path, mode: int) -> None
     path = tmp_path / "signing"
     make_keys(path)
     os.chmod(path, mode)
-    with pytest.raises(ConfigError, match="accessible by others.*chmod 600"):
+    with pytest.raises(ConfigError, match=r"accessible by others.*chmod 600"):
         load_signing_keys(path, [1, 2])
 
 
@@ -67,11 +67,11 @@ def test_a_missing_key_file_says_how_to_make_one(tmp_path: Path) -> None:
 def test_the_links_bind_loopback_for_the_embedded_world_and_a_named_interface_in_a_lab() -> None:
     assert load_config(CONFIG_DIR / "sim.toml").link_bind_host() == "127.0.0.1"
     lab = load_config(CONFIG_DIR / "kth_sml.toml")
-    with pytest.raises(ConfigError, match="vehicles.bind_host"):
+    with pytest.raises(ConfigError, match=r"vehicles\.bind_host"):
         lab.link_bind_host()
     named = load_config(CONFIG_DIR / "kth_sml.toml", ['vehicles.bind_host="192.168.1.20"'])
     assert named.link_bind_host() == "192.168.1.20"
     with pytest.raises(ConfigError, match="embedded world is on loopback"):
         load_config(CONFIG_DIR / "sim.toml", ['vehicles.bind_host="0.0.0.0"'])
-    with pytest.raises(ConfigError, match="PX4 v1.15.4 SITL cannot sign"):
+    with pytest.raises(ConfigError, match=r"PX4 v1\.15\.4 SITL cannot sign"):
         load_config(CONFIG_DIR / "sim.toml", ['sim.vehicles="px4_sitl"', "vehicles.signing=true"])
