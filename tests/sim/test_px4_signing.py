@@ -8,7 +8,7 @@ import asyncio
 import contextlib
 import secrets
 import socket
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 
 import pytest
 
@@ -45,11 +45,11 @@ async def running_px4() -> AsyncIterator[Px4Endpoint]:
 
 
 @pytest.fixture
-def rogue() -> AsyncIterator[socket.socket]:
+def rogue() -> Iterator[socket.socket]:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
     sock.setblocking(False)
-    yield sock  # type: ignore[misc]
+    yield sock
     sock.close()
 
 
