@@ -34,7 +34,7 @@ def test_the_direct_path_aborts_kills_with_the_token_and_nothing_else() -> None:
     assert refusal(anonymous, ModeRequest(kind="kill")) == "kill needs the API token"
     assert refusal(trusted, ModeRequest(kind="kill")) is None
     for kind in ("arm", "takeoff", "land", "disarm"):
-        assert refusal(trusted, ModeRequest(kind=kind)) is not None  # type: ignore[arg-type]
+        assert refusal(trusted, ModeRequest(kind=kind)) is not None
     assert refusal(Admission("commands", True), ModeRequest(kind="arm")) is None
 
 
@@ -84,7 +84,7 @@ async def test_the_terminal_clients_direct_abort_speaks_the_channels_framing(
         assert reply == {"outcome": "refused", "reason": "kill needs the API token", "data": {}}
         reply, _ = await asyncio.to_thread(direct_request, url, TOKEN, "kill")
         assert reply["outcome"] == "ok"
-        assert [r.kind for r in asked] == ["abort", "kill"]  # type: ignore[union-attr]
+        assert [r.kind for r in asked] == ["abort", "kill"]
         with pytest.raises(DirectPathError, match="no service on port 8766"):
             await asyncio.to_thread(direct_request, "http://127.0.0.1:8766", None, "abort")
     finally:
