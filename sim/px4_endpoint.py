@@ -23,6 +23,16 @@ Measured on v1.15.4 and done the same way here:
   get no answer. INT32 values travel bytewise in the float field.
 * **Partner**: telemetry goes to the configured client port until a datagram arrives, then
   to the first sender for good; later senders are heard but get nothing.
+* **Signing** (docs/reference/mavlink-signing.md; PX4 v1.15.4 has none, this is PX4's
+  current behaviour, v1.18/main ``mavlink_sign_control.cpp``): without a key everything is
+  accepted and nothing signed. SETUP_SIGNING addressed to us sets the key — any link, but
+  while a key is held only a frame signed with it gets through (so only its holder can
+  change or clear it), never while armed; the same key again keeps the later timestamp;
+  an all-zero key and timestamp clears it. With a key every frame we send is signed
+  (link id ``SIGNING_LINK_ID``) and a frame that is unsigned, signed with another key or
+  replayed is refused and counted, except the unsigned HEARTBEAT, RADIO_STATUS,
+  ADSB_VEHICLE and COLLISION PX4 lets through. The key and timestamp survive a reboot (PX4
+  keeps them on its SD card).
 * **TIMESYNC**: a client's request (tc1 0) is answered with tc1 = our clock [ns] and ts1
   echoed; answers to our requests feed ``Timesync``, which maps vision timestamps
   (VISION_POSITION_ESTIMATE.usec, ODOMETRY.time_usec) onto our clock once converged.
@@ -70,6 +80,7 @@ from supervisor.mavlink.px4_messages import (
     event_send,
     response_event_error_send,
 )
+from supervisor.mavlink.signing import SigningKey, Verdict
 from supervisor.mavlink.transport import Address, UdpTransport
 
 API_CLIENT_PORT = 14540
@@ -99,6 +110,16 @@ GCS_TIMEOUT_S = 3.0  # a ground station counts as connected this long after its 
 EVENT_BUFFER = 32  # events kept for REQUEST_EVENT
 STATUSTEXT_LEN = 50
 NO_EVENT_YET = 0xFFFF  # CURRENT_EVENT_SEQUENCE before the first event (the next is 0)
+SIGNING_LINK_ID = 0  # PX4 signs with its MAVLink instance number; this is our one link
+UNSIGNED_ALLOWED = frozenset(
+    {
+        mavlink.MAVLINK_MSG_ID_HEARTBEAT,
+        mavlink.MAVLINK_MSG_ID_RADIO_STATUS,
+        mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE,
+        mavlink.MAVLINK_MSG_ID_COLLISION,
+    }
+)
+"""What PX4 accepts unsigned while it signs (``unsigned_messages`` in its sign control)."""
 
 
 class HeartbeatSchedule:
@@ -165,12 +186,16 @@ def _text(raw: Any) -> str:
 
 @dataclass
 class EndpointCounters:
-    """What arrived: datagrams, messages parsed, bad data (failed CRC, garbage),
-    messages handled and messages of kinds this endpoint ignores."""
+    """What arrived: datagrams, messages parsed, bad data (failed CRC, garbage), frames
+    signing refused (by why), messages handled and messages of kinds this endpoint
+    ignores."""
 
     datagrams: int = 0
     messages: int = 0
     bad_data: int = 0
+    unsigned: int = 0
+    bad_signature: int = 0
+    replayed: int = 0
     handled: int = 0
     ignored: int = 0
     per_type: dict[str, int] = field(default_factory=dict)
@@ -240,6 +265,7 @@ class Px4Endpoint:
         self._statustext_id = 0
         self._battery_capacity_s = battery_capacity_s
         self._flight_time_s = 0.0
+        self._signing_key: SigningKey | None = None  # kept across reboots (the SD card)
         self._handlers: dict[str, Callable[[Any, float], bool]] = {
             "SET_ATTITUDE_TARGET": self._attitude_target,
             "SET_ACTUATOR_CONTROL_TARGET": self._actuator_target,
@@ -254,6 +280,7 @@ class Px4Endpoint:
             "PARAM_REQUEST_LIST": self._param_list,
             "PARAM_SET": self._param_set,
             "REQUEST_EVENT": self._request_event,
+            "SETUP_SIGNING": self._setup_signing,
         }
 
     # ---- lifecycle --------------------------------------------------------------------------
@@ -323,7 +350,9 @@ class Px4Endpoint:
     def boot(self, world_s: float) -> None:
         """Boot at world time ``world_s`` as at power-on (see the module's docstring)."""
         self.model = self._fresh_model()
+        timestamp = self.codec.signing_timestamp
         self.codec = MavlinkCodec(system=self.model.system_id, component=1)
+        self.codec.sign(self._signing_key, timestamp)
         self.timesync = Timesync()
         self.heartbeats.restart()
         self._next_send_s = dict.fromkeys(STREAM_PERIODS_S, 0.0)
@@ -367,6 +396,13 @@ class Px4Endpoint:
         self.counters.datagrams += 1
         decoded = self.codec.decode(data)
         self.counters.bad_data += decoded.bad_data
+        for refused in decoded.refused:
+            if refused.verdict is Verdict.UNSIGNED:
+                self.counters.unsigned += 1
+            elif refused.verdict is Verdict.BAD_SIGNATURE:
+                self.counters.bad_signature += 1
+            else:
+                self.counters.replayed += 1
         for message in decoded.messages:
             kind = message.get_type()
             self.counters.messages += 1
@@ -427,6 +463,30 @@ class Px4Endpoint:
         if message.type == mavlink.MAV_TYPE_GCS:
             self._gcs_heard_s = now_s
         return True
+
+    def _setup_signing(self, message: Any, now_s: float) -> bool:
+        """A new key (or none): refused while armed. While a key is held the codec let
+        this message through only if it was signed with that key."""
+        if not self._addressed(message) or self.model.armed:
+            return False
+        secret = bytes(message.secret_key)
+        timestamp = int(message.initial_timestamp)
+        held = self._signing_key
+        if not any(secret) and timestamp == 0:
+            self._signing_key = None
+            self.codec.sign(None)
+            return True
+        key = SigningKey(secret, SIGNING_LINK_ID, UNSIGNED_ALLOWED)
+        if held is not None and held.secret == secret:
+            timestamp = max(timestamp, self.codec.signing_timestamp)
+        self._signing_key = key
+        self.codec.sign(key, timestamp)
+        return True
+
+    @property
+    def signing(self) -> bool:
+        """Whether this PX4 holds a signing key (signs, and refuses the unsigned)."""
+        return self._signing_key is not None
 
     def _timesync(self, message: Any, now_s: float) -> bool:
         now_ns = round(now_s * 1e9)

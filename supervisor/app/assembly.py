@@ -8,6 +8,7 @@ exercises the controllers on a plant that is not their own model.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 from controllers.params import Clock
 from mocap.fusion import FusionConfig, MocapFusion
@@ -159,9 +160,10 @@ def link_configs_from_config(
     vehicle_addresses: tuple[tuple[str, int], tuple[str, int]] | None = None,
     local_ports: tuple[int, int] | None = None,
     events_path: str | None = None,
+    signing_keys: Mapping[int, bytes] | None = None,
 ) -> tuple[LinkConfig, LinkConfig]:
     """Both vehicles' MAVLink links (the embedded world passes its own addresses, ports and
-    event definitions)."""
+    event definitions; ``signing_keys``, by system id, are used when ``vehicles.signing``)."""
     v = config.vehicles
     thrust, torque = _per_vehicle(v.thrust_max_n), _per_vehicle(v.torque_max_nm)
     configured = [host_port(address) for address in v.addresses or []]
@@ -170,7 +172,7 @@ def link_configs_from_config(
     links = [
         LinkConfig(
             system_id=v.system_ids[k],
-            local_host=v.bind_host,
+            local_host=config.link_bind_host(),
             local_port=ports[k],
             vehicle_address=addresses[k],
             command_mode=v.command_mode,
@@ -181,6 +183,7 @@ def link_configs_from_config(
             retries=v.retries,
             link_loss_s=v.link_loss_s,
             events_path=events_path or v.px4_events,
+            signing_key=(signing_keys or {}).get(v.system_ids[k]) if v.signing else None,
         )
         for k in range(2)
     ]

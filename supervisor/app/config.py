@@ -10,6 +10,7 @@ Every error names the offending key; nothing is applied from an invalid setup.
 
 from __future__ import annotations
 
+import ipaddress
 import math
 import tomllib
 from collections.abc import Mapping, Sequence
@@ -47,6 +48,7 @@ PositiveVec3 = Annotated[list[PositiveFloat], Field(min_length=3, max_length=3)]
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 # The API token of `serve` and of the terminal client, when not configured or given.
 TOKEN_ENV = "UAVBAR_TOKEN"
+LOOPBACK = "127.0.0.1"
 
 
 def host_port(address: str) -> tuple[str, int]:
@@ -333,7 +335,10 @@ class VehiclesSection(_Section):
     # (v1.15 ignores actuator setpoints); actuator: thrust + torques, PX4 ≤ 1.13 (the paper's).
     command_mode: Literal["actuator", "rates"] = "rates"
     mocap_message: Literal["vision_position_estimate", "odometry"] = "vision_position_estimate"
-    bind_host: str = "0.0.0.0"
+    # The local address the links' UDP sockets bind: this computer's interface facing the
+    # vehicles, so that no other network reaches them. Unset: loopback with sim.embedded
+    # (the embedded world is on loopback); a lab must name its interface.
+    bind_host: str | None = None
     ports: Annotated[list[Port], Field(min_length=2, max_length=2)] = [14540, 14541]
     addresses: Annotated[list[str], Field(min_length=2, max_length=2)] | None = None
     system_ids: Annotated[
@@ -356,6 +361,22 @@ class VehiclesSection(_Section):
     # PX4's event definitions (the firmware build's etc/extras/all_events.json.xz), to show
     # its reasons (arming refusals, failsafes) in words. The embedded world brings its own.
     px4_events: str | None = None
+    # MAVLink 2 signing (docs/reference/mavlink-signing.md): each vehicle's own key, from
+    # signing_keys (a file only its owner may read: `uavbar-supervisor keys` makes one);
+    # PX4 gets it by SETUP_SIGNING before arming and from then on takes only signed frames.
+    # A PX4 without a key yet is reached at vehicles.addresses (or the embedded world's).
+    signing: bool = False
+    signing_keys: str = "~/.config/uavbar-supervisor/signing-keys"
+
+    @field_validator("bind_host")
+    @classmethod
+    def _address(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                ipaddress.IPv4Address(value)
+            except ValueError:
+                raise ValueError(f"{value!r} is not an IPv4 address of this computer") from None
+        return value
 
     @field_validator("addresses")
     @classmethod
@@ -403,6 +424,29 @@ class Config(_Section):
     log: LogSection = LogSection()
     safety: SafetySection = SafetySection()
     sim: SimSection = SimSection()
+
+    @model_validator(mode="after")
+    def _links_fit_the_world(self) -> Config:
+        v = self.vehicles
+        if self.sim.embedded and v.bind_host and not ipaddress.ip_address(v.bind_host).is_loopback:
+            raise ValueError("vehicles.bind_host: the embedded world is on loopback (127.0.0.1)")
+        if self.sim.embedded and self.sim.vehicles == "px4_sitl" and v.signing:
+            raise ValueError(
+                "vehicles.signing: PX4 v1.15.4 SITL cannot sign (MAVLink signing came with v1.17)"
+            )
+        return self
+
+    def link_bind_host(self) -> str:
+        """The address the vehicle links bind (loopback for the embedded world); raises
+        ``ConfigError`` for a lab that has not named its interface."""
+        if self.vehicles.bind_host is not None:
+            return self.vehicles.bind_host
+        if self.sim.embedded:
+            return LOOPBACK
+        raise ConfigError(
+            "vehicles.bind_host: required for a lab (this computer's address on the "
+            "vehicles' network); binding every interface would let any network reach them"
+        )
 
 
 def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:

@@ -46,6 +46,7 @@ class FlightStart:
     link_sockets: tuple[socket.socket, socket.socket]
     relayed: bool
     restarted_because: str | None = None
+    signing_keys: dict[int, bytes] | None = None  # by system id, read by serve
 
 
 async def fly(
@@ -57,11 +58,15 @@ async def fly(
         vehicles = [host_port(address) for address in world["vehicles"]]
         ports = world.get("link_ports") or (0, 0)
         link_configs = link_configs_from_config(
-            config, (vehicles[0], vehicles[1]), (ports[0], ports[1]), world.get("px4_events")
+            config,
+            (vehicles[0], vehicles[1]),
+            (ports[0], ports[1]),
+            world.get("px4_events"),
+            start.signing_keys,
         )
     else:
         qtm_host, qtm_port = config.mocap.host, config.mocap.port
-        link_configs = link_configs_from_config(config)
+        link_configs = link_configs_from_config(config, signing_keys=start.signing_keys)
     sockets = start.link_sockets
     links = (
         MavlinkLink(link_configs[0], sock=sockets[0]),

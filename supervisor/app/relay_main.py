@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+import time
 from multiprocessing.connection import Connection
 from typing import Any
 
@@ -16,6 +17,7 @@ from supervisor.app.config import Config, host_port
 from supervisor.logs.logging_setup import configure_logging
 from supervisor.mavlink.codec import MavlinkCodec
 from supervisor.mavlink.relay import MocapRelay, VisionTarget
+from supervisor.mavlink.signing import SigningKey, signing_timestamp
 from supervisor.mavlink.vision import VisionEncoder
 from supervisor.runtime.cpu import raise_priority, title_process
 
@@ -37,9 +39,11 @@ def run_relay_process(
     world: dict[str, Any] | None,
     sockets: tuple[socket.socket, socket.socket],
     parent: Connection,
+    signing_keys: dict[int, bytes] | None = None,
 ) -> None:
     """Child-process entry: relay through the links' ``sockets`` until SIGTERM or until
-    ``parent`` closes."""
+    ``parent`` closes; with ``vehicles.signing``, each vehicle's poses are signed with its
+    key (``signing_keys`` by system id)."""
     configure_logging()
     title_process("relay")
     addresses = relay_addresses(config, world)
@@ -51,8 +55,12 @@ def run_relay_process(
 
     async def main() -> None:
         targets = []
-        for body, address, sock in zip((names.uav1, names.uav2), addresses, sockets, strict=True):
+        system_ids = config.vehicles.system_ids
+        vehicles = zip((names.uav1, names.uav2), addresses, sockets, system_ids, strict=True)
+        for body, address, sock, system_id in vehicles:
             codec = MavlinkCodec(GROUND_STATION_SYSTEM, VISION_COMPONENT)
+            if config.vehicles.signing and signing_keys is not None:
+                codec.sign(SigningKey(signing_keys[system_id]), signing_timestamp(time.time()))
             encoder = VisionEncoder(codec.messages, config.vehicles.mocap_message)
             targets.append(VisionTarget(body, codec, encoder, sock, host_port(address)))
         log.info("mocap relay: %s; poses of %s to %s", raise_priority(), names, addresses)

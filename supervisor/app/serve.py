@@ -33,6 +33,7 @@ from supervisor.app.children import SPAWN, Child, Lifeline, stop_child
 from supervisor.app.config import TOKEN_ENV, Config, load_config
 from supervisor.app.flight_main import FlightStart
 from supervisor.app.relay_main import relay_addresses
+from supervisor.app.signing_keys import load_signing_keys, signing_keys_path
 from supervisor.ipc.rendezvous import Rendezvous, listen_unix, write_discovery
 from supervisor.mavlink.transport import bind_udp
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
@@ -65,6 +66,7 @@ def resolve_token(config: Config) -> tuple[str, bool]:
 
 
 LinkSockets = tuple[socket.socket, socket.socket]
+SigningKeys = dict[int, bytes] | None
 
 
 def _world_main(setup: Setup, ready: Lifeline, listener: socket.socket) -> None:
@@ -82,11 +84,15 @@ def _flight_main(
 
 
 def _relay_main(
-    setup: Setup, world: dict[str, Any] | None, link_sockets: LinkSockets, parent: Lifeline
+    setup: Setup,
+    world: dict[str, Any] | None,
+    link_sockets: LinkSockets,
+    signing_keys: SigningKeys,
+    parent: Lifeline,
 ) -> None:
     from supervisor.app.relay_main import run_relay_process
 
-    run_relay_process(setup.load(), world, link_sockets, parent)
+    run_relay_process(setup.load(), world, link_sockets, parent, signing_keys)
 
 
 def _api_main(setup: Setup, start: ApiStart, parent: Lifeline) -> None:
@@ -98,10 +104,20 @@ def _api_main(setup: Setup, start: ApiStart, parent: Lifeline) -> None:
 def _bind_link_sockets(config: Config, world: dict[str, Any] | None) -> LinkSockets:
     """The vehicle links' UDP sockets, bound here so that the flight process and the mocap
     relay both send from them (``supervisor.mavlink.relay``), and a restarted flight
-    process from the same address again."""
+    process from the same address again; on the configured interface (loopback for the
+    embedded world)."""
     ports = (world.get("link_ports") or [0, 0]) if world is not None else config.vehicles.ports
-    host = config.vehicles.bind_host
+    host = config.link_bind_host()
     return bind_udp(host, ports[0]), bind_udp(host, ports[1])
+
+
+def _signing_keys(config: Config) -> SigningKeys:
+    """The vehicles' signing keys by system id when ``vehicles.signing`` is on (read once,
+    here, so that a bad key file stops ``serve`` before anything starts)."""
+    v = config.vehicles
+    if not v.signing:
+        return None
+    return load_signing_keys(signing_keys_path(v.signing_keys), v.system_ids)
 
 
 def _spawn(name: str, target: Any, *args: Any) -> tuple[BaseProcess, Lifeline]:
@@ -138,6 +154,8 @@ class Service:
         self.setup = setup
         self.config = config
         self.token = token
+        config.link_bind_host()  # a lab without its interface: refused before anything starts
+        self.signing_keys = _signing_keys(config)
         self.rendezvous = Rendezvous.create()
         self.http_socket = bind(config.api.host, config.api.port)
         self.world_addresses: dict[str, Any] | None = None
@@ -209,7 +227,12 @@ class Service:
 
     def _start_relay(self, _: str | None) -> tuple[BaseProcess, Lifeline]:
         return _spawn(
-            "uavbar-relay", _relay_main, self.setup, self.world_addresses, self.link_sockets
+            "uavbar-relay",
+            _relay_main,
+            self.setup,
+            self.world_addresses,
+            self.link_sockets,
+            self.signing_keys,
         )
 
     def _start_flight(self, because: str | None) -> tuple[BaseProcess, Lifeline]:
@@ -220,6 +243,7 @@ class Service:
             self.link_sockets,
             "relay" in self.children,
             because,
+            self.signing_keys,
         )
         return _spawn("uavbar-flight", _flight_main, self.setup, start, self.world_addresses)
 

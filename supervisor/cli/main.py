@@ -23,6 +23,7 @@ from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
 from supervisor.app.config import CONFIG_DIR, Config, ConfigError, load_config
 from supervisor.cli.client import add_client_commands
 from supervisor.cli.console import SimulationProgress, format_summary
+from supervisor.cli.keys import add_keys_command
 from supervisor.cli.usage import UsageError
 from supervisor.flight.core import CONTROLLERS
 from supervisor.flight.equilibrium_summary import equilibrium_summary
@@ -198,6 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.set_defaults(handler=_report)
 
     add_client_commands(commands)
+    add_keys_command(commands)
     for sub in commands.choices.values():
         _add_config_options(sub)
     return parser

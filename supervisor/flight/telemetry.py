@@ -94,6 +94,7 @@ def build_telemetry(
                 "px4_mode": v.px4_mode,
                 "battery_v": v.battery_v if math.isfinite(v.battery_v) else None,
                 "status_text": v.status_text,
+                "link_refused": dict(v.refused),
             }
             for i, v in enumerate(vehicles, start=1)
         ],

@@ -19,18 +19,30 @@ normalized by ``torque_max_nm``, thrust by ``thrust_max_n``: the vehicle's calib
 Mocap is forwarded as VISION_POSITION_ESTIMATE or ODOMETRY in NED/FRD, once per new frame,
 stamped with the frame's capture time on the link's clock: the clock our TIMESYNC answers
 carry, so PX4 maps the stamp onto its own time (§5 item 8).
+
+Signing (``signing_key``; docs/reference/mavlink-signing.md): everything the link sends is
+signed and every frame without our key's valid, fresh signature is refused and counted
+(``unsigned``, ``bad_signature``, ``replayed``) before anything reads it — so a forged
+heartbeat neither keeps the link alive nor changes the armed state or mode, and a forged
+STATUSTEXT never reaches the operator. A PX4 without a key sends unsigned frames; then, and
+only while its frames have never come signed, the link sends it SETUP_SIGNING with the key
+(at most once per ``SETUP_SIGNING_PERIOD_S``, to the vehicle's known address only: the key
+crosses the network in clear, MAVLink has no other way). PX4 signs from then on; arming
+needs a connected link, so SETUP_SIGNING always precedes arming, as PX4 requires (it
+refuses key changes while armed).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 import socket
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -39,7 +51,7 @@ from geometry.arrays import FloatArray
 from geometry.frames import (
     flu_to_frd,
 )
-from supervisor.mavlink.codec import MavlinkCodec, mavlink
+from supervisor.mavlink.codec import MavlinkCodec, Refused, mavlink
 from supervisor.mavlink.events import EventCatalog
 from supervisor.mavlink.parameters import (
     ParameterClient,
@@ -58,6 +70,7 @@ from supervisor.mavlink.session import (
     TimesyncReply,
     VehicleSession,
 )
+from supervisor.mavlink.signing import SigningKey, Verdict, signing_timestamp
 from supervisor.mavlink.transport import Address, UdpTransport
 from supervisor.mavlink.vision import VisionEncoder
 from supervisor.vehicles.types import UavCommand, VehicleCommandError, VehicleView
@@ -65,6 +78,7 @@ from supervisor.vehicles.types import UavCommand, VehicleCommandError, VehicleVi
 log = logging.getLogger(__name__)
 
 FORCE_MAGIC = 21196
+SETUP_SIGNING_PERIOD_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -73,10 +87,11 @@ class LinkConfig:
     port), when known, is contacted first; otherwise the vehicle's first datagram tells.
     ``link_loss_s``: silence of the vehicle's autopilot (any message) that counts as lost.
     ``events_path``: the firmware's event definitions (``etc/extras/all_events.json.xz`` of
-    the PX4 build), to put PX4's events in words; None: events are shown by their id."""
+    the PX4 build), to put PX4's events in words; None: events are shown by their id.
+    ``signing_key``: this vehicle's 32-byte MAVLink 2 signing key (None: no signing)."""
 
     system_id: int
-    local_host: str = "0.0.0.0"
+    local_host: str = "127.0.0.1"
     local_port: int = 14540
     vehicle_address: tuple[str, int] | None = None
     command_mode: Literal["actuator", "rates"] = "actuator"
@@ -89,6 +104,7 @@ class LinkConfig:
     source_system: int = 255
     source_component: int = 190
     events_path: str | None = None
+    signing_key: bytes | None = field(default=None, repr=False)
 
 
 def resolved(address: Address | None) -> Address | None:
@@ -107,6 +123,10 @@ class LinkCounters:
     bad_data: int = 0
     foreign: int = 0
     impostor: int = 0  # the vehicle's system id, from an address not the vehicle's
+    unsigned: int = 0  # signing on: a frame without a signature
+    bad_signature: int = 0  # signing on: signed, not with the vehicle's key
+    replayed: int = 0  # signing on: our key, but a timestamp already seen
+    setup_signing_sent: int = 0
     setpoints_sent: int = 0
     thrust_clipped: int = 0
     torque_clipped: int = 0
@@ -127,14 +147,22 @@ class MavlinkLink:
         clock: Callable[[], float] = time.monotonic,
         catalog: EventCatalog | None = None,
         sock: socket.socket | None = None,
+        wall_clock: Callable[[], float] = time.time,
     ) -> None:
         """``sock``: an already bound socket to use instead of binding ``config``'s port
         (``serve`` binds it, so that the mocap relay sends from the same address: PX4
-        streams its link to the first address that talks to it, and only there)."""
+        streams its link to the first address that talks to it, and only there).
+        ``wall_clock``: Unix time [s], the base of signing timestamps."""
         self.config = config
         self.counters = LinkCounters()
         self._clock = clock
+        self._wall_clock = wall_clock
         self.codec = MavlinkCodec(config.source_system, config.source_component)
+        if config.signing_key is not None:
+            self.codec.sign(SigningKey(config.signing_key), signing_timestamp(wall_clock()))
+        self._vehicle_signed = False  # a frame of the vehicle came signed with our key
+        self._next_setup_s = -math.inf
+        self._warned: set[tuple[str, Address]] = set()
         if catalog is None and config.events_path:
             catalog = EventCatalog.load(config.events_path)
         self.session = VehicleSession(config.system_id, config.link_loss_s, clock(), catalog)
@@ -182,6 +210,8 @@ class MavlinkLink:
 
     async def _heartbeats(self) -> None:
         while True:
+            if self.codec.signing_key is not None:
+                self.codec.keep_time(signing_timestamp(self._wall_clock()))
             if self.session.heartbeat_due(self._clock()):
                 # A ground station: PX4 counts no ONBOARD_CONTROLLER heartbeat as a GCS.
                 self.codec.messages.heartbeat_send(
@@ -198,6 +228,8 @@ class MavlinkLink:
         self.counters.datagrams += 1
         decoded = self.codec.decode(data)
         self.counters.bad_data += decoded.bad_data
+        if decoded.refused:
+            self._refused(decoded.refused, sender, now_s)
         for message in decoded.messages:
             if not self.session.is_from_vehicle(message):
                 self.counters.foreign += 1
@@ -205,6 +237,7 @@ class MavlinkLink:
             if not self._from_peer(sender, now_s):
                 self.counters.impostor += 1
                 continue
+            self._vehicle_signed = self.codec.signing_key is not None
             self.counters.messages += 1
             texts = self.session.text_count
             ack = self.session.receive(message, now_s)
@@ -245,6 +278,54 @@ class MavlinkLink:
             )
         return False
 
+    def _refused(self, refused: tuple[Refused, ...], sender: Address, now_s: float) -> None:
+        """Count the frames signing refused; a vehicle that has never signed and sends
+        unsigned frames from its address has no key yet: send it ours."""
+        counters = self.counters
+        for frame in refused:
+            if frame.verdict is Verdict.UNSIGNED:
+                counters.unsigned += 1
+            elif frame.verdict is Verdict.BAD_SIGNATURE:
+                counters.bad_signature += 1
+            else:
+                counters.replayed += 1
+            self._warn_once(frame, sender)
+        from_vehicle = any(
+            f.verdict is Verdict.UNSIGNED and f.system == self.config.system_id for f in refused
+        )
+        if from_vehicle and not self._vehicle_signed and sender == self._peer:
+            self._setup_signing(now_s)
+
+    def _warn_once(self, frame: Refused, sender: Address) -> None:
+        key = (frame.verdict.value, sender)
+        if key in self._warned or len(self._warned) > 64:
+            return
+        self._warned.add(key)
+        log.warning(
+            "vehicle %d: refused a %s %s of system %d from %s:%d%s",
+            self.config.system_id,
+            frame.verdict.value.replace("_", " "),
+            frame.message_type,
+            frame.system,
+            *sender,
+            " (no vehicle address to send the key to: set vehicles.addresses)"
+            if frame.verdict is Verdict.UNSIGNED and self._peer is None
+            else "",
+        )
+
+    def _setup_signing(self, now_s: float) -> None:
+        """SETUP_SIGNING with our key to the vehicle's autopilot (rate-limited)."""
+        key = self.codec.signing_key
+        if key is None or now_s < self._next_setup_s:
+            return
+        self._next_setup_s = now_s + SETUP_SIGNING_PERIOD_S
+        self.codec.messages.setup_signing_send(
+            self.config.system_id, AUTOPILOT_COMPONENT, list(key.secret),
+            self.codec.signing_timestamp,
+        )  # fmt: skip
+        self.counters.setup_signing_sent += 1
+        self._flush()
+
     def _parameter_value(self, message: object) -> None:
         value = self.parameters.receive(message)
         if value is not None:
@@ -279,7 +360,15 @@ class MavlinkLink:
         return self.session.px4_mode(self._clock())
 
     def view(self) -> VehicleView:
-        return self.session.view(self._clock())
+        view = self.session.view(self._clock())
+        c = self.counters
+        refused = {
+            "impostor": c.impostor,
+            "unsigned": c.unsigned,
+            "bad_signature": c.bad_signature,
+            "replayed": c.replayed,
+        }
+        return dataclasses.replace(view, refused=refused)
 
     # ---- commands -------------------------------------------------------------------------------
     async def command(self, command: int, *params: float) -> None:

@@ -8,6 +8,8 @@ to both processes; the relay never reads from it): PX4 streams its link to the f
 that talks to it and only there (measured on v1.15.4), so a relay with a socket of its own
 would take the flight process's telemetry, or get its poses ignored. Poses are stamped with
 their arrival time on the monotonic clock, the time base of the link's TIMESYNC answers.
+With signing on, each target's codec signs with the vehicle's key (a stream of its own:
+the relay's component, 197), its timestamp kept up with the wall clock.
 """
 
 from __future__ import annotations
@@ -15,10 +17,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import socket
+import time
 from dataclasses import dataclass
 
 from mocap.client import MocapSource
 from supervisor.mavlink.codec import MavlinkCodec
+from supervisor.mavlink.signing import signing_timestamp
 from supervisor.mavlink.transport import Address
 from supervisor.mavlink.vision import VisionEncoder
 
@@ -50,10 +54,12 @@ class MocapRelay:
         frame = self.mocap.latest()
         if frame is None:
             return
+        stamp = signing_timestamp(time.time())
         for target in self.targets:
             pose = frame.bodies.get(target.body)
             if pose is None or not pose.tracked:
                 continue
+            target.codec.keep_time(stamp)  # signed: a timestamp no older than the wall clock
             if target.encoder.queue(pose.position_m, pose.quaternion, frame.receive_time_s):
                 target.send()
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,6 +36,8 @@ class VehicleView:
     px4_mode: str
     battery_v: float = math.nan
     status_text: str = ""
+    refused: Mapping[str, int] = field(default_factory=dict)
+    """What the link refused, by why (impostor address, unsigned, bad signature, replayed)."""
 
 
 class VehicleCommandError(RemoteError):

@@ -123,4 +123,3 @@ def test_one_link_lost_leaves_that_vehicle_to_px4_and_the_other_sets_its_bar_end
     result = both.tick(0.02, Estimate(x, 0.005, ()), (False, False))
     assert result.mode is Mode.PX4_LANDING
     assert "both vehicle links lost" in result.notices[0].text
-
