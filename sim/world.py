@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import gc
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -37,6 +38,7 @@ from sim.measurement import MocapFrame, MocapModel, MocapParams
 from sim.plant import Plant, body_slice, resting_state
 from sim.plant_params import PlantParams
 from sim.qtm_server import QtmServer
+from sim.stalls import StallLog
 from sim.truth import TruthStats
 
 log = logging.getLogger(__name__)
@@ -164,6 +166,8 @@ class SimulatedWorld:
         """Cable tension and slack while the bar hangs, the worst tilt (logged every
         ``TRUTH_REPORT_PERIOD_S`` and at close)."""
         self._truth_reported_s = 0.0
+        self.stalls = StallLog()
+        """Moments the world's own process did not run (``sim.stalls``)."""
 
     @property
     def now_s(self) -> float:
@@ -308,8 +312,17 @@ class SimulatedWorld:
         """Follow the wall clock until cancelled. A stall longer than ``MAX_CATCH_UP_S`` is
         not made up: the world slows down rather than lurching."""
         self._t0 = self._clock() - self.plant.time_s
+        gc.freeze()  # what exists now is never scanned again: shorter collections in a frame
         while True:
             target = self.now_s
+            behind_s = target - self.plant.time_s - self.step_period_s
+            if self.stalls.observe(behind_s, self.plant.time_s):
+                log.warning(
+                    "the world stalled %.0f ms at %.3f s (this computer was busy): its mocap "
+                    "and vehicles paused with it; a gap the supervisor saw now is not the lab's",
+                    behind_s * 1e3,
+                    self.plant.time_s,
+                )
             if target - self.plant.time_s > MAX_CATCH_UP_S:
                 self._t0 += target - self.plant.time_s - MAX_CATCH_UP_S
                 target = self.now_s

@@ -165,6 +165,7 @@ def handle_world_request(world: SimulatedWorld, request: WorldRequest) -> Reply:
         return Reply(outcome=Outcome.REFUSED, reason=str(error))
     data["faults"] = world.fault_views()
     data["world_time_s"] = world.plant.time_s
+    data["stalls"] = world.stalls.view(world.plant.time_s)
     return Reply(outcome=Outcome.OK, data=data)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 import xml.etree.ElementTree as ET
 from collections.abc import AsyncIterator
 from typing import Any
@@ -103,3 +104,18 @@ async def test_a_lab_naming_its_bodies_gets_the_plants_poses_under_those_names()
             pose = frame.bodies[name]
             assert pose.tracked
             assert_matches_plant(world, plant_name, pose.position_m, pose.rotation())
+
+
+async def test_a_stall_of_the_worlds_own_process_is_counted_and_said() -> None:
+    """The world's event loop blocked for 0.2 s (as a busy computer would hold it): one
+    stall of about that length, counted and dated on the world's clock; the steady run
+    before and after counts none."""
+    async with running_world() as world:
+        await asyncio.sleep(0.3)
+        assert world.stalls.count == 0
+        time.sleep(0.2)  # the world's own loop does not run meanwhile
+        await asyncio.sleep(0.1)
+        assert world.stalls.count == 1
+        view = world.stalls.view(world.plant.time_s)
+        assert 150.0 < view["last_ms"] < 400.0 and view["worst_ms"] == view["last_ms"]
+        assert 0.0 <= view["last_age_s"] < 0.3
