@@ -113,7 +113,7 @@ async def test_a_stall_of_the_worlds_own_process_is_counted_and_said() -> None:
     async with running_world() as world:
         await asyncio.sleep(0.3)
         assert world.stalls.count == 0
-        time.sleep(0.2)  # the world's own loop does not run meanwhile
+        time.sleep(0.2)  # noqa: ASYNC251 -- the point: the world's own loop does not run
         await asyncio.sleep(0.1)
         assert world.stalls.count == 1
         view = world.stalls.view(world.plant.time_s)
