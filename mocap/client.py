@@ -1,17 +1,22 @@
-"""Asyncio QTM RT client: commands over TCP, 6D frames over UDP (docs/reference/qtm-rt.md §1).
+"""Asyncio QTM RT client: commands over TCP, 6D frames over UDP or over the same TCP
+connection (docs/reference/qtm-rt.md §1).
 
 Two layers, as in aioquic:
 
-* ``FrameReceiver`` — sans-IO. Takes UDP datagrams and the receive time, decodes them
-  (``mocap.qtm_protocol``), counts frame-number gaps, out-of-order and duplicate datagrams,
-  malformed packets and stream restarts, converts accepted frames to SI units through
+* ``FrameReceiver`` — sans-IO. Takes UDP datagrams (with their source port) or packets read
+  from the TCP stream, and the receive time, decodes them (``mocap.qtm_protocol``), counts
+  frame-number gaps, out-of-order and duplicate datagrams, malformed packets and stream
+  restarts, refuses datagrams from any port but the server's stream port and frame numbers
+  further ahead than the elapsed time allows, converts accepted frames to SI units through
   ``geometry.frames`` (``frame_from_packet``) and keeps them in a bounded store.
 * ``QtmClient`` — the thin asyncio shell, an async context manager. Per session it connects
   to the little-endian port, reads the greeting, negotiates the protocol version (asks 1.25,
   falls back one minor version at a time down to 1.8, below which 6D is sent as doubles,
   §1.2), reads the body names with ``GetParameters 6D``, binds a UDP socket on the address
   the TCP connection uses, and sends ``StreamFrames AllFrames UDP:<port> 6D`` (or
-  ``6DEuler``/…; QTM answers nothing on success, §1.3). A lost connection, a server error or
+  ``6DEuler``/…; QTM answers nothing on success, §1.3); with ``transport="tcp"`` it sends
+  ``StreamFrames AllFrames 6D`` and reads the frames from the command connection, which a
+  sender off the path between QTM and us cannot inject into. A lost connection, a server error or
   a silent server (keep-alive unanswered) ends the session; the client reconnects with
   exponential back-off until the context exits.
 
@@ -30,7 +35,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Final, Protocol, Self
+from typing import Final, Literal, Protocol, Self
 
 from mocap.qtm_protocol import (
     GREETING,
@@ -88,10 +93,15 @@ class MocapStats:
     ``no_more_data`` (QTM not measuring), ``ignored`` (valid but not a usable data packet),
     ``body_count_mismatches`` (the data has a different number of bodies than the 6D
     parameters), ``stream_restarts`` (frame numbers restarted: a new measurement),
-    ``foreign_datagrams`` (from another host, dropped), ``queue_overflows`` (frames pushed
-    out of the bounded store before ``drain``). Connection: ``sessions`` (successful stream
-    starts), ``connect_failures``, ``connected``, ``protocol_version``, ``body_names``,
-    ``udp_port`` (local). ``last_receive_time_s`` is on the client's clock.
+    ``foreign_datagrams`` (from another host, dropped), ``foreign_port_datagrams`` (from the
+    server's host but not the port its stream comes from, dropped), ``frame_number_jumps``
+    (numbered further ahead than the time since the last frame allows, refused),
+    ``queue_overflows`` (frames pushed out of the bounded store before ``drain``).
+    Connection: ``sessions`` (successful stream starts), ``connect_failures``,
+    ``connected``, ``protocol_version``, ``body_names``, ``transport`` ("udp" or "tcp"),
+    ``udp_port`` (local), ``server_udp_port`` (the port the server's stream comes from:
+    configured, or learned from the session's first frame). ``last_receive_time_s`` is on
+    the client's clock.
     """
 
     connected: bool = False
@@ -99,7 +109,9 @@ class MocapStats:
     connect_failures: int = 0
     protocol_version: str | None = None
     body_names: tuple[str, ...] = ()
+    transport: str = "udp"
     udp_port: int | None = None
+    server_udp_port: int | None = None
     datagrams: int = 0
     frames: int = 0
     gaps: int = 0
@@ -112,6 +124,8 @@ class MocapStats:
     body_count_mismatches: int = 0
     stream_restarts: int = 0
     foreign_datagrams: int = 0
+    foreign_port_datagrams: int = 0
+    frame_number_jumps: int = 0
     queue_overflows: int = 0
     last_frame_number: int | None = None
     last_receive_time_s: float | None = None
@@ -121,6 +135,15 @@ class MocapStats:
     def reconnects(self) -> int:
         """Sessions after the first."""
         return max(self.sessions - 1, 0)
+
+    def refused(self) -> dict[str, int]:
+        """What was dropped as not the server's stream, by reason (the ones seen)."""
+        counts = {
+            "foreign_host": self.foreign_datagrams,
+            "foreign_port": self.foreign_port_datagrams,
+            "frame_number_jump": self.frame_number_jumps,
+        }
+        return {reason: n for reason, n in counts.items() if n}
 
 
 class MocapSource(Protocol):
@@ -144,11 +167,23 @@ class MocapSource(Protocol):
 
 
 class FrameReceiver:
-    """Sans-IO UDP side of the client: datagram bytes and receive time in, frames out.
+    """Sans-IO receiving side of the client: datagram bytes (or TCP packets) and receive
+    time in, frames out.
 
     ``restart_after_backwards`` consecutive datagrams behind the newest frame, or one more
     than ``restart_threshold_frames`` behind, mean QTM restarted its frame numbering (a new
     measurement) rather than reordering: the sequence restarts from that frame.
+
+    A frame numbered further ahead of the newest than ``max_frame_rate_hz`` × the receive
+    time elapsed since it, plus ``frame_number_slack``, cannot come from the stream (a
+    sender raising the numbers to make the real frames look old): it is refused and counted
+    (``frame_number_jumps``), and the real stream goes on. As many such frames in a row as
+    ``restart_after_backwards``, with no frame of the old numbering between them, are a
+    restart (QTM renumbered while the stream was stalled) and the sequence restarts there.
+
+    ``server_port``: the UDP port the server's stream comes from; None learns it from the
+    first frame accepted in a session (``reset`` forgets a learned one). Datagrams given
+    with another ``source_port`` are dropped and counted (``foreign_port_datagrams``).
     """
 
     def __init__(
@@ -158,15 +193,25 @@ class FrameReceiver:
         max_queue: int = 256,
         restart_threshold_frames: int = 1000,
         restart_after_backwards: int = 20,
+        *,
+        server_port: int | None = None,
+        max_frame_rate_hz: float = 1000.0,
+        frame_number_slack: int = 10,
     ) -> None:
         self.body_names: tuple[str, ...] = tuple(body_names)
         self.component = component
         self.restart_threshold_frames = restart_threshold_frames
         self.restart_after_backwards = restart_after_backwards
+        self.configured_server_port = server_port
+        self.server_port = server_port
+        self.max_frame_rate_hz = max_frame_rate_hz
+        self.frame_number_slack = frame_number_slack
         self._queue: deque[MocapFrame] = deque(maxlen=max_queue)
         self._latest: MocapFrame | None = None
         self._last_frame_number: int | None = None
+        self._last_frame_time_s = -math.inf
         self._backwards_in_a_row = 0
+        self._jumps_in_a_row = 0
         self.consecutive_mismatches = 0
         self.last_receive_time_s: float | None = None
         self.counts: dict[str, int] = dict.fromkeys(
@@ -183,17 +228,23 @@ class FrameReceiver:
                 "body_count_mismatches",
                 "stream_restarts",
                 "foreign_datagrams",
+                "foreign_port_datagrams",
+                "frame_number_jumps",
                 "queue_overflows",
             ),
             0,
         )
 
     def reset(self, body_names: Sequence[str], component: ComponentType) -> None:
-        """Start a new stream (after a reconnect): new names, sequence forgotten, counters kept."""
+        """Start a new stream (after a reconnect): new names, sequence and learned server
+        port forgotten, counters kept."""
         self.body_names = tuple(body_names)
         self.component = component
+        self.server_port = self.configured_server_port
         self._last_frame_number = None
+        self._last_frame_time_s = -math.inf
         self._backwards_in_a_row = 0
+        self._jumps_in_a_row = 0
         self.consecutive_mismatches = 0
 
     def latest(self) -> MocapFrame | None:
@@ -215,8 +266,9 @@ class FrameReceiver:
         """A datagram from a host other than the server's arrived (and was dropped)."""
         self.counts["foreign_datagrams"] += 1
 
-    def _classify(self, frame_number: int) -> str:
-        """'first', 'next', 'gap', 'duplicate', 'old' or 'restart' (no state change)."""
+    def _classify(self, frame_number: int, now_s: float) -> str:
+        """'first', 'next', 'gap', 'jump', 'duplicate', 'old' or 'restart' (no state
+        change)."""
         last = self._last_frame_number
         if last is None:
             return "first"
@@ -224,7 +276,15 @@ class FrameReceiver:
         if ahead == 0:
             return "duplicate"
         if ahead < _FRAME_NUMBER_MODULUS // 2:
-            return "next" if ahead == 1 else "gap"
+            if ahead == 1:
+                return "next"
+            elapsed_s = max(now_s - self._last_frame_time_s, 0.0)
+            reachable = self.frame_number_slack + self.max_frame_rate_hz * elapsed_s
+            if ahead <= reachable:
+                return "gap"
+            if self._jumps_in_a_row + 1 >= self.restart_after_backwards:
+                return "restart"
+            return "jump"
         behind = _FRAME_NUMBER_MODULUS - ahead
         if (
             behind > self.restart_threshold_frames
@@ -233,9 +293,19 @@ class FrameReceiver:
             return "restart"
         return "old"
 
-    def receive_datagram(self, data: bytes, now_s: float) -> MocapFrame | None:
-        """Process one datagram received at ``now_s`` [s]; the frame if it was accepted."""
+    def receive_datagram(
+        self, data: bytes, now_s: float, source_port: int | None = None
+    ) -> MocapFrame | None:
+        """Process one datagram received at ``now_s`` [s] from the server's host (from
+        ``source_port``, when the transport knows it); the frame if it was accepted."""
         counts = self.counts
+        if (
+            source_port is not None
+            and self.server_port is not None
+            and source_port != self.server_port
+        ):
+            counts["foreign_port_datagrams"] += 1
+            return None
         counts["datagrams"] += 1
         self.last_receive_time_s = now_s
         try:
@@ -243,6 +313,16 @@ class FrameReceiver:
         except QtmProtocolError:
             counts["malformed"] += 1
             return None
+        frame = self.receive_packet(packet, now_s)
+        if frame is not None and self.server_port is None:
+            self.server_port = source_port  # the stream's port, from its first frame
+        return frame
+
+    def receive_packet(self, packet: Packet, now_s: float) -> MocapFrame | None:
+        """Process one decoded packet received at ``now_s`` [s] (a datagram's, or one read
+        from the TCP stream); the frame if it was accepted."""
+        counts = self.counts
+        self.last_receive_time_s = now_s
         if isinstance(packet, NoMoreDataPacket):
             counts["no_more_data"] += 1
             return None
@@ -259,13 +339,17 @@ class FrameReceiver:
             self.consecutive_mismatches += 1
             return None
         self.consecutive_mismatches = 0
-        verdict = self._classify(packet.frame_number)
+        verdict = self._classify(packet.frame_number, now_s)
         if verdict == "duplicate":
             counts["duplicates"] += 1
             return None
         if verdict == "old":
             counts["out_of_order"] += 1
             self._backwards_in_a_row += 1
+            return None
+        if verdict == "jump":
+            counts["frame_number_jumps"] += 1
+            self._jumps_in_a_row += 1
             return None
         try:
             frame = frame_from_packet(packet, self.body_names, now_s, self.component)
@@ -281,7 +365,9 @@ class FrameReceiver:
         elif verdict == "restart":
             counts["stream_restarts"] += 1
         self._backwards_in_a_row = 0
+        self._jumps_in_a_row = 0
         self._last_frame_number = packet.frame_number
+        self._last_frame_time_s = now_s
         counts["frames"] += 1
         if len(self._queue) == self._queue.maxlen:
             counts["queue_overflows"] += 1
@@ -311,7 +397,11 @@ class QtmClient:
     connects, streams and reconnects until the block exits. ``component`` is ``"6D"``
     (default, the rotation matrix: immune to QTM's Euler settings, §1.4), ``"6DRes"``,
     ``"6DEuler"`` or ``"6DEulerRes"`` (Euler assumes QTM's default "Qualisys standard").
-    ``udp_port`` 0 lets the OS pick. ``clock`` [s] stamps each datagram's receive time.
+    ``transport`` is ``"udp"`` (frames to a local UDP port, ``udp_port``; 0 lets the OS
+    pick) or ``"tcp"`` (frames over the command connection). Over UDP only datagrams from
+    the server's host and from the port its stream comes from are taken:
+    ``server_udp_port``, or learned from the session's first frame. ``clock`` [s] stamps
+    each frame's receive time.
     Back-off between attempts doubles from ``reconnect_min_s`` to ``reconnect_max_s`` and
     resets after a session that streamed. With no datagram for ``keepalive_s``, a
     ``Version`` command probes the TCP connection; no answer in ``command_timeout_s`` ends
@@ -324,7 +414,9 @@ class QtmClient:
         port: int = LITTLE_ENDIAN_PORT,
         *,
         component: str | ComponentType = ComponentType.SIX_D,
+        transport: Literal["udp", "tcp"] = "udp",
         udp_port: int = 0,
+        server_udp_port: int | None = None,
         version: ProtocolVersion = (1, 25),
         clock: Callable[[], float] = time.monotonic,
         connect_timeout_s: float = 2.0,
@@ -336,7 +428,10 @@ class QtmClient:
     ) -> None:
         if version < MIN_PROTOCOL_VERSION:
             raise ValueError(f"protocol {format_version(version)} < 1.8 sends 6D as doubles")
+        if transport not in ("udp", "tcp"):
+            raise ValueError(f'transport must be "udp" or "tcp", got {transport!r}')
         self.host = host
+        self.transport = transport
         self.port = port
         self.component = (
             component
@@ -351,7 +446,9 @@ class QtmClient:
         self.reconnect_min_s = reconnect_min_s
         self.reconnect_max_s = reconnect_max_s
         self.keepalive_s = keepalive_s
-        self.receiver = FrameReceiver(component=self.component, max_queue=max_queue)
+        self.receiver = FrameReceiver(
+            component=self.component, max_queue=max_queue, server_port=server_udp_port
+        )
         self._task: asyncio.Task[None] | None = None
         self._connected = asyncio.Event()
         self._frame_arrived = asyncio.Event()
@@ -386,7 +483,9 @@ class QtmClient:
                 format_version(self._protocol_version) if self._protocol_version else None
             ),
             body_names=self.receiver.body_names,
+            transport=self.transport,
             udp_port=self._udp_port,
+            server_udp_port=self.receiver.server_port,
             last_frame_number=self.receiver.last_frame_number,
             last_receive_time_s=self.receiver.last_receive_time_s,
             last_error=self._last_error,
@@ -479,14 +578,17 @@ class QtmClient:
             local_host: str = writer.get_extra_info("sockname")[0]
             server_host: str = writer.get_extra_info("peername")[0]
             loop = asyncio.get_running_loop()
-            transport, _ = await loop.create_datagram_endpoint(
-                lambda: _DatagramProtocol(self, server_host),
-                local_addr=(local_host, self._udp_port_request),
-            )
-            self._udp_port = transport.get_extra_info("sockname")[1]
             self.receiver.reset(parameters.names, self.component)
+            if self.transport == "udp":
+                transport, _ = await loop.create_datagram_endpoint(
+                    lambda: _DatagramProtocol(self, server_host),
+                    local_addr=(local_host, self._udp_port_request),
+                )
+                self._udp_port = transport.get_extra_info("sockname")[1]
             # QTM replies nothing to StreamFrames on success; an Error packet if it fails.
+            # Without UDP:<port> it streams over this connection (§1.3).
             channel.send(stream_frames_command([self.component], udp_port=self._udp_port))
+            channel.streaming_over_tcp = self.transport == "tcp"
             self._sessions += 1
             self._last_datagram_s = loop.time()
             self._connected.set()
@@ -517,7 +619,8 @@ class QtmClient:
         raise QtmServerError("no common protocol version ≥ 1.8")
 
     async def _supervise(self, channel: _CommandChannel) -> None:
-        """Watch the command channel while frames flow over UDP; return never, raise on loss."""
+        """Watch the command channel while frames flow (over UDP, or through ``read`` over
+        this channel); return never, raise on loss."""
         loop = asyncio.get_running_loop()
         while True:
             try:
@@ -534,7 +637,7 @@ class QtmClient:
     def _check_streaming_packet(self, packet: Packet) -> None:
         if isinstance(packet, ErrorPacket):
             raise QtmServerError(f"server error while streaming: {packet.text}")
-        # Events, late replies and any TCP data are not needed for UDP streaming.
+        # Events and late replies are not needed; frames went to ``_on_tcp_packet``.
 
     def _on_datagram(self, data: bytes, addr: tuple[str | int, ...], server_host: str) -> None:
         if addr[0] != server_host:
@@ -542,8 +645,18 @@ class QtmClient:
             # reaching this port is a misdirected stream or worse.
             self.receiver.count_foreign()
             return
+        port = addr[1] if len(addr) > 1 and isinstance(addr[1], int) else None
         self._last_datagram_s = asyncio.get_running_loop().time()
-        if self.receiver.receive_datagram(data, self._clock()) is not None:
+        self._accepted(self.receiver.receive_datagram(data, self._clock(), port))
+
+    def _on_tcp_packet(self, packet: Packet) -> None:
+        """A data or No-More-Data packet read from the command connection while streaming
+        over it."""
+        self._last_datagram_s = asyncio.get_running_loop().time()
+        self._accepted(self.receiver.receive_packet(packet, self._clock()))
+
+    def _accepted(self, frame: MocapFrame | None) -> None:
+        if frame is not None:
             self._frame_arrived.set()
             if self._frame_listener is not None:
                 self._frame_listener()
@@ -566,6 +679,10 @@ class _CommandChannel:
         self._timeout_s = timeout_s
         self._client = client
         self._decoder = QtmStreamDecoder()
+        self.streaming_over_tcp = False
+        """Set once StreamFrames asked for frames on this connection: its data packets then
+        go to the client's receiver, whoever reads them (a command's reply may wait behind
+        frames)."""
 
     def send(self, command: str) -> None:
         self._writer.write(encode_command(command))
@@ -579,6 +696,8 @@ class _CommandChannel:
             self._decoder.receive_data(data)
         if isinstance(packet, EventPacket):
             self._client.last_event = packet.event
+        elif self.streaming_over_tcp and isinstance(packet, (DataPacket, NoMoreDataPacket)):
+            self._client._on_tcp_packet(packet)
         return packet
 
     async def request(self, command: str) -> Packet:
