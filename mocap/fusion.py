@@ -21,6 +21,17 @@ Samples older than (or as old as) the last one are ignored; untracked samples up
 but clear the ``tracked`` flag; after a dropout longer than ``reset_after_s`` the filter
 restarts from the next sample instead of trusting a stale velocity. Every quaternion,
 rotation and Euler conversion goes through ``geometry.frames``.
+
+Innovation gate: a pose no rigid body can reach from the last estimate is refused, not
+fused — a position further from the prediction p + v·h than ½·a_max·h² plus ``gate_sigmas``
+standard deviations of the predicted error and the measurement noise, or an attitude turned
+further from the last estimate than ω_max·h plus as many deviations (h: the time since the
+last fused sample). The bound grows with h, so a body that really moved while it was not
+seen is taken back once it could have got there. A frame in which every tracked body repeats
+its previous pose bit for bit is no new measurement when ``MocapFusion.refuse_repeats`` is
+set (in flight: a frozen pipeline re-sends old poses with new frame numbers). Refused samples
+leave the filter as it was, so the body ages as if the frame had not come; each filter counts
+them by reason and how many in a row (``BodyState.refused_in_a_row``).
 """
 
 from __future__ import annotations
@@ -68,6 +79,15 @@ class FusionConfig:
     time_source: Literal["capture", "receive"] = "capture"
     """Sample time of a frame: QTM's capture timestamp mapped onto the local clock by
     ``CaptureClock`` (removes network jitter), or the local receive time itself."""
+    gate_max_accel_mps2: float = 30.0
+    """The innovation gate's bound on a body's acceleration [m/s²]: 3 g, above what a
+    quadrotor's thrust gives and what the bar's swing does, far below a 1 m jump in a frame."""
+    gate_max_angular_rate_radps: float = math.radians(720.0)
+    """The gate's bound on a body's turn rate [rad/s]: twice the fastest rate PX4's
+    multicopter defaults command (MC_*RATE_MAX ≤ 360°/s)."""
+    gate_sigmas: float = 6.0
+    """Standard deviations of predicted error and measurement noise the gate allows on top
+    of the physical bounds (a 3-D Gaussian is beyond 6σ about once in 10⁷ samples)."""
 
     def __post_init__(self) -> None:
         positive = (
@@ -79,6 +99,9 @@ class FusionConfig:
             "initial_rate_std_radps",
             "max_age_s",
             "reset_after_s",
+            "gate_max_accel_mps2",
+            "gate_max_angular_rate_radps",
+            "gate_sigmas",
         )
         for name in positive:
             value = getattr(self, name)
@@ -99,7 +122,9 @@ class BodyState:
     ``age_s``: time since the last tracked measurement (inf if none yet).
     ``tracked``: the newest sample had the body tracked. ``healthy``: tracked and
     ``age_s`` ≤ ``FusionConfig.max_age_s``. ``position_std_m``: predicted 1σ per axis.
-    Before the first tracked sample the arrays are NaN and both flags False.
+    ``refused_in_a_row``: the newest samples refused (gate or repeat) since the last fused
+    one, ``refusal`` why the last was (empty when none). Before the first tracked sample
+    the arrays are NaN and both flags False.
     """
 
     name: str
@@ -114,6 +139,13 @@ class BodyState:
     tracked: bool
     healthy: bool
     position_std_m: float
+    refused_in_a_row: int = 0
+    refusal: str = ""
+
+
+REFUSAL_REASONS = ("position", "attitude", "repeated")
+"""Why the fusion refuses a tracked sample: beyond the gate's reach in position or in
+attitude, or a frame repeated bit for bit (``MocapFusion.refuse_repeats``)."""
 
 
 class _ConstantVelocityAxes:
@@ -183,6 +215,10 @@ class RigidBodyFilter:
         """Samples in which QTM did not track the body."""
         self.resets = 0
         """Restarts after a dropout longer than ``reset_after_s``."""
+        self.refused: dict[str, int] = dict.fromkeys(REFUSAL_REASONS, 0)
+        """Tracked samples refused, by reason (``REFUSAL_REASONS``)."""
+        self.refused_in_a_row = 0
+        self.last_refusal = ""
 
     @property
     def initialized(self) -> bool:
@@ -199,15 +235,19 @@ class RigidBodyFilter:
             self.untracked_samples += 1
             self._tracked = False
             return False
-        self._tracked = True
-        self.updates += 1
         if self._translation is None or t_s - self._last_measurement_s > self.config.reset_after_s:
             if self._translation is not None:
                 self.resets += 1
             self._initialize(pose, t_s)
+            self._fused()
             return True
         assert self._rotation is not None
         h = t_s - self._last_measurement_s
+        refusal = self._unreachable(pose, h)
+        if refusal is not None:
+            self._refuse(*refusal)
+            return False
+        self._fused()
         self._translation.predict(h)
         self._rotation.predict(h)
         omega = self._rotation.mean[1]
@@ -227,6 +267,53 @@ class RigidBodyFilter:
         self._rotation.mean[0] = 0.0  # the attitude error is now in the nominal quaternion
         self._last_measurement_s = t_s
         return True
+
+    def refuse_repeat(self, t_s: float) -> None:
+        """A tracked sample at ``t_s`` [s] that repeats the last bit for bit, in a frozen
+        stream: no measurement (the body ages), counted."""
+        if math.isfinite(t_s) and t_s > self._last_sample_s:
+            self._last_sample_s = t_s
+        self._refuse("repeated", "repeated bit for bit: a frozen stream")
+
+    def _refuse(self, reason: str, why: str) -> None:
+        self.refused[reason] += 1
+        self.refused_in_a_row += 1
+        self.last_refusal = why
+
+    def _fused(self) -> None:
+        self._tracked = True
+        self.updates += 1
+        self.refused_in_a_row = 0
+        self.last_refusal = ""
+
+    def _unreachable(self, pose: BodyPose, h: float) -> tuple[str, str] | None:
+        """Why no rigid body could be at ``pose`` ``h`` seconds after the last fused sample
+        (reason, words), or None when it could (the module docstring's gate)."""
+        assert self._translation is not None and self._rotation is not None
+        c = self.config
+        axes = self._translation
+        predicted = axes.mean[0] + h * axes.mean[1]
+        miss_m = float(np.linalg.norm(pose.position_m - predicted))
+        spread_m = math.sqrt(axes.predicted_value_variance(h) + axes.r)
+        reach_m = 0.5 * c.gate_max_accel_mps2 * h * h + c.gate_sigmas * spread_m
+        if not miss_m <= reach_m:  # NaN is refused too
+            return (
+                "position",
+                f"{miss_m:.3f} m from its prediction, {reach_m:.3f} m reachable in"
+                f" {h * 1e3:.0f} ms",
+            )
+        turn = frames.quaternion_multiply(frames.quaternion_conjugate(self._q), pose.quaternion)
+        turn_rad = float(np.linalg.norm(frames.rotation_vector_from_quaternion(turn)))
+        rotation = self._rotation
+        spread_rad = math.sqrt(rotation.predicted_value_variance(h) + rotation.r)
+        reach_rad = c.gate_max_angular_rate_radps * h + c.gate_sigmas * spread_rad
+        if not turn_rad <= reach_rad:
+            return (
+                "attitude",
+                f"turned {math.degrees(turn_rad):.0f}° from its estimate,"
+                f" {math.degrees(reach_rad):.0f}° reachable in {h * 1e3:.0f} ms",
+            )
+        return None
 
     def _initialize(self, pose: BodyPose, t_s: float) -> None:
         c = self.config
@@ -268,7 +355,7 @@ class RigidBodyFilter:
         std = math.sqrt(max(self._translation.predicted_value_variance(h), 0.0))
         return BodyState(
             self.name, t_s, position, velocity, q, euler, omega, omega_world,
-            age, self._tracked, healthy, std,
+            age, self._tracked, healthy, std, self.refused_in_a_row, self.last_refusal,
         )  # fmt: skip
 
 
@@ -310,6 +397,9 @@ class MocapFusion:
 
     ``update(frame)`` picks the sample time per ``FusionConfig.time_source``; bodies appear
     the first time a frame names them. ``states(t_s)`` predicts every body to a tick time.
+    ``refuse_repeats``: a frame whose tracked bodies all repeat their previous poses bit for
+    bit is not a measurement (set it while the bodies fly: at rest, and without measurement
+    noise, a resting system repeats itself).
     """
 
     def __init__(self, config: FusionConfig | None = None, names: Iterable[str] = ()) -> None:
@@ -318,6 +408,10 @@ class MocapFusion:
         self.filters: dict[str, RigidBodyFilter] = {
             name: RigidBodyFilter(name, self.config) for name in names
         }
+        self.refuse_repeats = False
+        self.repeated_frames = 0
+        """Frames refused as repeated."""
+        self._previous: dict[str, bytes] = {}  # each body's last tracked pose, as bytes
 
     def sample_time_s(self, frame: MocapFrame) -> float:
         """The time [s] ``update`` assigns to ``frame``."""
@@ -326,19 +420,48 @@ class MocapFusion:
         return self.clock.to_local(frame.timestamp_us, frame.receive_time_s)
 
     def update(self, frame: MocapFrame) -> float:
-        """Fuse every body of ``frame``; returns the sample time used [s]."""
+        """Fuse every body of ``frame`` (unless it is refused as a repeat); returns the
+        sample time used [s]."""
         t_s = self.sample_time_s(frame)
+        if self._repeats_previous(frame) and self.refuse_repeats:
+            self.repeated_frames += 1
+            for name, pose in frame.bodies.items():
+                if pose.tracked:
+                    self._filter(name).refuse_repeat(t_s)
+            return t_s
         for name, pose in frame.bodies.items():
             self.update_pose(pose, t_s, name)
         return t_s
 
+    def _repeats_previous(self, frame: MocapFrame) -> bool:
+        """Every tracked body of ``frame`` (at least one) bit for bit as in its last tracked
+        sample; remembers this frame's poses."""
+        repeated: bool | None = None
+        for name, pose in frame.bodies.items():
+            if not pose.tracked:
+                continue
+            key = pose.position_m.tobytes() + pose.quaternion.tobytes()
+            repeated = repeated is not False and self._previous.get(name) == key
+            self._previous[name] = key
+        return bool(repeated)
+
+    def refused(self) -> dict[str, int]:
+        """Tracked samples refused so far, every body together, by reason."""
+        totals = dict.fromkeys(REFUSAL_REASONS, 0)
+        for body_filter in self.filters.values():
+            for reason, n in body_filter.refused.items():
+                totals[reason] += n
+        return totals
+
+    def _filter(self, name: str) -> RigidBodyFilter:
+        body_filter = self.filters.get(name)
+        if body_filter is None:
+            body_filter = self.filters[name] = RigidBodyFilter(name, self.config)
+        return body_filter
+
     def update_pose(self, pose: BodyPose, t_s: float, name: str | None = None) -> bool:
         """Fuse one body's sample taken at ``t_s`` [s]; returns whether it was used."""
-        key = name or pose.name
-        body_filter = self.filters.get(key)
-        if body_filter is None:
-            body_filter = self.filters[key] = RigidBodyFilter(key, self.config)
-        return body_filter.update(pose, t_s)
+        return self._filter(name or pose.name).update(pose, t_s)
 
     def state(self, name: str, t_s: float) -> BodyState:
         """One body's state at ``t_s``; an unknown name gives the never-measured state."""
