@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import Any
 
 from controllers.params import Clock
+from mocap.client import QtmClient
 from mocap.fusion import FusionConfig, MocapFusion
 from sim.measurement import MocapParams, TrackingParams
 from sim.plant_params import (
@@ -39,7 +41,10 @@ def arena_from_config(config: Config) -> Arena:
 
 def safety_limits_from_config(config: Config) -> SafetyLimits:
     """The monitors' thresholds for this setup (the ones it does not set at their defaults)."""
-    return SafetyLimits(max_bar_yaw_error_rad=math.radians(config.safety.max_bar_yaw_error_deg))
+    return SafetyLimits(
+        max_bar_yaw_error_rad=math.radians(config.safety.max_bar_yaw_error_deg),
+        max_refused_poses=config.safety.max_refused_poses,
+    )
 
 
 def flight_core_from_config(
@@ -65,8 +70,21 @@ def fusion_from_config(config: Config) -> MocapFusion:
         angular_accel_psd=m.angular_accel_psd,
         attitude_noise_rad=math.radians(m.attitude_noise_deg),
         max_age_s=m.max_age_s,
+        gate_max_accel_mps2=m.gate_max_accel_mps2,
+        gate_max_angular_rate_radps=math.radians(m.gate_max_angular_rate_deg_s),
+        gate_sigmas=m.gate_sigmas,
     )
     return MocapFusion(fusion_config, names=m.bodies)
+
+
+def qtm_client_from_config(config: Config, world: dict[str, Any] | None) -> QtmClient:
+    """The QTM client of the configured server, or of the embedded world's (whose UDP
+    port is learned: the world picks it)."""
+    m = config.mocap
+    if world is not None:
+        host, port = host_port(world["qtm"])
+        return QtmClient(host, port, transport=m.transport)
+    return QtmClient(m.host, m.port, transport=m.transport, server_udp_port=m.server_udp_port)
 
 
 def body_names_from_config(config: Config) -> BodyNames:

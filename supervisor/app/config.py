@@ -243,6 +243,13 @@ class MocapSection(_Section):
     host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 22223
     bodies: Annotated[list[str], Field(min_length=3, max_length=3)] = ["bar", "uav1", "uav2"]
+    # How the frames come: "udp" (QTM's stream to a local port) or "tcp" (over the command
+    # connection, which a sender off the path between QTM and us cannot inject into).
+    transport: Literal["udp", "tcp"] = "udp"
+    # The UDP port QTM's stream comes from; unset: learned from the first frame of each
+    # session. Datagrams from any other port are dropped and counted. With sim.embedded the
+    # world's server is used (as for host and port) and its port is learned.
+    server_udp_port: Annotated[int, Field(ge=1, le=65535)] | None = None
     # Filter tuning (mocap/fusion.py): white-acceleration PSDs and measurement noise.
     # Lower PSDs smooth velocities and rates (the MPC weighs them) at the price of lag in
     # fast manoeuvres; these suit the bar's slow swing and the paper's gentle references
@@ -252,6 +259,13 @@ class MocapSection(_Section):
     position_noise_m: PositiveFloat = 0.0005
     attitude_noise_deg: PositiveFloat = 0.1
     max_age_s: PositiveFloat = 0.05
+    # The innovation gate (mocap/fusion.py): a pose further from a body's prediction than
+    # ½·accel·h² + sigmas·σ, or turned further from its estimate than rate·h + sigmas·σ,
+    # is refused (h: time since the body's last fused pose; σ: predicted and measurement
+    # noise). docs/safety.md.
+    gate_max_accel_mps2: PositiveFloat = 30.0
+    gate_max_angular_rate_deg_s: PositiveFloat = 720.0
+    gate_sigmas: PositiveFloat = 6.0
     # Lock the 20 ms deadlines to the mocap frames and start each tick on its frame's arrival
     # (supervisor/runtime/phase_lock.py): the frame then waits under a millisecond for its tick, not
     # up to a frame period; false: ticks by the clock alone.
@@ -403,6 +417,10 @@ class SafetySection(_Section):
     max_bar_yaw_error_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 20.0
     """The bar's yaw this far from its reference while hovering or tracking under the
     decentralized MPC: the centralized MPC takes over. 0 turns the hand-over off."""
+    max_refused_poses: Annotated[int, Field(ge=1)] = 10
+    """A body's poses refused this many times in a row in flight (the mocap's innovation
+    gate, or a frozen stream): blind, each PX4 lands on its own. 10 = 0.1 s at 100 Hz, the
+    coast limit."""
 
 
 class LogSection(_Section):

@@ -15,12 +15,12 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from mocap.client import QtmClient
 from supervisor.app.assembly import (
     body_names_from_config,
     flight_core_from_config,
     fusion_from_config,
     link_configs_from_config,
+    qtm_client_from_config,
 )
 from supervisor.app.config import Config, host_port
 from supervisor.flight.core import Notice, NoticeKind
@@ -54,7 +54,6 @@ async def fly(
 ) -> None:
     """Run the flight process until SIGTERM or until ``parent`` closes its end."""
     if world is not None:
-        qtm_host, qtm_port = host_port(world["qtm"])
         vehicles = [host_port(address) for address in world["vehicles"]]
         ports = world.get("link_ports") or (0, 0)
         link_configs = link_configs_from_config(
@@ -65,7 +64,6 @@ async def fly(
             start.signing_keys,
         )
     else:
-        qtm_host, qtm_port = config.mocap.host, config.mocap.port
         link_configs = link_configs_from_config(config, signing_keys=start.signing_keys)
     sockets = start.link_sockets
     links = (
@@ -75,7 +73,7 @@ async def fly(
     for link in links:
         await link.start()
     try:
-        async with QtmClient(qtm_host, qtm_port) as mocap:
+        async with qtm_client_from_config(config, world) as mocap:
             process = FlightProcess(
                 FlightSettings(
                     config.mpc.dt_s,

@@ -10,8 +10,7 @@ import time
 from multiprocessing.connection import Connection
 from typing import Any
 
-from mocap.client import QtmClient
-from supervisor.app.assembly import body_names_from_config
+from supervisor.app.assembly import body_names_from_config, qtm_client_from_config
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config, host_port
 from supervisor.logs.logging_setup import configure_logging
@@ -48,9 +47,6 @@ def run_relay_process(
     title_process("relay")
     addresses = relay_addresses(config, world)
     assert addresses is not None, "serve starts the relay only with known addresses"
-    qtm_host, qtm_port = (
-        host_port(world["qtm"]) if world else (config.mocap.host, config.mocap.port)
-    )
     names = body_names_from_config(config)
 
     async def main() -> None:
@@ -64,7 +60,7 @@ def run_relay_process(
             encoder = VisionEncoder(codec.messages, config.vehicles.mocap_message)
             targets.append(VisionTarget(body, codec, encoder, sock, host_port(address)))
         log.info("mocap relay: %s; poses of %s to %s", raise_priority(), names, addresses)
-        async with stop_event(parent) as stop, QtmClient(qtm_host, qtm_port) as mocap:
+        async with stop_event(parent) as stop, qtm_client_from_config(config, world) as mocap:
             await MocapRelay(mocap, targets).run(stop)
 
     asyncio.run(main())

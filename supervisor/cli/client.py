@@ -96,9 +96,11 @@ def format_status(status: dict[str, Any]) -> str:
             f"uav{i} {_format_position(uav.get('position'))}, px4 {uav.get('px4_mode')}, "
             f"{'armed' if armed else 'disarmed'}, link {'up' if uav.get('connected') else 'DOWN'}"
         )
+    refused = ", ".join(f"{reason} {n}" for reason, n in (mocap.get("refused") or {}).items())
     lines.append(
         f"mocap {'healthy' if mocap.get('healthy') else 'NOT HEALTHY'} at "
-        f"{mocap.get('rate_hz') or 0:.0f} Hz; setpoints: "
+        f"{mocap.get('rate_hz') or 0:.0f} Hz{f' (refused: {refused})' if refused else ''}; "
+        "setpoints: "
         f"{'active' if status.get('setpoints', {}).get('active') else 'none active'}, "
         f"{len(status.get('setpoints', {}).get('queued', []))} queued"
     )

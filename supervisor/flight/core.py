@@ -213,6 +213,14 @@ class FlightCore:
             and estimate.age_s <= self.safety.limits.mocap_coast_s
         )
 
+    @property
+    def bodies_in_motion(self) -> bool:
+        """Airborne, and not settling on the ground at the end of a landing: the bodies
+        move, so a pose repeated bit for bit is no measurement (a frozen mocap pipeline).
+        On the ground a resting system may repeat itself exactly (a noise-free simulator)."""
+        mode = self.modes.mode
+        return mode.airborne and not (self.phase is Phase.DESCEND and self._low_since_s is not None)
+
     def set_controller(self, name: str, now_s: float) -> Transition:
         """Switch between the centralized and decentralized MPC, bumplessly in flight."""
         if name not in CONTROLLERS:
@@ -470,6 +478,7 @@ class FlightCore:
         ]
 
     def _set_descend_targets(self, x: FloatArray) -> None:
+        self._low_since_s = None  # a new descent: not settled yet
         end_1, end_2 = bar_ends(x, self.params.arms_m)
         n_b = bar_axis(x)
         out = self.settings.landing_clearance_m

@@ -31,13 +31,24 @@ class BodyNames:
 
 
 @dataclass(frozen=True)
+class Refusals:
+    """A body whose newest poses the fusion refused: how many in a row, and why the last."""
+
+    body: str
+    in_a_row: int
+    why: str
+
+
+@dataclass(frozen=True)
 class Estimate:
     """The state at a tick: ``x`` (36,) in the paper's order, the oldest body's age [s],
-    and which bodies are not healthy (empty when all are)."""
+    which bodies are not healthy (empty when all are), and the bodies whose newest poses
+    were refused (``mocap.fusion``'s gate or repeats; empty when none)."""
 
     x: FloatArray
     age_s: float
     unhealthy: tuple[str, ...]
+    refused: tuple[Refusals, ...] = ()
 
     @property
     def healthy(self) -> bool:
@@ -73,4 +84,9 @@ def estimate_state(bodies: Mapping[str, BodyState], names: BodyNames = BodyNames
         n for n, s in zip(names.all(), states, strict=True) if s is None or not s.healthy
     )
     age = max((s.age_s if s is not None else np.inf) for s in states)
-    return Estimate(x, float(age), unhealthy)
+    refused = tuple(
+        Refusals(s.name, s.refused_in_a_row, s.refusal)
+        for s in states
+        if s is not None and s.refused_in_a_row > 0
+    )
+    return Estimate(x, float(age), unhealthy, refused)

@@ -61,6 +61,7 @@ class SafetyLimits:
     slack_margin_m: float = 0.05
     slack_time_s: float = 0.5
     max_bar_yaw_error_rad: float = math.radians(20.0)  # 0: no hand-over
+    max_refused_poses: int = 10  # a body's poses refused in a row: blind (10 = 0.1 s at 100 Hz)
 
 
 def chosen_response(faults: list[Fault]) -> Response | None:
@@ -107,6 +108,18 @@ class SafetyMonitor:
                     response,
                 )
             )
+        for refused in estimate.refused:
+            if refused.in_a_row >= lim.max_refused_poses:
+                # The mocap says what no rigid body can do (or repeats itself): what the
+                # supervisor would fly is the coasting estimate of a source it cannot trust.
+                faults.append(
+                    Fault(
+                        "mocap",
+                        f"{refused.body}: {refused.in_a_row} poses in a row refused"
+                        f" ({refused.why})",
+                        Response.PX4_LAND,
+                    )
+                )
         if not np.all(np.isfinite(estimate.x)) and estimate.age_s <= lim.mocap_coast_s:
             faults.append(Fault("numeric", "NaN or inf in the estimated state", Response.ABORT))
         lost = [i for i, connected in enumerate(links_connected, start=1) if not connected]

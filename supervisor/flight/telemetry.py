@@ -7,7 +7,8 @@ and the mocap source. Angles in radians, positions in metres (arena frame), time
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -30,12 +31,14 @@ from supervisor.vehicles.types import VehicleView
 
 @dataclass(frozen=True)
 class MocapView:
-    """The motion-capture source as the client sees it."""
+    """The motion-capture source as the client sees it; ``refused``: what was dropped as
+    not the server's stream or refused by the fusion, by reason (only reasons seen)."""
 
     connected: bool
     rate_hz: float
     frames: int
     dropped: int
+    refused: Mapping[str, int] = field(default_factory=dict)
 
 
 def _floats(values: Any) -> list[float | None]:
@@ -109,6 +112,7 @@ def build_telemetry(
             "unhealthy": list(estimate.unhealthy) if estimate is not None else [],
             "frames": mocap.frames,
             "dropped": mocap.dropped,
+            "refused": dict(mocap.refused),
         },
         "setpoints": {
             "active": setpoint_json(core.queue.active),

@@ -467,7 +467,12 @@ class FlightProcess:
     def telemetry(self) -> dict[str, Any]:
         """The status message now."""
         stats = self.mocap.stats()
-        mocap = MocapView(stats.connected, self._mocap_rate[2], stats.frames, stats.frames_missed)
+        refused = stats.refused() | {
+            reason: n for reason, n in self.driver.fusion.refused().items() if n
+        }
+        mocap = MocapView(
+            stats.connected, self._mocap_rate[2], stats.frames, stats.frames_missed, refused
+        )
         summary: dict[str, Any] = dict(self.stats.summary())
         p50, p99 = _percentiles(self.latency_ms)
         summary["latency_ms_p50"], summary["latency_ms_p99"] = p50, p99

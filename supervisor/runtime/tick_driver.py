@@ -38,8 +38,12 @@ class TickDriver:
         links_connected: tuple[bool, bool] = (True, True),
         lateness_s: float = 0.0,
     ) -> TickResult:
-        """This tick's commands, from the estimate at ``now_s``."""
-        return self.core.tick(now_s, self.estimate_at(now_s), links_connected, lateness_s)
+        """This tick's commands, from the estimate at ``now_s``. Frames fused after it are
+        refused when they repeat themselves while the bodies fly
+        (``FlightCore.bodies_in_motion``)."""
+        result = self.core.tick(now_s, self.estimate_at(now_s), links_connected, lateness_s)
+        self.fusion.refuse_repeats = self.core.bodies_in_motion
+        return result
 
     def finish(self, result: TickResult, **extra: Any) -> None:
         """Log the tick (with the caller's ``extra`` figures) and prepare the next one."""
