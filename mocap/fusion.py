@@ -24,9 +24,9 @@ rotation and Euler conversion goes through ``geometry.frames``.
 
 Innovation gate: a pose no rigid body can reach from the last estimate is refused, not
 fused — a position further from the prediction p + v·h than ½·a_max·h² plus ``gate_sigmas``
-standard deviations of the predicted error and the measurement noise, or an attitude turned
-further from the last estimate than ω_max·h plus as many deviations (h: the time since the
-last fused sample). The bound grows with h, so a body that really moved while it was not
+standard deviations of the estimate's own error carried h ahead and of the measurement noise,
+or an attitude turned further from the last estimate than ω_max·h plus as many deviations
+(h: the time since the last fused sample; the physical bounds stand for the process noise). The bound grows with h, so a body that really moved while it was not
 seen is taken back once it could have got there. A frame in which every tracked body repeats
 its previous pose bit for bit is no new measurement when ``MocapFusion.refuse_repeats`` is
 set (in flight: a frozen pipeline re-sends old poses with new frame numbers). Refused samples
@@ -184,7 +184,12 @@ class _ConstantVelocityAxes:
         return correction
 
     def predicted_value_variance(self, h: float) -> float:
-        return self.p00 + 2.0 * h * self.p01 + h * h * self.p11 + self.q * h**3 / 3.0
+        return self.extrapolated_variance(h) + self.q * h**3 / 3.0
+
+    def extrapolated_variance(self, h: float) -> float:
+        """The value's variance h ahead from the estimate's own uncertainty alone (no
+        process noise: the innovation gate bounds the acceleration itself)."""
+        return self.p00 + 2.0 * h * self.p01 + h * h * self.p11
 
 
 def _nan(n: int) -> FloatArray:
@@ -294,7 +299,7 @@ class RigidBodyFilter:
         axes = self._translation
         predicted = axes.mean[0] + h * axes.mean[1]
         miss_m = float(np.linalg.norm(pose.position_m - predicted))
-        spread_m = math.sqrt(axes.predicted_value_variance(h) + axes.r)
+        spread_m = math.sqrt(axes.extrapolated_variance(h) + axes.r)
         reach_m = 0.5 * c.gate_max_accel_mps2 * h * h + c.gate_sigmas * spread_m
         if not miss_m <= reach_m:  # NaN is refused too
             return (
@@ -305,7 +310,7 @@ class RigidBodyFilter:
         turn = frames.quaternion_multiply(frames.quaternion_conjugate(self._q), pose.quaternion)
         turn_rad = float(np.linalg.norm(frames.rotation_vector_from_quaternion(turn)))
         rotation = self._rotation
-        spread_rad = math.sqrt(rotation.predicted_value_variance(h) + rotation.r)
+        spread_rad = math.sqrt(rotation.p00 + rotation.r)  # the turn is from the estimate
         reach_rad = c.gate_max_angular_rate_radps * h + c.gate_sigmas * spread_rad
         if not turn_rad <= reach_rad:
             return (

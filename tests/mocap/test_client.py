@@ -347,3 +347,54 @@ def test_component_choice_and_frames_without_rigid_bodies() -> None:
     markers_only = DataPacket(3, 3, (RawComponent(1, bytes(8)),))
     assert receiver.receive_datagram(encode_packet(markers_only), 0.0) is None
     assert receiver.counts["ignored"] == 1 and receiver.counts["malformed"] == 0
+
+
+def test_frame_numbers_far_ahead_are_refused_and_the_real_stream_goes_on() -> None:
+    """A sender raising the frame numbers by 50, between the real frames (10 ms apart), from
+    the server's own port: each refused and counted, no real frame taken as out of order."""
+    receiver = FrameReceiver(NAMES)
+    accepted = []
+    for k in range(1, 101):
+        now_s = k * 0.01
+        accepted.append(receiver.receive_datagram(data(k), now_s, 6000) is not None)
+        assert receiver.receive_datagram(data(k + 50), now_s + 0.002, 6000) is None
+    counts = receiver.counts
+    assert all(accepted) and counts["frame_number_jumps"] == 100
+    assert counts["out_of_order"] == counts["gaps"] == counts["stream_restarts"] == 0
+    assert receiver.last_frame_number == 100
+
+
+def test_frame_numbers_ahead_by_the_time_that_passed_are_a_gap() -> None:
+    receiver = FrameReceiver(NAMES, max_frame_rate_hz=1000.0, frame_number_slack=10)
+    receiver.receive_datagram(data(1), 0.0)
+    assert receiver.receive_datagram(data(12), 0.0005) is None  # 11 ahead in 0.5 ms
+    assert receiver.receive_datagram(data(11), 0.0005) is not None  # the slack
+    assert receiver.receive_datagram(data(511), 5.0) is not None  # 5 s of silence
+    assert receiver.counts["gaps"] == 2 and receiver.counts["frame_number_jumps"] == 1
+
+
+def test_a_stream_renumbered_far_ahead_is_adopted_after_a_run() -> None:
+    receiver = FrameReceiver(NAMES, restart_after_backwards=5)
+    receiver.receive_datagram(data(1), 0.0)
+    taken = [
+        receiver.receive_datagram(data(n), 0.01 + 0.01 * (n - 900)) is not None
+        for n in range(900, 906)
+    ]
+    assert taken == [False, False, False, False, True, True]
+    assert receiver.counts["stream_restarts"] == 1 and receiver.counts["frame_number_jumps"] == 4
+
+
+def test_only_the_servers_stream_port_is_heard() -> None:
+    """Learned from the first frame of a session (forgotten with it), or configured."""
+    receiver = FrameReceiver(NAMES)
+    assert receiver.receive_datagram(b"junk", 0.0, 7000) is None  # not a frame: learns nothing
+    assert receiver.receive_datagram(data(1), 0.01, 6000) is not None
+    assert receiver.receive_datagram(data(2), 0.02, 7000) is None
+    assert receiver.server_port == 6000 and receiver.counts["foreign_port_datagrams"] == 1
+    receiver.reset(NAMES, ComponentType.SIX_D)
+    assert receiver.receive_datagram(data(1), 0.03, 7000) is not None  # a new session's port
+    configured = FrameReceiver(NAMES, server_port=6000)
+    assert configured.receive_datagram(data(1), 0.0, 7000) is None
+    assert configured.receive_datagram(data(1), 0.0, 6000) is not None
+    configured.reset(NAMES, ComponentType.SIX_D)
+    assert configured.server_port == 6000

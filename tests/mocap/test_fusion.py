@@ -11,7 +11,13 @@ import pytest
 from geometry import frames
 from geometry.arrays import FloatArray
 from mocap.fusion import CaptureClock, FusionConfig, MocapFusion, RigidBodyFilter
-from mocap.qtm_protocol import BodyPose, MocapFrame
+from mocap.qtm_protocol import (
+    BodyPose,
+    ComponentType,
+    MocapFrame,
+    frame_from_packet,
+    packet_from_poses,
+)
 
 RATE_HZ = 100.0
 P0 = np.array([1.0, -2.0, 1.5])
@@ -243,3 +249,120 @@ def test_config_is_validated() -> None:
         FusionConfig(position_noise_m=0.0)
     with pytest.raises(ValueError, match="max_prediction_s"):
         FusionConfig(max_prediction_s=-1.0)
+
+
+# --- The innovation gate and repeated frames --------------------------------------------------
+
+
+def hover_pose(t: float, rng: np.random.Generator, offset_m: float = 0.0) -> BodyPose:
+    """A body hovering still, with the simulated mocap's noise (0.5 mm, 0.1°)."""
+    position = np.array([0.5, 0.2, 1.0 + offset_m]) + rng.normal(0.0, 5e-4, 3)
+    q = frames.quaternion_from_rotation_vector(rng.normal(0.0, math.radians(0.1), 3))
+    return BodyPose.from_quaternion("uav1", position, q)
+
+
+def test_a_jump_no_body_can_make_is_refused_counted_and_never_fused() -> None:
+    rng = np.random.default_rng(3)
+    body = RigidBodyFilter("uav1")
+    for k in range(100):
+        assert body.update(hover_pose(k / RATE_HZ, rng), k / RATE_HZ)
+    before = body.state_at(0.99).position_m
+    for k in range(100, 105):  # 1 m up, 5 frames
+        assert not body.update(hover_pose(k / RATE_HZ, rng, offset_m=1.0), k / RATE_HZ)
+    state = body.state_at(1.04)
+    assert np.linalg.norm(state.position_m - before) < 0.01
+    assert state.refused_in_a_row == 5 and "m from its prediction" in state.refusal
+    assert body.refused == {"position": 5, "attitude": 0, "repeated": 0}
+    assert not state.healthy  # refused poses are no measurements: the body ages
+    assert body.update(hover_pose(1.05, rng), 1.05)  # back: fused, the run ends
+    after = body.state_at(1.05)
+    assert after.refused_in_a_row == 0 and after.refusal == "" and after.healthy
+
+
+def test_a_turn_no_body_can_make_is_refused() -> None:
+    rng = np.random.default_rng(4)
+    body = RigidBodyFilter("uav1")
+    for k in range(50):
+        body.update(hover_pose(k / RATE_HZ, rng), k / RATE_HZ)
+    still = hover_pose(0.5, rng)
+    flipped = frames.quaternion_multiply(  # a quarter turn in yaw within one frame
+        still.quaternion, frames.quaternion_from_rotation_vector(np.array([0.0, 0.0, math.pi / 2]))
+    )
+    assert not body.update(BodyPose.from_quaternion("uav1", still.position_m, flipped), 0.5)
+    assert body.refused["attitude"] == 1 and "turned 90°" in body.last_refusal
+
+
+def test_the_gate_takes_a_body_back_once_it_could_have_got_there() -> None:
+    """A body really elsewhere after a while (a relabelled body, a long occlusion): the
+    reachable distance grows as ½·a·h², so it is fused again after about √(2 m / a)."""
+    rng = np.random.default_rng(5)
+    config = FusionConfig()
+    body = RigidBodyFilter("uav1", config)
+    for k in range(100):
+        body.update(hover_pose(k / RATE_HZ, rng), k / RATE_HZ)
+    last = 0.99
+    taken = next(
+        k / RATE_HZ
+        for k in range(100, 200)
+        if body.update(hover_pose(k / RATE_HZ, rng, offset_m=1.0), k / RATE_HZ)
+    )
+    physical_s = math.sqrt(2.0 * 1.0 / config.gate_max_accel_mps2)
+    assert physical_s - 0.05 < taken - last <= physical_s + 0.01
+    assert body.state_at(taken).position_m[2] > 1.9  # the new pose, not a blend
+
+
+def test_the_gate_passes_what_a_body_can_do_with_the_simulated_noise() -> None:
+    """20 m/s² of acceleration and 570°/s of yaw rate, with 0.5 mm and 0.1° of noise, for
+    20 s at 100 Hz: not one pose refused."""
+    rng = np.random.default_rng(6)
+    body = RigidBodyFilter("uav1", FusionConfig(position_accel_psd=0.2, angular_accel_psd=2.0))
+    amplitude_m, omega = 0.2, 10.0  # a = A ω² = 20 m/s²
+    for k in range(2000):
+        t = k / RATE_HZ
+        position = np.array([amplitude_m * math.sin(omega * t), 0.0, 1.0]) + rng.normal(
+            0.0, 5e-4, 3
+        )
+        q = frames.quaternion_multiply(
+            frames.quaternion_from_euler_zyx(0.0, 0.0, 10.0 * t),
+            frames.quaternion_from_rotation_vector(rng.normal(0.0, math.radians(0.1), 3)),
+        )
+        assert body.update(BodyPose.from_quaternion("uav1", position, q), t), (t, body.last_refusal)
+    assert body.refused == {"position": 0, "attitude": 0, "repeated": 0}
+
+
+def frame_of(k: int, poses: dict[str, BodyPose]) -> MocapFrame:
+    return MocapFrame(k, round(k * 1e6 / RATE_HZ), poses, k / RATE_HZ + 0.005)
+
+
+def test_frames_repeated_bit_for_bit_are_no_measurements_when_refused() -> None:
+    rng = np.random.default_rng(7)
+    fusion = MocapFusion(FusionConfig(time_source="receive"))
+    poses = {"uav1": hover_pose(0.0, rng), "bar": hover_pose(0.0, rng)}
+    fusion.update(frame_of(0, poses))
+    fusion.update(frame_of(1, poses))  # on the ground a repeat is a measurement
+    assert fusion.filters["uav1"].updates == 2 and fusion.repeated_frames == 0
+    fusion.refuse_repeats = True
+    for k in range(2, 12):
+        fusion.update(frame_of(k, poses))
+    assert fusion.repeated_frames == 10
+    assert fusion.refused() == {"position": 0, "attitude": 0, "repeated": 20}
+    state = fusion.state("uav1", 11 / RATE_HZ + 0.005)
+    assert state.age_s == pytest.approx(0.1) and not state.healthy
+    assert state.refused_in_a_row == 10 and "frozen" in state.refusal
+    # One body moved: the frame is new, and every body in it is fused.
+    fusion.update(frame_of(12, {"uav1": hover_pose(0.12, rng), "bar": poses["bar"]}))
+    assert fusion.state("bar", 0.125).refused_in_a_row == 0
+
+
+def test_noisy_frames_as_the_qtm_stream_carries_them_never_repeat() -> None:
+    """Sub-millimetre noise through QTM's float32 millimetres: a resting body's poses still
+    differ in every frame, so refusing repeats never refuses a live stream."""
+    rng = np.random.default_rng(8)
+    fusion = MocapFusion()
+    fusion.refuse_repeats = True
+    for k in range(1000):
+        packet = packet_from_poses(
+            k + 1, k * 10_000, ("uav1",), {"uav1": hover_pose(0.0, rng)}, [ComponentType.SIX_D]
+        )
+        fusion.update(frame_from_packet(packet, ("uav1",), k / RATE_HZ))
+    assert fusion.repeated_frames == 0 and fusion.filters["uav1"].updates == 1000
