@@ -17,7 +17,7 @@ from supervisor.app.assembly import (
 )
 from supervisor.app.config import ConfigError, load_config
 from supervisor.flight.core import NoticeKind
-from supervisor.flight.estimation import Estimate
+from supervisor.flight.estimation import Estimate, Refusals
 from supervisor.flight.modes import Mode
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
 from tests.conftest import CONFIGS
@@ -134,3 +134,27 @@ def test_one_link_lost_asks_the_other_to_land_both_lost_hands_over_to_px4() -> N
     land_other = Fault("link", "vehicle 1 link lost", Response.LAND_OTHER)
     abort = Fault("tilt", "UAV 2 tilted", Response.ABORT)
     assert chosen_response([abort, land_other]) is Response.LAND_OTHER
+
+
+def test_a_run_of_refused_poses_in_flight_hands_over_to_px4_and_names_why() -> None:
+    core = flight_core_from_config(CONFIG, "centralized", clock=time.thread_time)
+    limit = core.safety.limits.max_refused_poses
+    assert limit == CONFIG.safety.max_refused_poses == 10
+    core.start_in_hover(Estimate(hovering_state(0.0), 0.01, ()), 0.0, (0.05, 0.1, 0.1))
+    why = "1.000 m from its prediction, 0.004 m reachable in 90 ms"
+    short = Estimate(hovering_state(0.0), 0.01, (), (Refusals("uav1", limit - 1, why),))
+    assert core.tick(0.02, short).mode is Mode.HOVER
+    run = Estimate(hovering_state(0.0), 0.01, (), (Refusals("uav1", limit, why),))
+    result = core.tick(0.04, run)
+    assert result.mode is Mode.PX4_LANDING
+    [notice] = result.notices
+    assert notice.kind is NoticeKind.BLIND
+    assert notice.text.startswith(f"uav1: {limit} poses in a row refused ({why})")
+
+
+def test_repeated_frames_are_refused_only_while_the_bodies_move() -> None:
+    """On the ground a resting system may repeat itself exactly (no noise): not refused."""
+    core = flight_core_from_config(CONFIG, "centralized", clock=time.thread_time)
+    assert not core.bodies_in_motion  # disarmed
+    core.start_in_hover(Estimate(hovering_state(0.0), 0.01, ()), 0.0, (0.05, 0.1, 0.1))
+    assert core.bodies_in_motion
