@@ -16,8 +16,8 @@ Two layers, as in aioquic:
   the TCP connection uses, and sends ``StreamFrames AllFrames UDP:<port> 6D`` (or
   ``6DEuler``/…; QTM answers nothing on success, §1.3); with ``transport="tcp"`` it sends
   ``StreamFrames AllFrames 6D`` and reads the frames from the command connection, which a
-  sender off the path between QTM and us cannot inject into. A lost connection, a server error or
-  a silent server (keep-alive unanswered) ends the session; the client reconnects with
+  sender off the path between QTM and us cannot inject into. A lost connection, a server
+  error or a silent server (keep-alive unanswered) ends the session; the client reconnects with
   exponential back-off until the context exits.
 
 ``MocapSource`` is the small protocol the supervisor depends on; the sim or a test can supply
@@ -86,7 +86,8 @@ class QtmServerError(Exception):
 class MocapStats:
     """Counters of a mocap source since it was created (snapshots; never reset).
 
-    Datagram counters: ``datagrams`` received from the server's host, ``frames`` accepted,
+    Datagram counters: ``datagrams`` of the server's UDP stream (from its host, and from
+    its port once known), ``frames`` accepted (over UDP or TCP),
     ``gaps`` (forward jumps in the frame number) and ``frames_missed`` (frame numbers skipped
     in total), ``out_of_order`` (older than the newest accepted), ``duplicates`` (same frame
     number again), ``malformed`` (not a valid RT packet, or a corrupt record),

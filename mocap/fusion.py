@@ -24,10 +24,11 @@ rotation and Euler conversion goes through ``geometry.frames``.
 
 Innovation gate: a pose no rigid body can reach from the last estimate is refused, not
 fused — a position further from the prediction p + v·h than ½·a_max·h² plus ``gate_sigmas``
-standard deviations of the estimate's own error carried h ahead and of the measurement noise,
-or an attitude turned further from the last estimate than ω_max·h plus as many deviations
-(h: the time since the last fused sample; the physical bounds stand for the process noise). The bound grows with h, so a body that really moved while it was not
-seen is taken back once it could have got there. A frame in which every tracked body repeats
+standard deviations of the estimate's own error carried h ahead and of the measurement
+noise, or an attitude turned further from the last estimate than ω_max·h plus as many
+deviations (h: the time since the last fused sample; the physical bounds stand in for the
+process noise). The bound grows with h, so a body that really moved while it was not seen
+is taken back once it could have got there. A frame in which every tracked body repeats
 its previous pose bit for bit is no new measurement when ``MocapFusion.refuse_repeats`` is
 set (in flight: a frozen pipeline re-sends old poses with new frame numbers). Refused samples
 leave the filter as it was, so the body ages as if the frame had not come; each filter counts
