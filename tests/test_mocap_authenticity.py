@@ -11,6 +11,7 @@ import re
 import time
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -76,15 +77,20 @@ class Hover:
 
 
 @contextlib.asynccontextmanager
-async def hovering(transport: str = "udp") -> AsyncIterator[Hover]:
+async def hovering(transport: Literal["udp", "tcp"] = "udp") -> AsyncIterator[Hover]:
     rng = np.random.default_rng(18)
     jump: dict[str, float] = {}
     fusion = fusion_from_config(CONFIG)
     async with (
         QtmServer(NAMES, lambda _t: hover_poses(rng, jump), port=0, rate_hz=100.0) as server,
-        QtmClient(LOCALHOST, server.port, transport=transport) as client,  # type: ignore[arg-type]
+        QtmClient(LOCALHOST, server.port, transport=transport) as client,
     ):
-        client.on_frame(lambda: [fusion.update(frame) for frame in client.drain()])
+
+        def fuse() -> None:
+            for frame in client.drain():
+                fusion.update(frame)
+
+        client.on_frame(fuse)
         await wait_until(lambda: client.stats().frames >= 30)
         yield Hover(server, client, fusion, jump)
 

@@ -24,7 +24,7 @@ from tests.test_service import TOKEN, flight_logs
 
 pytestmark = pytest.mark.slow
 
-CASES = {  # the fault's fields, and what the hand-over's notice says
+CASES: dict[str, tuple[dict[str, Any], str]] = {  # the fault's fields, what the notice says
     "mocap_body_lost": ({"body": "bar"}, r"bar stale or untracked \(1\d\d ms\)"),
     "mocap_freeze": ({}, r"\d+ poses in a row refused \(repeated bit for bit: a frozen stream\)"),
     "mocap_jump": (
