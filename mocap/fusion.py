@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -428,16 +428,30 @@ class MocapFusion:
     def update(self, frame: MocapFrame) -> float:
         """Fuse every body of ``frame`` (unless it is refused as a repeat); returns the
         sample time used [s]."""
+        t_s, _ = self._fuse(frame)
+        return t_s
+
+    def plausible(self, frame: MocapFrame) -> MocapFrame:
+        """Fuse ``frame``; return it with every pose the fusion did not take (refused, or
+        older than the newest) as untracked: what may be passed on as a measurement."""
+        _, taken = self._fuse(frame)
+        bodies = {
+            name: pose if name in taken else BodyPose.untracked(name)
+            for name, pose in frame.bodies.items()
+        }
+        return replace(frame, bodies=bodies)
+
+    def _fuse(self, frame: MocapFrame) -> tuple[float, set[str]]:
+        """The sample time [s] and the bodies whose poses were fused."""
         t_s = self.sample_time_s(frame)
         if self._repeats_previous(frame) and self.refuse_repeats:
             self.repeated_frames += 1
             for name, pose in frame.bodies.items():
                 if pose.tracked:
                     self._filter(name).refuse_repeat(t_s)
-            return t_s
-        for name, pose in frame.bodies.items():
-            self.update_pose(pose, t_s, name)
-        return t_s
+            return t_s, set()
+        taken = {name for name, pose in frame.bodies.items() if self.update_pose(pose, t_s, name)}
+        return t_s, taken
 
     def _repeats_previous(self, frame: MocapFrame) -> bool:
         """Every tracked body of ``frame`` (at least one) bit for bit as in its last tracked

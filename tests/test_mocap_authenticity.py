@@ -24,6 +24,7 @@ from mocap.qtm_protocol import BodyPose, ComponentType, encode_packet, packet_fr
 from sim.qtm_server import QtmServer
 from supervisor.app.assembly import arena_from_config, body_names_from_config, fusion_from_config
 from supervisor.app.config import load_config
+from supervisor.app.relay_main import PlausibleSource
 from supervisor.flight.estimation import Estimate, estimate_state
 from supervisor.flight.modes import Mode
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor
@@ -174,3 +175,36 @@ async def test_frames_over_the_tcp_command_connection() -> None:
     assert stats.transport == "tcp" and stats.udp_port is None
     assert stats.out_of_order == stats.duplicates == stats.malformed == 0
     assert error_m < 0.005
+
+
+async def test_the_relay_passes_on_only_poses_the_gate_takes() -> None:
+    """What the mocap relay sends each PX4's estimator (``PlausibleSource``): a jumped pose
+    goes out as untracked, the other bodies as they came."""
+    rng = np.random.default_rng(19)
+    jump: dict[str, float] = {}
+    async with (
+        QtmServer(NAMES, lambda _t: hover_poses(rng, jump), port=0, rate_hz=100.0) as server,
+        QtmClient(LOCALHOST, server.port) as client,
+    ):
+        gated = PlausibleSource(client, fusion_from_config(CONFIG))
+
+        def read_as_the_relay_does() -> None:  # the newest frame, as each one arrives
+            gated.latest()
+
+        gated.on_frame(read_as_the_relay_does)
+        await wait_until(lambda: client.stats().frames >= 20)
+        before = gated.drain()
+        assert before and all(p.tracked for p in before[-1].bodies.values())
+        jump[UAV1] = 1.0
+        await wait_until(lambda: gated.fusion.refused()["position"] >= 5)
+        jumped = gated.drain()
+        jump.clear()
+        await asyncio.sleep(0.05)
+        after = gated.drain()
+    untracked = [f for f in jumped if not f.bodies[UAV1].tracked]
+    assert len(untracked) >= 5 and all(f.bodies[BAR].tracked for f in jumped)
+    for frame in jumped:  # whatever got through is where the body is
+        pose = frame.bodies[UAV1]
+        if pose.tracked:
+            assert np.linalg.norm(pose.position_m - uav_position(HOVER, 1)) < 0.01
+    assert after and all(f.bodies[UAV1].tracked for f in after[1:])

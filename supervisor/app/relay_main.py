@@ -1,5 +1,7 @@
 """The mocap relay process's entry point (``serve`` starts it when it knows the vehicles'
-addresses: the embedded world's, or ``vehicles.addresses``)."""
+addresses: the embedded world's, or ``vehicles.addresses``). What it relays has passed the
+client's filters and the fusion's innovation gate (``PlausibleSource``): a jump no rigid body
+can make never reaches a PX4's estimator either."""
 
 from __future__ import annotations
 
@@ -7,10 +9,18 @@ import asyncio
 import logging
 import socket
 import time
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any
 
-from supervisor.app.assembly import body_names_from_config, qtm_client_from_config
+from mocap.client import MocapSource, MocapStats
+from mocap.fusion import MocapFusion
+from mocap.qtm_protocol import MocapFrame
+from supervisor.app.assembly import (
+    body_names_from_config,
+    fusion_from_config,
+    qtm_client_from_config,
+)
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config, host_port
 from supervisor.logs.logging_setup import configure_logging
@@ -24,6 +34,44 @@ log = logging.getLogger(__name__)
 
 GROUND_STATION_SYSTEM = 255  # the system id our links speak as
 VISION_COMPONENT = 197  # MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY
+MAX_KEPT_FRAMES = 256  # as the client's own store
+
+
+class PlausibleSource:
+    """A ``MocapSource`` whose frames went through ``fusion``'s gate: a refused pose is
+    passed on as untracked. Repeats are not refused here (the relay does not know whether
+    the bodies fly: the flight process does, and hands the vehicles over)."""
+
+    def __init__(self, source: MocapSource, fusion: MocapFusion) -> None:
+        self.source = source
+        self.fusion = fusion
+        self._latest: MocapFrame | None = None
+        self._frames: list[MocapFrame] = []
+
+    def latest(self) -> MocapFrame | None:
+        """The newest frame, gated."""
+        self._take()
+        return self._latest
+
+    def drain(self) -> list[MocapFrame]:
+        """The gated frames since the last call (at most ``MAX_KEPT_FRAMES``)."""
+        self._take()
+        frames, self._frames = self._frames, []
+        return frames
+
+    def stats(self) -> MocapStats:
+        """The source's counters."""
+        return self.source.stats()
+
+    def on_frame(self, listener: Callable[[], None] | None) -> None:
+        """Call ``listener`` whenever the source accepts a frame."""
+        self.source.on_frame(listener)
+
+    def _take(self) -> None:
+        for frame in self.source.drain():
+            self._latest = self.fusion.plausible(frame)
+            self._frames.append(self._latest)
+            del self._frames[:-MAX_KEPT_FRAMES]
 
 
 def relay_addresses(config: Config, world: dict[str, Any] | None) -> list[str] | None:
@@ -61,6 +109,6 @@ def run_relay_process(
             targets.append(VisionTarget(body, codec, encoder, sock, host_port(address)))
         log.info("mocap relay: %s; poses of %s to %s", raise_priority(), names, addresses)
         async with stop_event(parent) as stop, qtm_client_from_config(config, world) as mocap:
-            await MocapRelay(mocap, targets).run(stop)
+            await MocapRelay(PlausibleSource(mocap, fusion_from_config(config)), targets).run(stop)
 
     asyncio.run(main())
