@@ -160,7 +160,8 @@ async def test_a_jump_from_the_servers_own_stream_is_refused_and_if_it_persists_
     assert worst_m < 0.01
     [fault] = faults
     assert fault.response is Response.PX4_LAND
-    match = re.match(rf"{UAV1}: (\d+) poses in a row refused \((0\.9|1\.0)\d\d m from", fault.message)
+    refusal = rf"{UAV1}: (\d+) poses in a row refused \((0\.9|1\.0)\d\d m from"
+    match = re.match(refusal, fault.message)
     assert match is not None, fault.message
     assert limit <= int(match.group(1)) == refused
     assert hover.client.stats().frame_number_jumps == 0
