@@ -28,9 +28,12 @@ standard deviations of the estimate's own error carried h ahead and of the measu
 noise, or an attitude turned further from the last estimate than ω_max·h plus as many
 deviations (h: the time since the last fused sample; the physical bounds stand in for the
 process noise). The bound grows with h, so a body that really moved while it was not seen
-is taken back once it could have got there. A frame in which every tracked body repeats
-its previous pose bit for bit is no new measurement when ``MocapFusion.refuse_repeats`` is
-set (in flight: a frozen pipeline re-sends old poses with new frame numbers). Refused samples
+is taken back once it could have got there; taken back further from the prediction than
+the filter's own spread allows, the filter restarts from it (its velocity is unknown).
+
+A frame in which every tracked body repeats its previous pose bit for bit is no new
+measurement when ``MocapFusion.refuse_repeats`` is set (in flight: a frozen pipeline
+re-sends old poses with new frame numbers). Refused samples
 leave the filter as it was, so the body ages as if the frame had not come; each filter counts
 them by reason and how many in a row (``BodyState.refused_in_a_row``).
 """
@@ -253,6 +256,13 @@ class RigidBodyFilter:
         if refusal is not None:
             self._refuse(*refusal)
             return False
+        if self.refused_in_a_row and self._unexpected(pose, h):
+            # Taken back after refusals, where the filter did not expect it: the estimate it
+            # was refused against is no guide to its velocity. Restart, as after a dropout.
+            self.resets += 1
+            self._initialize(pose, t_s)
+            self._fused()
+            return True
         self._fused()
         self._translation.predict(h)
         self._rotation.predict(h)
@@ -320,6 +330,15 @@ class RigidBodyFilter:
                 f" {math.degrees(reach_rad):.0f}° reachable in {h * 1e3:.0f} ms",
             )
         return None
+
+    def _unexpected(self, pose: BodyPose, h: float) -> bool:
+        """``pose`` beyond ``gate_sigmas`` of the filter's own predicted spread (its process
+        noise included), ``h`` seconds after the last fused sample."""
+        assert self._translation is not None
+        axes = self._translation
+        miss_m = float(np.linalg.norm(pose.position_m - (axes.mean[0] + h * axes.mean[1])))
+        spread_m = math.sqrt(axes.predicted_value_variance(h) + axes.r)
+        return miss_m > self.config.gate_sigmas * spread_m
 
     def _initialize(self, pose: BodyPose, t_s: float) -> None:
         c = self.config

@@ -277,6 +277,7 @@ def test_a_jump_no_body_can_make_is_refused_counted_and_never_fused() -> None:
     assert body.update(hover_pose(1.05, rng), 1.05)  # back: fused, the run ends
     after = body.state_at(1.05)
     assert after.refused_in_a_row == 0 and after.refusal == "" and after.healthy
+    assert body.resets == 0  # where the filter expected it: no restart
 
 
 def test_a_turn_no_body_can_make_is_refused() -> None:
@@ -309,6 +310,11 @@ def test_the_gate_takes_a_body_back_once_it_could_have_got_there() -> None:
     physical_s = math.sqrt(2.0 * 1.0 / config.gate_max_accel_mps2)
     assert physical_s - 0.05 < taken - last <= physical_s + 0.01
     assert body.state_at(taken).position_m[2] > 1.9  # the new pose, not a blend
+    assert body.resets == 1  # restarted there: the old estimate says nothing of its velocity
+    k0 = round(taken * RATE_HZ) + 1
+    kept = [body.update(hover_pose(k / RATE_HZ, rng, 1.0), k / RATE_HZ) for k in range(k0, k0 + 50)]
+    assert all(kept), body.last_refusal
+    assert np.linalg.norm(body.state_at((k0 + 49) / RATE_HZ).velocity_mps) < 0.3  # noise
 
 
 def test_the_gate_passes_what_a_body_can_do_with_the_simulated_noise() -> None:
