@@ -15,9 +15,9 @@ from typing import Any
 
 from api.app import create_app
 from api.server import HttpServer
-from supervisor.app.assembly import arena_from_config
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config
+from supervisor.flight.setpoints import Arena
 from supervisor.ipc.channel import ChannelClosedError, WorldChannel
 from supervisor.ipc.client import FlightClient
 from supervisor.ipc.rendezvous import Rendezvous
@@ -30,14 +30,15 @@ log = logging.getLogger(__name__)
 # The flight process and the world it flies come first on a busy machine: requests and
 # WebSocket clients may wait, ticks and mocap frames may not.
 API_NICENESS = 5
-READY = "ready"
+GO = "go"  # serve → API process: start serving (a spare waits for it)
+READY = "ready"  # API process → serve: serving
 
 
 @dataclass(frozen=True)
 class ApiStart:
     """What ``serve`` hands an API process: the bound HTTP socket, where the others
     listen, the token, whether a simulated world runs, and a pipe on which ``serve`` sends
-    its process table at every change (and hears ``READY``)."""
+    its process table at every change (after ``GO``) and hears ``READY``."""
 
     http_socket: socket.socket
     rendezvous: Rendezvous
@@ -47,16 +48,22 @@ class ApiStart:
 
 
 class ProcessTable:
-    """``serve``'s latest process table, as received on its pipe."""
+    """What ``serve`` says on the pipe: ``GO`` (``go`` is set), then its latest process
+    table."""
 
     def __init__(self, pipe: Connection) -> None:
         self._pipe = pipe
         self.table: dict[str, dict[str, Any]] = {}
+        self.go = asyncio.Event()
 
     def receive(self) -> None:
         try:
             while self._pipe.poll():
-                self.table = self._pipe.recv()
+                message = self._pipe.recv()
+                if message == GO:
+                    self.go.set()
+                else:
+                    self.table = message
         except (EOFError, OSError):  # serve is gone: the lifeline stops this process
             asyncio.get_running_loop().remove_reader(self._pipe.fileno())
 
@@ -75,22 +82,34 @@ async def _world_client(start: ApiStart) -> WorldClient | None:
 
 
 async def serve_api(config: Config, start: ApiStart, parent: Connection) -> None:
-    """Serve HTTP until SIGTERM or until ``serve`` closes ``parent``."""
-    flight = FlightClient(None, None)
-    world = await _world_client(start)
+    """Wait for ``GO``, then serve HTTP until SIGTERM or until ``serve`` closes ``parent``."""
     table = ProcessTable(start.processes)
     loop = asyncio.get_running_loop()
     loop.add_reader(start.processes.fileno(), table.receive)
+    async with stop_event(parent) as stop:
+        told = asyncio.create_task(table.go.wait())
+        stopped = asyncio.create_task(stop.wait())
+        await asyncio.wait({told, stopped}, return_when=asyncio.FIRST_COMPLETED)
+        told.cancel()
+        stopped.cancel()
+        if not stop.is_set():
+            title_process("api")
+            await _serve(config, start, table, stop)
+
+
+async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asyncio.Event) -> None:
+    flight = FlightClient(None, None)
+    world = await _world_client(start)
     app = create_app(
         flight,
         config.system.to_params(),
-        arena_from_config(config),
+        Arena.between(config.arena.min_m, config.arena.max_m),  # not assembly: no plant
         start.token,
         world,
         processes=table.current,
     )
     http = HttpServer(app, start.http_socket)
-    async with stop_event(parent) as stop, asyncio.TaskGroup() as group:
+    async with asyncio.TaskGroup() as group:
         server = group.create_task(http.serve())
         links = [group.create_task(flight.stay_connected(start.rendezvous.flight, start.token))]
         if world is not None:
@@ -109,6 +128,6 @@ async def serve_api(config: Config, start: ApiStart, parent: Connection) -> None
 def run_api_process(config: Config, start: ApiStart, parent: Connection) -> None:
     """Child-process entry of ``serve``."""
     configure_logging()
-    title_process("api")
+    title_process("spare")  # until told GO (ps: uavbar-supervisor spare)
     os.nice(API_NICENESS)
     asyncio.run(serve_api(config, start, parent))

@@ -35,8 +35,7 @@ from supervisor.mavlink.link import LinkConfig
 
 def arena_from_config(config: Config) -> Arena:
     """The geofence of the configured arena."""
-    lo, hi = config.arena.min_m, config.arena.max_m
-    return Arena((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
+    return Arena.between(config.arena.min_m, config.arena.max_m)
 
 
 def safety_limits_from_config(config: Config) -> SafetyLimits:

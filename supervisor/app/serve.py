@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from api.server import bind
-from supervisor.app.api_process import READY, ApiStart
+from supervisor.app.api_process import GO, READY, ApiStart
 from supervisor.app.children import SPAWN, Child, Lifeline, stop_child
 from supervisor.app.config import TOKEN_ENV, Config, load_config
 from supervisor.app.flight_main import FlightStart
@@ -42,6 +42,7 @@ log = logging.getLogger(__name__)
 
 WORLD_START_TIMEOUT_S = 60.0
 API_START_TIMEOUT_S = 60.0
+SPARE_API_AFTER_S = 5.0  # the spare API process loads once the service is up, not during it
 
 
 @dataclass(frozen=True)
@@ -163,6 +164,9 @@ class Service:
         self.children: dict[str, Child] = {}
         self._flight_listener: socket.socket | None = None
         self._table_pipe: multiprocessing.connection.Connection | None = None
+        # A started API process waiting for GO (its process, lifeline, serve's pipe end).
+        self._spare: tuple[BaseProcess, Lifeline, multiprocessing.connection.Connection] | None
+        self._spare = None
         self._api_ready = asyncio.Event()
 
     @property
@@ -247,21 +251,52 @@ class Service:
         )
         return _spawn("uavbar-flight", _flight_main, self.setup, start, self.world_addresses)
 
-    def _start_api(self, _: str | None) -> tuple[BaseProcess, Lifeline]:
-        if self._table_pipe is not None:
-            loop = asyncio.get_running_loop()
-            loop.remove_reader(self._table_pipe.fileno())
-            self._table_pipe.close()
+    def _spawn_api(self) -> tuple[BaseProcess, Lifeline, multiprocessing.connection.Connection]:
+        """An API process, loaded and waiting for ``GO``."""
         ours, theirs = SPAWN.Pipe()
         start = ApiStart(
             self.http_socket, self.rendezvous, self.token, self.config.sim.embedded, theirs
         )
-        started = _spawn("uavbar-api", _api_main, self.setup, start)
+        process, lifeline = _spawn("uavbar-api", _api_main, self.setup, start)
         theirs.close()
+        return process, lifeline, ours
+
+    def _start_api(self, _: str | None) -> tuple[BaseProcess, Lifeline]:
+        """The spare, told to serve (else a new one), and a new spare a little later."""
+        loop = asyncio.get_running_loop()
+        if self._table_pipe is not None:
+            loop.remove_reader(self._table_pipe.fileno())
+            self._table_pipe.close()
+        spare, self._spare = self._spare, None
+        if spare is None or not spare[0].is_alive():
+            if spare is not None:
+                spare[1].close()
+                spare[2].close()
+            spare = self._spawn_api()
+        process, lifeline, ours = spare
+        ours.send(GO)
         self._table_pipe = ours
-        asyncio.get_running_loop().add_reader(ours.fileno(), self._api_says)
-        asyncio.get_running_loop().call_soon(self.publish_table)
-        return started
+        loop.add_reader(ours.fileno(), self._api_says)
+        loop.call_soon(self.publish_table)
+        loop.call_later(SPARE_API_AFTER_S, self._prepare_spare)
+        return process, lifeline
+
+    def _prepare_spare(self) -> None:
+        api = self.children.get("api")
+        if self._spare is None and api is not None and not api.stopped:
+            self._spare = self._spawn_api()
+
+    def _stop_spare(self) -> None:
+        """Blocking: the spare ends when its lifeline closes."""
+        spare, self._spare = self._spare, None
+        if spare is not None:
+            process, lifeline, pipe = spare
+            lifeline.close()
+            pipe.close()
+            process.join(5.0)
+            if process.is_alive():
+                process.kill()
+                process.join(5.0)
 
     def _api_says(self) -> None:
         assert self._table_pipe is not None
@@ -287,6 +322,7 @@ class Service:
         for name, timeout_s in order:
             if name in self.children:
                 await stop_child(self.children[name], timeout_s)
+        await asyncio.to_thread(self._stop_spare)
         if self._table_pipe is not None:
             asyncio.get_running_loop().remove_reader(self._table_pipe.fileno())
             self._table_pipe.close()

@@ -175,6 +175,7 @@ class FlightCore:
         failsafe for the rest of the flight, even if its link comes back."""
         self._set_down_end = np.zeros(3)  # the connected UAV's bar-end target (set_down)
         self._set_down_yaw = 0.0
+        self._set_down_speed = 0.0  # the end's descent now [m/s] (accelerating to its rate)
 
     # ---- operator interface -------------------------------------------------------------
     def request(self, event: Event, now_s: float) -> Transition:
@@ -411,6 +412,7 @@ class FlightCore:
             self._enter_phase(Phase.SET_DOWN)
             self._set_down_end = bar_ends(x, self.params.arms_m)[other - 1].copy()
             self._set_down_yaw = bar_yaw(x)
+            self._set_down_speed = 0.0
             self._yaw_hold = uav_yaws(x)
             self.set_controller("decentralized", now_s)  # its agent models one UAV alone
             action = f"UAV {other} sets its bar end down alone"
@@ -682,14 +684,21 @@ class FlightCore:
     ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
         """The connected UAV lowers its bar end to the ground at the abort rate, faster
         (``SET_DOWN_FAST_MPS``) while the other end, with the lost UAV's failsafe landing,
-        is lower; its decentralized agent tracks the end, the bar level at the held yaw."""
+        is lower; its decentralized agent tracks the end (with the descent as the
+        reference's velocity, so it does not lag), the bar level at the held yaw."""
         assert self.left_to_px4 is not None
         other = 3 - self.left_to_px4
         ends = bar_ends(x, self.params.arms_m)
         mine, theirs = ends[other - 1], ends[self.left_to_px4 - 1]
         behind = mine[2] - theirs[2] > SET_DOWN_LEVEL_M
-        rate = SET_DOWN_FAST_MPS if behind else self.settings.abort_rates.position_mps
-        self._set_down_end[2] = max(self._ground_bar_z, self._set_down_end[2] - rate * self._dt_s)
+        wanted = SET_DOWN_FAST_MPS if behind else self.settings.abort_rates.position_mps
+        step = self.settings.abort_rates.acceleration_mps2 * self._dt_s
+        self._set_down_speed = max(
+            self._set_down_speed - step, min(self._set_down_speed + step, wanted)
+        )
+        z = max(self._ground_bar_z, self._set_down_end[2] - self._set_down_speed * self._dt_s)
+        speed = self._set_down_speed if z > self._ground_bar_z else 0.0
+        self._set_down_end[2] = z
         n_b = bar_axis_from_angles(0.0, self._set_down_yaw)
         arm = self.params.arms_m[other - 1]
         centre = self._set_down_end + (arm if other == 1 else -arm) * n_b
@@ -698,6 +707,7 @@ class FlightCore:
             self._set_down_yaw,
             self._yaw_hold,
             0.0,
+            (0.0, 0.0, -speed),
         )
         commands, plan = self._mpc(now_s, x, reference)
         if mine[2] < self._ground_bar_z + 0.03:

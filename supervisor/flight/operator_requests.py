@@ -9,13 +9,15 @@ The tick core's own checks decide; this module only translates.
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from supervisor.flight.core import FlightCore
 from supervisor.flight.modes import Event
 from supervisor.flight.setpoints import Setpoint, SetpointError, SetpointQueueFullError
+
+if TYPE_CHECKING:  # the API process parses requests without loading the tick core
+    from supervisor.flight.core import FlightCore
 
 # strict: a JSON true is not a number of metres (ints are still numbers).
 Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,11 @@ class Arena:
     min_m: tuple[float, float, float]
     max_m: tuple[float, float, float]
     margin_m: float = 0.2
+
+    @classmethod
+    def between(cls, min_m: Sequence[float], max_m: Sequence[float]) -> Arena:
+        """The box from corner ``min_m`` to corner ``max_m`` (three numbers each)."""
+        return cls((min_m[0], min_m[1], min_m[2]), (max_m[0], max_m[1], max_m[2]))
 
     def contains(self, point: np.ndarray, margin_m: float | None = None) -> bool:
         margin = self.margin_m if margin_m is None else margin_m

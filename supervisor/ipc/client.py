@@ -111,6 +111,9 @@ class FlightClient:
             pass
         finally:
             self.connected = False
+            # What it last said is stale from now on, even once connected again: a new
+            # flight process's first telemetry is what freshens it.
+            self.latest_at_s = -float("inf")
             for future in self._pending.values():
                 if not future.done():
                     future.set_exception(ChannelClosedError("flight process gone"))
