@@ -25,7 +25,8 @@ from pathlib import Path
 from typing import Any
 
 from api.app import create_app
-from api.server import HttpServer, bind
+from api.guard import HttpPolicy, http_policy
+from api.server import HttpServer, TlsFiles, bind
 from supervisor.app.assembly import arena_from_config
 from supervisor.app.config import TOKEN_ENV, Config, load_config
 from supervisor.app.relay_main import relay_addresses
@@ -152,6 +153,20 @@ async def _world_client(sock: socket.socket | None) -> WorldClient | None:
     return None if sock is None else WorldClient(await WorldChannel.open(sock))
 
 
+def api_policy(config: Config, token: str) -> HttpPolicy:
+    """What the API's gate enforces (api.guard), from ``config.api``."""
+    api = config.api
+    return http_policy(token, api.host, api.allowed_hosts, api.max_body_bytes)
+
+
+def api_tls(config: Config) -> TlsFiles | None:
+    """The API's certificate and key, when configured."""
+    api = config.api
+    if api.tls_cert_file is None or api.tls_key_file is None:
+        return None
+    return TlsFiles(Path(api.tls_cert_file), Path(api.tls_key_file))
+
+
 def process_table(children: dict[str, BaseProcess | None]) -> dict[str, dict[str, Any]]:
     """``serve``'s processes for the status: name → PID and whether it is alive (this one,
     the API, always is; a child that was never started is left out)."""
@@ -210,13 +225,19 @@ async def serve(setup: Setup) -> int:
         client,
         config.system.to_params(),
         arena_from_config(config),
-        token,
+        api_policy(config, token),
         sim_world,
         processes=lambda: process_table(children),
     )
-    http = HttpServer(app, http_socket)
+    http = HttpServer(app, http_socket, api_tls(config))
     host = config.api.host
-    log.info("uavbar-supervisor serving http://%s:%d/ (setup %s)", host, http.port, config.name)
+    log.info(
+        "uavbar-supervisor serving %s://%s:%d/ (setup %s)",
+        http.scheme,
+        host,
+        http.port,
+        config.name,
+    )
     if generated:
         log.info("API token (generated; set %s or api.token to choose one): %s", TOKEN_ENV, token)
 

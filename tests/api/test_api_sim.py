@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from api.app import create_app
+from api.guard import HttpPolicy
 from api.server import HttpServer, bind
 from sim.plant import body_slice
 from sim.px4 import BOOT_MODE, FORCE_MAGIC
@@ -68,7 +69,9 @@ async def sim_api() -> AsyncIterator[SimApi]:
     pairs = [socket.socketpair() for _ in range(2)]
     commands, urgent = [await Channel.open(a) for a, _ in pairs]
     flight = FlightClient(commands, urgent)
-    app = create_app(flight, config.system.to_params(), arena_from_config(config), TOKEN, client)
+    app = create_app(
+        flight, config.system.to_params(), arena_from_config(config), HttpPolicy(TOKEN), client
+    )
     server = HttpServer(app, bind("127.0.0.1", 0))
     async with asyncio.TaskGroup() as group:
         tasks = [
