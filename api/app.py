@@ -3,9 +3,10 @@
 ``create_app`` takes everything as arguments (no settings read at import). Every request
 passes the gate first (``api.guard``: Host, Origin, token, body size — 421, 403, 401, 413),
 before any body is read; each route's ``x-access`` says who may call it. A body that does
-not validate gets 422 with every problem (``{"detail": [{"loc", "msg", "type"}]}``); a
-request the flight modes or the queue refuse gets 409 with the reason; no flight process
-answering gets 503. The OpenAPI document states each of these per operation.
+not fit its schema gets 422 with every problem (``{"detail": [{"loc", "msg", "type"}]}``);
+a well-formed request the flight modes, the queue, the arena or the equilibria refuse gets
+409 with the reason; no flight process answering gets 503. The OpenAPI document states
+each of these per operation.
 
 ``/api/sim/*`` reaches the simulated world's process (fault injection and the world reset,
 docs/faults.md), only when ``serve`` started the world itself (``sim.embedded``): else the
@@ -356,16 +357,19 @@ def _setpoint_routes(
 
     @router.post("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
     async def post_setpoints(body: SetpointsBody) -> JSONResponse:
-        """Queue one setpoint or a list of at most 32 (the queue's capacity), all or none,
-        each validated against the arena and equilibrium feasibility. A longer list is
-        refused by its length before any entry is read. Checked here first, so that a flood
+        """Queue one setpoint or a list of at most 32 (the queue's capacity), all or none.
+        A longer list is refused by its length before any entry is read (422). Each is then
+        checked against the arena and equilibrium feasibility (409 with the reason when it
+        cannot be flown here, or when the queue is full). Checked here first, so that a flood
         of setpoints no vehicle can fly never reaches the flight process; the tick core
         checks again as the authority for every way in (the simulator's scripts too)."""
         entries = body if isinstance(body, list) else [body]
         try:
             validate_setpoints([e.to_setpoint() for e in entries], params, arena)
         except SetpointError as error:
-            raise _invalid(["body"], str(error), "setpoint") from None
+            # Well-formed (the schema holds) but not flyable here: 409, as the queue's
+            # refusals; 422 is kept for what the schema itself refuses.
+            return JSONResponse({"accepted": False, "detail": str(error)}, 409)
         return _answer(await flight.request(QueueRequest(setpoints=entries)))
 
     @router.delete("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT))
@@ -392,6 +396,10 @@ def _sim_routes(world: WorldClient | None, policy: HttpPolicy) -> APIRouter:
         reply = await embedded().request(request)
         if reply.ok:
             return JSONResponse({"accepted": True, "embedded": True, **reply.data})
+        if reply.outcome is Outcome.INVALID:
+            # The body fitted its schema here; what the world still refuses (a rigid body
+            # it does not have) is a refusal, 409, like the queue's and the arena's.
+            reply = reply.model_copy(update={"outcome": Outcome.REFUSED})
         return _answer(reply)
 
     def mutating(*codes: int) -> dict[str, Any]:

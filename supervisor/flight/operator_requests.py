@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.flight.core import FlightCore
 from supervisor.flight.modes import Event
-from supervisor.flight.setpoints import Setpoint, SetpointError, SetpointQueueFullError
+from supervisor.flight.setpoints import Setpoint, SetpointError
 
 # The stated ranges of a setpoint's numbers. They bound what any request may carry; the
 # arena and the equilibrium decide what can be flown. strict: a JSON true is not a number
@@ -133,8 +133,9 @@ Request = Annotated[
 
 
 class Outcome(StrEnum):
-    """How a request ended: ``ok``; ``refused`` (the mode table or the queue said no: HTTP
-    409); ``invalid`` (bad data: 422); ``unavailable`` (no flight process answering: 503)."""
+    """How a request ended: ``ok``; ``refused`` (well-formed, but the mode table, the queue,
+    the arena or the equilibrium said no: HTTP 409); ``invalid`` (the request does not fit
+    its type: 422); ``unavailable`` (no flight process answering: 503)."""
 
     OK = "ok"
     REFUSED = "refused"
@@ -181,10 +182,8 @@ def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
     if isinstance(request, QueueRequest):
         try:
             core.queue_setpoints([entry.to_setpoint() for entry in request.setpoints])
-        except SetpointQueueFullError as error:
+        except SetpointError as error:  # the queue full, outside the arena, no equilibrium
             return Reply(outcome=Outcome.REFUSED, reason=str(error))
-        except SetpointError as error:
-            return Reply(outcome=Outcome.INVALID, reason=str(error))
         return Reply(outcome=Outcome.OK, data={"queued": len(core.queue.queued)})
     if isinstance(request, ClearSetpointsRequest):
         core.clear_setpoints()

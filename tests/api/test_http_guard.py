@@ -339,17 +339,26 @@ async def test_the_dashboard_is_served_and_cannot_be_framed(api: ApiUnderTest) -
     assert (await api.http.get("/static/app.js")).status_code == 200
 
 
-@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
-async def test_tls_when_configured_with_a_certificate(tmp_path: Path) -> None:
+@pytest.fixture
+def certificate(tmp_path: Path) -> TlsFiles:
+    """A self-signed certificate for 127.0.0.1 and its key."""
+    if shutil.which("openssl") is None:
+        pytest.skip("needs the openssl command")
     cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
     subprocess.run(
-        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1"]
-        + ["-keyout", str(key), "-out", str(cert), "-subj", "/CN=127.0.0.1"]
-        + ["-addext", "subjectAltName=IP:127.0.0.1"],
+        [
+            *("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1"),
+            *("-keyout", str(key), "-out", str(cert), "-subj", "/CN=127.0.0.1"),
+            *("-addext", "subjectAltName=IP:127.0.0.1"),
+        ],
         check=True,
         capture_output=True,
     )
-    async with serve_api(tls=TlsFiles(cert, key)) as api:
+    return TlsFiles(cert, key)
+
+
+async def test_tls_when_configured_with_a_certificate(certificate: TlsFiles) -> None:
+    async with serve_api(tls=certificate) as api:
         assert api.url.startswith("https://")
         response = await api.http.get("/api/status")
         assert response.status_code == 200 and response.json()["mode"] == "disarmed"
