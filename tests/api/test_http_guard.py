@@ -363,3 +363,14 @@ async def test_tls_when_configured_with_a_certificate(certificate: TlsFiles) -> 
         response = await api.http.get("/api/status")
         assert response.status_code == 200 and response.json()["mode"] == "disarmed"
         assert (await api.post("/api/arm")).status_code == 200
+
+
+async def test_every_constraint_reaches_the_openapi_document(api: ApiUnderTest) -> None:
+    """A pydantic bound that JSON Schema cannot state shows as a raw ``ge``/``lt`` key,
+    which a client ignores: there is none, and the stated ranges are there."""
+    text = (await api.http.get("/openapi.json")).text
+    for raw in ('"ge":', '"gt":', '"le":', '"lt":'):
+        assert raw not in text
+    setpoint = json.loads(text)["components"]["schemas"]["SetpointFields"]["properties"]
+    assert setpoint["hold_s"]["maximum"] == 3600.0
+    assert setpoint["theta_l"]["exclusiveMaximum"] == pytest.approx(1.5707963)
