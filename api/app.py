@@ -82,6 +82,7 @@ HTTP_STATUS = {
     Outcome.UNAVAILABLE: 503,
 }
 TELEMETRY_PATH = "/api/telemetry"
+URGENT_PATHS = frozenset({"/api/abort", "/api/kill"})  # never shed under load (api.guard)
 TELEMETRY_STALE_S = 0.5
 TOKEN_MESSAGE_TIMEOUT_S = 5.0
 WS_TOKEN_REQUIRED = 4401  # a private close code (RFC 6455 §7.4.2): "send the token first"
@@ -109,7 +110,12 @@ RESPONSES: dict[int, dict[str, Any]] = {
     413: {"model": ErrorBody, "description": "the body is larger than api.max_body_bytes"},
     421: {"model": ErrorBody, "description": "the Host header names no host of this API"},
     422: {"model": ValidationFailed, "description": "the request does not validate"},
-    503: {"model": ErrorBody, "description": "the flight process (or world) is not answering"},
+    503: {
+        "model": ErrorBody,
+        "description": "the flight process (or world) is not answering, or the API is busy "
+        "(too many requests at once: Retry-After; an abort is never refused so)",
+        "headers": {"Retry-After": {"schema": {"type": "string"}}},
+    },
 }
 FLIGHT = (409, 422, 503)  # what a request answered by the flight process or world may get
 WITH_BODY = (400, 422)
@@ -143,10 +149,10 @@ def _answer(reply: Reply) -> JSONResponse:
 
 def _operation(access: Access, policy: HttpPolicy, *codes: int) -> dict[str, Any]:
     """A route's access (``x-access``: what the gate enforces) and every response it may
-    give, for its decorator: the gate's (421 and 413 always, 401 where the token is needed,
+    give, for its decorator: the gate's (421, 413 and 503 always, 401 where the token is needed,
     403 for another origin on the routes that change something — here exactly the ``token``
     and ``abort`` ones, all POST or DELETE) and ``codes``."""
-    statuses = {421, 413, *codes}
+    statuses = {421, 413, 503, *codes}
     if access in (Access.TOKEN, Access.ABORT):
         statuses.add(403)
     needs_token = access in (Access.TOKEN, Access.ABORT) or (
@@ -200,7 +206,7 @@ def create_app(
     if STATIC_DIR.is_dir():
         _dashboard(app)
     _document_bearer(app)
-    app.add_middleware(Gate, policy=policy, routes=_access_table(app))
+    app.add_middleware(Gate, policy=policy, routes=_access_table(app), urgent=URGENT_PATHS)
     return app
 
 

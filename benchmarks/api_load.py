@@ -199,6 +199,10 @@ async def measure(
         "first_abort_from": hover["mode"],
         "mode_at_the_end": at_the_end["mode"],
         "first_abort_ms": None if loaded[0] is None else loaded[0] * 1000.0,
+        "slowest_under_load": sorted(
+            ((round(t * 1000.0, 1), i) for i, t in enumerate(loaded) if t is not None),
+            reverse=True,
+        )[:5],
         "load": load_report,
     }
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import socket
 import ssl
 import time
@@ -72,7 +73,10 @@ async def serve_api(
             await asyncio.sleep(0.04)
 
     params, arena = config.system.to_params(), arena_from_config(config)
-    app = create_app(flight, params, arena, policy or HttpPolicy(TOKEN))
+    # The client shares this event loop, so its own work would read as the server's load:
+    # shedding is off unless a test asks for it (test_http_guard's, and benchmarks.api_load).
+    unshed = HttpPolicy(TOKEN, shed_lag_s=math.inf)
+    app = create_app(flight, params, arena, policy or unshed)
     server = HttpServer(app, bind("127.0.0.1", 0), tls)
     async with asyncio.TaskGroup() as group:
         tasks = [

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import websockets
 
-from api.guard import HttpPolicy, http_policy, listens_beyond_loopback
+from api.guard import HttpPolicy, LoadMeter, http_policy, listens_beyond_loopback
 from api.server import TlsFiles
 from supervisor.flight.modes import Mode
 from supervisor.flight.operator_requests import MAX_SETPOINTS_PER_REQUEST
@@ -374,3 +374,24 @@ async def test_every_constraint_reaches_the_openapi_document(api: ApiUnderTest) 
     setpoint = json.loads(text)["components"]["schemas"]["SetpointFields"]["properties"]
     assert setpoint["hold_s"]["maximum"] == 3600.0
     assert setpoint["theta_l"]["exclusiveMaximum"] == pytest.approx(1.5707963)
+
+
+async def test_under_a_flood_all_but_abort_and_kill_are_shed() -> None:
+    """A loop that is always "late" under any rate: the flood condition itself."""
+    flooded = HttpPolicy(TOKEN, shed_lag_s=-1.0, shed_rate_hz=-1.0)
+    async with serve_api(flooded) as api:
+        await asyncio.sleep(0.15)  # the meter's first window
+        for method, path in (("GET", "/api/status"), ("POST", "/api/arm")):
+            response = await api.http.request(method, path, headers=AUTH)
+            assert response.status_code == 503 and response.headers["retry-after"] == "1"
+            assert "busy" in response.json()["detail"]
+        assert (await api.post("/api/abort")).status_code == 200
+        assert (await api.post("/api/kill", {"confirm": True})).status_code == 200
+
+
+def test_a_busy_machine_alone_sheds_nothing() -> None:
+    meter, policy = LoadMeter(), HttpPolicy(TOKEN)
+    meter.lag_s, meter.rate_hz = 0.5, 10.0  # long turns, an operator's few requests
+    assert not meter.overloaded(policy)
+    meter.rate_hz = 1000.0
+    assert meter.overloaded(policy)
