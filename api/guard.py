@@ -1,5 +1,5 @@
-"""The gate in front of every route: Host, Origin, token and body size, decided on the
-request's head before a byte of its body is read (a pure ASGI middleware).
+"""The gate in front of every route: Host, Origin, token, load and body size, decided on the
+request's head before a byte of its body is read (a plain ASGI middleware).
 
 In order (the first refusal answers, nothing behind it runs):
 
