@@ -1,20 +1,24 @@
 """The REST API and telemetry WebSocket, on the flight process's command interface.
 
-``create_app`` takes everything as arguments (no settings read at import). Mutating routes
-need ``Authorization: Bearer TOKEN`` (401 otherwise); a body that does not validate gets
-422 with the reason; a request the flight modes or the queue refuse gets 409 with the
-reason; no flight process answering gets 503.
+``create_app`` takes everything as arguments (no settings read at import). Every request
+passes the gate first (``api.guard``: Host, Origin, token, body size — 421, 403, 401, 413),
+before any body is read; each route's ``x-access`` says who may call it. A body that does
+not fit its schema gets 422 with every problem (``{"detail": [{"loc", "msg", "type"}]}``);
+a well-formed request the flight modes, the queue, the arena or the equilibria refuse gets
+409 with the reason; no flight process answering gets 503. The OpenAPI document states
+each of these per operation.
 
 ``/api/sim/*`` reaches the simulated world's process (fault injection and the world reset,
 docs/faults.md), only when ``serve`` started the world itself (``sim.embedded``): else the
-mutating ones are 409 with the reason, checked right after the token and before the body.
+mutating ones are 409 with the reason, checked before the body.
 """
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
-import math
-import secrets
+import json
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
@@ -24,23 +28,29 @@ from fastapi import (
     APIRouter,
     Depends,
     FastAPI,
-    Header,
     HTTPException,
     Query,
     Request,
     WebSocket,
     WebSocketDisconnect,
 )
-from fastapi import params as fastapi_params
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
-from api.models import KillRequest, ModeBody, SetpointBody
+from api.guard import WEBSOCKET, Access, Gate, HttpPolicy
+from api.models import (
+    ErrorBody,
+    KillRequest,
+    ModeBody,
+    SetpointsBody,
+    ValidationFailed,
+)
 from controllers.equilibria import EquilibriumError
 from controllers.params import BarSystemParams
 from supervisor.flight.equilibrium_summary import equilibrium_summary
 from supervisor.flight.operator_requests import (
+    THETA_L_LIMIT_RAD,
     ClearSetpointsRequest,
     ControllerRequest,
     ModeRequest,
@@ -62,6 +72,8 @@ from supervisor.ipc.world_messages import (
     WorldRequest,
 )
 
+log = logging.getLogger(__name__)
+
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 HTTP_STATUS = {
     Outcome.OK: 200,
@@ -69,11 +81,44 @@ HTTP_STATUS = {
     Outcome.INVALID: 422,
     Outcome.UNAVAILABLE: 503,
 }
+TELEMETRY_PATH = "/api/telemetry"
+URGENT_PATHS = frozenset({"/api/abort", "/api/kill"})  # never shed under load (api.guard)
 TELEMETRY_STALE_S = 0.5
+TOKEN_MESSAGE_TIMEOUT_S = 5.0
+WS_TOKEN_REQUIRED = 4401  # a private close code (RFC 6455 §7.4.2): "send the token first"
 NOT_EMBEDDED = (
     "the simulated world is not embedded (sim.embedded is false): serve did not start a "
     "simulated world, so there is nothing to inject faults into or reset"
 )
+# The dashboard page may not be framed by another site (clickjacking its buttons).
+PAGE_HEADERS = {
+    "X-Frame-Options": "DENY",
+    "Content-Security-Policy": "frame-ancestors 'none'",
+    "X-Content-Type-Options": "nosniff",
+}
+
+# Every response the API gives, by status, as the OpenAPI document states them.
+RESPONSES: dict[int, dict[str, Any]] = {
+    400: {"model": ErrorBody, "description": "the body cannot be parsed at all"},
+    401: {
+        "model": ErrorBody,
+        "description": "no valid `Authorization: Bearer TOKEN` header",
+        "headers": {"WWW-Authenticate": {"schema": {"type": "string"}}},
+    },
+    403: {"model": ErrorBody, "description": "sent by a web page of another origin"},
+    409: {"model": ErrorBody, "description": "refused (the mode table, the queue, the world)"},
+    413: {"model": ErrorBody, "description": "the body is larger than api.max_body_bytes"},
+    421: {"model": ErrorBody, "description": "the Host header names no host of this API"},
+    422: {"model": ValidationFailed, "description": "the request does not validate"},
+    503: {
+        "model": ErrorBody,
+        "description": "the flight process (or world) is not answering, or the API is busy "
+        "(too many requests at once: Retry-After; an abort is never refused so)",
+        "headers": {"Retry-After": {"schema": {"type": "string"}}},
+    },
+}
+FLIGHT = (409, 422, 503)  # what a request answered by the flight process or world may get
+WITH_BODY = (400, 422)
 
 
 def _json_text(value: Any) -> str:
@@ -81,27 +126,60 @@ def _json_text(value: Any) -> str:
     return pydantic_core.to_json(value, inf_nan_mode="null").decode()
 
 
+def _problems(loc: list[str | int], msg: str, kind: str) -> list[dict[str, Any]]:
+    return [{"loc": loc, "msg": msg, "type": kind}]
+
+
+def _invalid(loc: list[str | int], msg: str, kind: str) -> RequestValidationError:
+    """A 422 in the shape of pydantic's own."""
+    return RequestValidationError(_problems(loc, msg, kind))
+
+
 def _answer(reply: Reply) -> JSONResponse:
     if reply.ok:
         return JSONResponse({"accepted": True, **reply.data})
+    detail: Any = reply.reason
+    if reply.outcome is Outcome.INVALID:
+        detail = _problems(["body"], reply.reason, "refused")
     return JSONResponse(
-        {"accepted": False, "detail": reply.reason, **reply.data},
+        {**reply.data, "accepted": False, "detail": detail},
         status_code=HTTP_STATUS[reply.outcome],
     )
+
+
+def _operation(access: Access, policy: HttpPolicy, *codes: int) -> dict[str, Any]:
+    """A route's access (``x-access``: what the gate enforces) and every response it may
+    give, for its decorator: the gate's (421, 413 and 503 always, 401 where the token is needed,
+    403 for another origin on the routes that change something — here exactly the ``token``
+    and ``abort`` ones, all POST or DELETE) and ``codes``."""
+    statuses = {421, 413, 503, *codes}
+    if access in (Access.TOKEN, Access.ABORT):
+        statuses.add(403)
+    needs_token = access in (Access.TOKEN, Access.ABORT) or (
+        access is Access.READ and policy.reads_need_token
+    )
+    extra: dict[str, Any] = {"x-access": access.value}
+    if needs_token:
+        statuses.add(401)
+        extra["security"] = [{"bearer": []}]
+    return {
+        "openapi_extra": extra,
+        "responses": {code: RESPONSES[code] for code in sorted(statuses)},
+    }
 
 
 def create_app(
     flight: FlightClient,
     params: BarSystemParams,
     arena: Arena,
-    token: str,
+    policy: HttpPolicy,
     world: WorldClient | None = None,
     processes: Callable[[], dict[str, Any]] | None = None,
 ) -> FastAPI:
     """The FastAPI application serving ``flight`` (``params`` and ``arena``: the system and
-    its flight volume, for the equilibria it reports and the setpoints it checks) and, when
-    ``serve`` runs the simulated world itself, ``world``; ``processes``: serve's process
-    table for the status."""
+    its flight volume, for the equilibria it reports and the setpoints it checks) behind the
+    gate ``policy`` describes, and, when ``serve`` runs the simulated world itself,
+    ``world``; ``processes``: serve's process table for the status."""
     app = FastAPI(
         title="uavbar-supervisor",
         summary="Two PX4 quadrotors carrying a bar under MPC: arm, fly, queue setpoints, abort.",
@@ -120,42 +198,67 @@ def create_app(
             _json_text({"detail": problems}), status_code=422, media_type="application/json"
         )
 
-    auth = Depends(_bearer_check(token))
-    app.include_router(_status_routes(flight, params, processes))
-    app.include_router(_operator_routes(flight), dependencies=[auth])
-    app.include_router(_setpoint_routes(flight, params, arena, auth))
-    app.include_router(_telemetry_route(flight))
-    app.include_router(_sim_routes(world, auth))
+    app.include_router(_status_routes(flight, params, processes, policy))
+    app.include_router(_operator_routes(flight, policy))
+    app.include_router(_setpoint_routes(flight, params, arena, policy))
+    app.include_router(_telemetry_route(flight, policy))
+    app.include_router(_sim_routes(world, policy))
     if STATIC_DIR.is_dir():
-        app.mount("/", StaticFiles(directory=STATIC_DIR, html=True), name="dashboard")
+        _dashboard(app)
+    _document_bearer(app)
+    app.add_middleware(Gate, policy=policy, routes=_access_table(app), urgent=URGENT_PATHS)
     return app
 
 
-def _bearer_check(token: str) -> Callable[[str | None], None]:
-    """The dependency that refuses a request without ``Authorization: Bearer token``."""
+def _dashboard(app: FastAPI) -> None:
+    """The page at ``/``, its files under ``/static/`` (not a mount at ``/``, which would
+    answer an unknown method on an API path itself: 405 without ``Allow``)."""
 
-    def authorized(authorization: Annotated[str | None, Header()] = None) -> None:
-        scheme, _, presented = (authorization or "").partition(" ")
-        if scheme.lower() != "bearer" or not secrets.compare_digest(
-            presented.encode(), token.encode()
-        ):
-            raise HTTPException(
-                401,
-                "a valid 'Authorization: Bearer TOKEN' header is required",
-                headers={"WWW-Authenticate": "Bearer"},
-            )
+    @app.get("/", include_in_schema=False)
+    async def page() -> FileResponse:
+        return FileResponse(STATIC_DIR / "index.html", headers=PAGE_HEADERS)
 
-    return authorized
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="dashboard")
+
+
+def _document_bearer(app: FastAPI) -> None:
+    """The bearer scheme the operations' ``security`` names (the gate checks it, not a
+    FastAPI dependency: a dependency runs after the body is parsed)."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        schema = generate()
+        components = schema.setdefault("components", {})
+        components.setdefault("securitySchemes", {})["bearer"] = {
+            "type": "http",
+            "scheme": "bearer",
+        }
+        return schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
+def _access_table(app: FastAPI) -> dict[tuple[str, str], Access]:
+    """(method, path) → access, from each operation's ``x-access`` in the OpenAPI document
+    (an operation without one needs the token: the safe default); the WebSocket is
+    ``read``. Paths without an operation (the dashboard's files) are the router's."""
+    table = {(WEBSOCKET, TELEMETRY_PATH): Access.READ}
+    for path, operations in app.openapi()["paths"].items():
+        for method, operation in operations.items():
+            access = operation.get("x-access", Access.TOKEN.value)
+            table[(method.upper(), path)] = Access(access)
+    return table
 
 
 def _status_routes(
     flight: FlightClient,
     params: BarSystemParams,
     processes: Callable[[], dict[str, Any]] | None,
+    policy: HttpPolicy,
 ) -> APIRouter:
     router = APIRouter()
 
-    @router.get("/api/status")
+    @router.get("/api/status", **_operation(Access.READ, policy, 503))
     async def status() -> JSONResponse:
         """Mode, controller, vehicles, bar, mocap health, setpoints and tick timing."""
         if flight.latest is None:
@@ -166,59 +269,80 @@ def _status_routes(
             body["processes"] = processes()
         return JSONResponse(body)
 
-    @router.get("/api/equilibria")
+    @router.get("/api/equilibria", **_operation(Access.READ, policy, 422))
     async def equilibria(
-        theta_l: Annotated[float, Query(description="cable angle θ_l [rad], in [0, π/2)")],
+        theta_l: Annotated[
+            float,
+            Query(
+                ge=0.0,
+                lt=THETA_L_LIMIT_RAD,
+                allow_inf_nan=False,
+                description="cable angle θ_l [rad], in [0, π/2)",
+            ),
+        ],
     ) -> dict[str, Any]:
         """The equilibrium a cable angle implies (Proposition 1 and the general one)."""
-        if not math.isfinite(theta_l):
-            raise HTTPException(422, "theta_l must be a finite number of radians")
         try:
             return equilibrium_summary(params, theta_l)
         except EquilibriumError as error:
-            raise HTTPException(422, str(error)) from None
+            raise _invalid(["query", "theta_l"], str(error), "equilibrium") from None
 
     return router
 
 
-def _operator_routes(flight: FlightClient) -> APIRouter:
-    """The mode requests and the controller switch (all need the token)."""
+def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
+    """The mode requests and the controller switch (the token; abort: the token or the
+    dashboard's own origin)."""
     router = APIRouter()
+    token = _operation(Access.TOKEN, policy, *FLIGHT)
 
     async def operator(kind: OperatorEvent) -> JSONResponse:
         return _answer(await flight.request(ModeRequest(kind=kind)))
 
-    @router.post("/api/arm")
+    @router.post("/api/arm", **token)
     async def arm() -> JSONResponse:
         """Arm both vehicles (motors idle on the ground)."""
         return await operator("arm")
 
-    @router.post("/api/takeoff")
+    @router.post("/api/takeoff", **token)
     async def takeoff() -> JSONResponse:
         """Lift the bar to the take-off height and hover."""
         return await operator("takeoff")
 
-    @router.post("/api/land")
+    @router.post("/api/land", **token)
     async def land() -> JSONResponse:
         """Set the bar down, land both UAVs and disarm."""
         return await operator("land")
 
-    @router.post("/api/abort")
-    async def abort() -> JSONResponse:
-        """Coordinated landing from any airborne mode, now. Always accepted."""
-        return await operator("abort")
+    @router.post("/api/abort", **_operation(Access.ABORT, policy, *FLIGHT))
+    async def abort(request: Request) -> JSONResponse:
+        """Coordinated landing from any airborne mode, now. Always accepted. The emergency
+        stop: it takes the token, or no token at all when the dashboard's own page sends
+        it (its ``Origin`` is this API's), so that a missing or wrong token never stops it.
+        Logged with where it came from."""
+        reply = await flight.request(ModeRequest(kind="abort"))
+        state = request.scope.get("state", {})
+        peer = f"{request.client.host}:{request.client.port}" if request.client else "unknown"
+        log.warning(
+            "abort from %s (origin %s, %s): %s",
+            peer,
+            state.get("origin") or "none",
+            "with the token" if state.get("authenticated") else "the dashboard, no valid token",
+            reply.outcome.value,
+        )
+        return _answer(reply)
 
-    @router.post("/api/disarm")
+    @router.post("/api/disarm", **token)
     async def disarm() -> JSONResponse:
         """Disarm on the ground."""
         return await operator("disarm")
 
-    @router.post("/api/kill")
+    @router.post("/api/kill", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
     async def kill(body: KillRequest) -> JSONResponse:
         """Force-disarm both vehicles at once, in the air too: they fall."""
         return await operator("kill")
 
-    @router.post("/api/mode")
+    @router.post("/api/mode", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
     async def mode(body: ModeBody) -> JSONResponse:
         """Switch the controller (bumpless in flight)."""
         return _answer(await flight.request(ControllerRequest(controller=body.controller)))
@@ -227,32 +351,34 @@ def _operator_routes(flight: FlightClient) -> APIRouter:
 
 
 def _setpoint_routes(
-    flight: FlightClient, params: BarSystemParams, arena: Arena, auth: fastapi_params.Depends
+    flight: FlightClient, params: BarSystemParams, arena: Arena, policy: HttpPolicy
 ) -> APIRouter:
-    """Reading the queue is open; changing it needs the token (``auth``)."""
+    """Reading the queue is ``read``; changing it needs the token."""
     router = APIRouter()
 
-    @router.get("/api/setpoints")
+    @router.get("/api/setpoints", **_operation(Access.READ, policy, *FLIGHT))
     async def get_setpoints() -> JSONResponse:
         """The active setpoint and the queue."""
         return _answer(await flight.request(SetpointsQuery()))
 
-    @router.post("/api/setpoints", dependencies=[auth])
-    async def post_setpoints(body: SetpointBody | list[SetpointBody]) -> JSONResponse:
-        """Queue one setpoint or a list, all or none, each validated against the arena and
-        equilibrium feasibility. Checked here first, so that a flood of setpoints no vehicle
-        can fly never reaches the flight process; the tick core checks again as the
-        authority for every way in (the simulator's scripts too)."""
+    @router.post("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
+    async def post_setpoints(body: SetpointsBody) -> JSONResponse:
+        """Queue one setpoint or a list of at most 32 (the queue's capacity), all or none.
+        A longer list is refused by its length before any entry is read (422). Each is then
+        checked against the arena and equilibrium feasibility (409 with the reason when it
+        cannot be flown here, or when the queue is full). Checked here first, so that a flood
+        of setpoints no vehicle can fly never reaches the flight process; the tick core
+        checks again as the authority for every way in (the simulator's scripts too)."""
         entries = body if isinstance(body, list) else [body]
-        if not entries:
-            raise HTTPException(422, "an empty list queues nothing")
         try:
             validate_setpoints([e.to_setpoint() for e in entries], params, arena)
         except SetpointError as error:
-            raise HTTPException(422, str(error)) from None
+            # Well-formed (the schema holds) but not flyable here: 409, as the queue's
+            # refusals; 422 is kept for what the schema itself refuses.
+            return JSONResponse({"accepted": False, "detail": str(error)}, 409)
         return _answer(await flight.request(QueueRequest(setpoints=entries)))
 
-    @router.delete("/api/setpoints", dependencies=[auth])
+    @router.delete("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT))
     async def delete_setpoints() -> JSONResponse:
         """Drop the queue and the active setpoint: the bar holds where its reference is."""
         return _answer(await flight.request(ClearSetpointsRequest()))
@@ -260,27 +386,33 @@ def _setpoint_routes(
     return router
 
 
-def _sim_routes(world: WorldClient | None, auth: fastapi_params.Depends) -> APIRouter:
-    """Faults and reset of the embedded world: reading is open, the rest needs the token
-    (``auth``) and an embedded world."""
+def _sim_routes(world: WorldClient | None, policy: HttpPolicy) -> APIRouter:
+    """Faults and reset of the embedded world: reading is ``read``, the rest needs the
+    token and an embedded world."""
     router = APIRouter()
 
     def embedded() -> WorldClient:
-        """The world, or 409: as a route dependency it runs after the token's and before
-        the body is parsed, so without a world nothing else is said."""
+        """The world, or 409: as a route dependency it runs before the body is validated,
+        so without a world nothing else is said."""
         if world is None:
             raise HTTPException(409, NOT_EMBEDDED)
         return world
-
-    needs_world = [auth, Depends(embedded)]
 
     async def ask(request: WorldRequest) -> JSONResponse:
         reply = await embedded().request(request)
         if reply.ok:
             return JSONResponse({"accepted": True, "embedded": True, **reply.data})
+        if reply.outcome is Outcome.INVALID:
+            # The body fitted its schema here; what the world still refuses (a rigid body
+            # it does not have) is a refusal, 409, like the queue's and the arena's.
+            reply = reply.model_copy(update={"outcome": Outcome.REFUSED})
         return _answer(reply)
 
-    @router.get("/api/sim/faults")
+    def mutating(*codes: int) -> dict[str, Any]:
+        operation = _operation(Access.TOKEN, policy, *FLIGHT, *codes)
+        return {**operation, "dependencies": [Depends(embedded)]}
+
+    @router.get("/api/sim/faults", **_operation(Access.READ, policy, *FLIGHT))
     async def get_faults() -> JSONResponse:
         """The faults in effect (kind, params, started_s and remaining_s in world seconds;
         remaining_s null: until cleared); ``embedded`` false when there is no world."""
@@ -291,18 +423,18 @@ def _sim_routes(world: WorldClient | None, auth: fastapi_params.Depends) -> APIR
             return _answer(reply)
         return JSONResponse({"embedded": True, **reply.data})
 
-    @router.post("/api/sim/faults", dependencies=needs_world)
+    @router.post("/api/sim/faults", **mutating(*WITH_BODY))
     async def post_fault(body: FaultSpec) -> JSONResponse:
         """Inject a fault into the simulated world (one of its kind on the same target is
         replaced); the answer lists the faults in effect."""
         return await ask(StartFault(fault=body))
 
-    @router.delete("/api/sim/faults", dependencies=needs_world)
+    @router.delete("/api/sim/faults", **mutating())
     async def delete_faults() -> JSONResponse:
         """End every fault now."""
         return await ask(ClearFaults())
 
-    @router.post("/api/sim/reset", dependencies=needs_world)
+    @router.post("/api/sim/reset", **mutating())
     async def reset() -> JSONResponse:
         """Put the simulated world back in its resting pose: the plant's initial state, the
         simulated PX4s disarmed in their boot mode, faults cleared. Refused while a vehicle
@@ -312,24 +444,52 @@ def _sim_routes(world: WorldClient | None, auth: fastapi_params.Depends) -> APIR
     return router
 
 
-def _telemetry_route(flight: FlightClient) -> APIRouter:
+def _telemetry_route(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
     router = APIRouter()
+    # Every subscriber gets the same message object: it is serialized once, not per client.
+    last: dict[str, Any] = {"message": None, "text": ""}
 
-    @router.websocket("/api/telemetry")
+    def text_of(message: dict[str, Any]) -> str:
+        if message is not last["message"]:
+            last["message"], last["text"] = message, _json_text(message)
+        return str(last["text"])
+
+    @router.websocket(TELEMETRY_PATH)
     async def telemetry(websocket: WebSocket) -> None:
-        """Telemetry messages as JSON, at the flight process's rate (25 Hz)."""
+        """Telemetry messages as JSON, at the flight process's rate (25 Hz). When the API
+        listens beyond loopback it takes the token, in the handshake's ``Authorization``
+        header or (a browser cannot set one) as the first message, ``{"token": TOKEN}``;
+        without it the socket is closed with code 4401."""
         await websocket.accept()
+        authenticated = bool(websocket.scope.get("state", {}).get("authenticated"))
+        needs_token = policy.reads_need_token and not authenticated
+        if needs_token and not await _token_message(websocket, policy):
+            await websocket.close(WS_TOKEN_REQUIRED, "the token is required")
+            return
         subscription = flight.subscribe()
         try:
             # A pause in telemetry keeps the socket open: the page marks its data stale.
+            # A client that does not read holds only this coroutine: its queue drops the
+            # oldest messages (TelemetrySubscription) and the others are not slowed.
             while True:
                 message = await subscription.next()
-                await websocket.send_text(_json_text(message))
-        except WebSocketDisconnect:
-            pass
+                await websocket.send_text(text_of(message))
+        except (WebSocketDisconnect, OSError):
+            pass  # gone (uvicorn's ClientDisconnected is an OSError)
         finally:
             subscription.close()
-            with contextlib.suppress(RuntimeError):
+            with contextlib.suppress(RuntimeError, OSError):
                 await websocket.close()
 
     return router
+
+
+async def _token_message(websocket: WebSocket, policy: HttpPolicy) -> bool:
+    """The first message is ``{"token": TOKEN}`` with the right token, within 5 s."""
+    try:
+        async with asyncio.timeout(TOKEN_MESSAGE_TIMEOUT_S):
+            first = json.loads(await websocket.receive_text())
+    except (TimeoutError, ValueError, KeyError, WebSocketDisconnect, RuntimeError):
+        return False
+    presented = first.get("token") if isinstance(first, dict) else None
+    return isinstance(presented, str) and policy.token_matches(f"Bearer {presented}")

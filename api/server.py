@@ -5,9 +5,22 @@ from __future__ import annotations
 import contextlib
 import socket
 from collections.abc import Generator
+from dataclasses import dataclass
+from pathlib import Path
 
 import uvicorn
 from fastapi import FastAPI
+
+# The only message a client sends on the telemetry WebSocket is its token.
+WS_MAX_MESSAGE_BYTES = 4096
+
+
+@dataclass(frozen=True)
+class TlsFiles:
+    """A PEM certificate (chain) and its private key: the API then serves HTTPS and WSS."""
+
+    cert_file: Path
+    key_file: Path
 
 
 def bind(host: str, port: int) -> socket.socket:
@@ -30,13 +43,21 @@ class _ServerWithoutSignals(uvicorn.Server):
 
 
 class HttpServer:
-    """uvicorn serving ``app`` on an already bound socket; ``serve`` returns after
-    ``stop`` (graceful: open requests finish, WebSockets are closed)."""
+    """uvicorn serving ``app`` on an already bound socket, over TLS when ``tls`` is given;
+    ``serve`` returns after ``stop`` (graceful: open requests finish, WebSockets are
+    closed)."""
 
-    def __init__(self, app: FastAPI, sock: socket.socket) -> None:
+    def __init__(self, app: FastAPI, sock: socket.socket, tls: TlsFiles | None = None) -> None:
         self.sock = sock
+        self.scheme = "http" if tls is None else "https"
         config = uvicorn.Config(
-            app, log_level="warning", lifespan="off", timeout_graceful_shutdown=2
+            app,
+            log_level="warning",
+            lifespan="off",
+            timeout_graceful_shutdown=2,
+            ws_max_size=WS_MAX_MESSAGE_BYTES,
+            ssl_certfile=None if tls is None else str(tls.cert_file),
+            ssl_keyfile=None if tls is None else str(tls.key_file),
         )
         self._server = _ServerWithoutSignals(config)
 

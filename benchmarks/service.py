@@ -21,8 +21,11 @@ START_TIMEOUT_S = 120.0
 
 
 def all_connected(status: dict[str, Any]) -> bool:
-    """Healthy mocap and both vehicle links, as the status shows them."""
-    return bool(status["mocap"]["healthy"]) and all(u["connected"] for u in status["uavs"])
+    """Healthy mocap and both vehicle links with their modes known (a heartbeat heard: arming
+    is refused before), as the status shows them."""
+    return bool(status["mocap"]["healthy"]) and all(
+        u["connected"] and u["px4_mode"] != "unknown" for u in status["uavs"]
+    )
 
 
 @dataclass

@@ -51,7 +51,7 @@ async def load(url: str, rate_hz: float, stop: asyncio.Event) -> int:
     count = 0
     period = 1.0 / rate_hz
     headers = {"Authorization": f"Bearer {TOKEN}"}
-    # Outside the arena: validated (equilibrium and geofence) and refused with 422, so the
+    # Outside the arena: validated (equilibrium and geofence) and refused with 409, so the
     # load exercises the setpoint path without changing the flight.
     post = {"bar_position": [0.0, 0.0, 2.9], "hold_s": 1.0}
     connector = aiohttp.TCPConnector(limit=20)

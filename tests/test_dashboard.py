@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import re
 import shutil
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 
 import pytest
@@ -137,6 +137,78 @@ async def test_switch_controller_and_queue_a_setpoint_from_the_page(
         await page.get_by_test_id("land").click()
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
         assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+ABORT_SENT_WITHIN_S = 0.5  # the request's round trip, with a margin for a busy machine
+
+
+async def press_abort_from_a_hover(
+    page: Page, service: RunningService, press: Callable[[], Awaitable[None]]
+) -> float:
+    """Take off over HTTP, ``press`` ABORT on the page; the abort request's round trip [s]
+    (the flight process's reply included), once the system has landed and disarmed."""
+    async with service.client() as http:
+        await service.take_off(http)
+        async with page.expect_response("**/api/abort") as answered:
+            await press()
+        response = await answered.value
+        assert response.status == 200, await response.text()
+        await expect(page.get_by_test_id("mode")).to_have_text(re.compile("abort|disarmed"))
+        await service.wait_for(http, lambda s: s["armed"] == [False, False], 90.0, "disarmed")
+        (await http.post("/api/sim/reset")).raise_for_status()  # the resting pose again
+    return float(response.request.timing["responseEnd"]) / 1000.0
+
+
+async def test_abort_lands_the_system_without_a_token_with_a_wrong_one_and_the_dialog_open(
+    browser: Browser, tmp_path: Path
+) -> None:
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, "not-the-token")
+        abort_button = page.get_by_test_id("abort")
+        dialog = page.get_by_test_id("token-dialog")
+        round_trips = {}
+
+        round_trips["wrong token"] = await press_abort_from_a_hover(
+            page, service, abort_button.click
+        )
+        await page.evaluate("sessionStorage.clear()")
+        round_trips["no token"] = await press_abort_from_a_hover(page, service, abort_button.click)
+
+        async def with_the_dialog_open() -> None:
+            await page.get_by_test_id("land").click()  # no token: the dialog asks for one
+            await expect(dialog).to_be_visible()
+            await abort_button.click()
+
+        round_trips["dialog open"] = await press_abort_from_a_hover(
+            page, service, with_the_dialog_open
+        )
+        await expect(dialog).to_be_hidden()  # ABORT closed it; the land was not sent
+        await expect(page.get_by_test_id("flight-reason")).to_have_text(
+            "no token: the command was not sent"
+        )
+
+        # Escape closes the dialog too (and aborts: accepted on the ground as well).
+        await page.get_by_test_id("arm").click()
+        await expect(dialog).to_be_visible()
+        await page.keyboard.press("Escape")
+        await expect(dialog).to_be_hidden()
+        await expect(page.locator("#abort-reason")).to_have_text("accepted")
+        assert all(t < ABORT_SENT_WITHIN_S for t in round_trips.values()), round_trips
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+async def test_a_refused_token_is_kept_and_said(browser: Browser, tmp_path: Path) -> None:
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, "not-the-token")
+        await page.get_by_test_id("arm").click()
+        await expect(page.get_by_test_id("flight-reason")).to_contain_text("not valid")
+        assert await page.evaluate("sessionStorage.getItem('uavbar-token')") == "not-the-token"
+        await page.get_by_test_id("arm").click()  # asks, saying why
+        await expect(page.locator("#token-note")).to_contain_text("refused (401)")
+        await page.get_by_test_id("token-cancel").click()
+        await expect(page.get_by_test_id("token-dialog")).to_be_hidden()
+        assert await page.evaluate("sessionStorage.getItem('uavbar-token')") == "not-the-token"
+        await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
 
 
 @pytest.mark.px4

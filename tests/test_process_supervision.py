@@ -88,7 +88,11 @@ async def test_a_killed_flight_process_leaves_the_vehicles_to_px4_and_arming_wai
         os.kill(service.child_pid("uavbar-flight"), signal.SIGKILL)
         status = await service.wait_for(
             http,
-            lambda s: s["processes"]["flight"]["restarts"] == 1 and not s["stale"],
+            lambda s: (
+                s["processes"]["flight"]["restarts"] == 1
+                and not s["stale"]
+                and all(u["px4_mode"] != "unknown" for u in s["uavs"])
+            ),  # a heartbeat heard
             30.0,
             "the flight process back",
         )

@@ -1,13 +1,18 @@
 // uavbar-supervisor operator dashboard: telemetry over /api/telemetry, commands over REST.
 // No build step. The token comes from the page address (#token=…, a fragment the browser
-// never sends) or is asked for once, and is kept for this browser tab only.
+// never sends) or is asked for when a command needs it, and is kept for this browser tab only.
+// ABORT never waits for it: the API takes an abort from this page's own origin without a
+// valid token (docs/architecture.md, "The API's gate"), so it is sent at once, whatever the
+// token and whatever dialog is open.
 "use strict";
 
 const STALE_AFTER_MS = 500;
 const PLOT_SECONDS = 20;
+const TOKEN_KEY = "uavbar-token";
+const WS_TOKEN_REQUIRED = 4401;
 const state = {
   telemetry: null, lastMessageAt: 0, socket: null, retryMs: 500,
-  everConnected: false, everLive: false, stale: true,
+  everConnected: false, everLive: false, stale: true, tokenRefused: false,
 };
 const plots = { error: [], solve: [] };
 
@@ -15,27 +20,50 @@ const plots = { error: [], solve: [] };
 function takeTokenFromAddress() {
   const match = location.hash.match(/token=([^&]+)/);
   if (match) {
-    sessionStorage.setItem("uavbar-token", decodeURIComponent(match[1]));
+    sessionStorage.setItem(TOKEN_KEY, decodeURIComponent(match[1]));
     window.history.replaceState(null, "", location.pathname + location.search);
   }
 }
 
-function askToken() {
+const storedToken = () => sessionStorage.getItem(TOKEN_KEY);
+
+// The dialog is not modal: ABORT stays pressable while it is open, and Escape (abort)
+// closes it. Closing it without a token keeps the stored one.
+function askToken(note) {
+  const dialog = document.getElementById("token-dialog");
+  if (dialog.open) return new Promise((resolve) => dialog.addEventListener("close", () => resolve(storedToken()), { once: true }));
   return new Promise((resolve) => {
-    const dialog = document.getElementById("token-dialog");
     const input = document.getElementById("token-input");
+    document.getElementById("token-note").textContent = note || "";
     input.value = "";
     dialog.addEventListener("close", () => {
-      const token = input.value.trim();
-      if (token) sessionStorage.setItem("uavbar-token", token);
+      const token = dialog.returnValue === "ok" ? input.value.trim() : "";
+      if (token) {
+        sessionStorage.setItem(TOKEN_KEY, token);
+        state.tokenRefused = false;
+      }
       resolve(token || null);
     }, { once: true });
-    dialog.showModal();
+    dialog.returnValue = "";
+    dialog.show();
+    input.focus();
   });
 }
 
+function closeTokenDialog() {
+  const dialog = document.getElementById("token-dialog");
+  if (dialog.open) dialog.close("");
+}
+
 async function token() {
-  return sessionStorage.getItem("uavbar-token") || (await askToken());
+  const stored = storedToken();
+  if (stored && !state.tokenRefused) return stored;
+  const note = stored ? "the stored token was refused (401): enter the right one" : "";
+  return (await askToken(note)) || null;
+}
+
+function authorization(bearer) {
+  return bearer ? { "Authorization": `Bearer ${bearer}` } : {};
 }
 
 // ---- commands ------------------------------------------------------------------------------
@@ -52,17 +80,12 @@ function describe(detail) {
   return String(detail ?? "");
 }
 
-async function command(method, path, body, reasonId) {
-  const bearer = await token();
-  if (!bearer) {
-    show(reasonId, "no token: the command was not sent");
-    return null;
-  }
+async function send(method, path, body, reasonId, bearer) {
   let response;
   try {
     response = await fetch(path, {
       method,
-      headers: { "Authorization": `Bearer ${bearer}`, "Content-Type": "application/json" },
+      headers: { ...authorization(bearer), "Content-Type": "application/json" },
       body: body === undefined ? undefined : JSON.stringify(body),
     });
   } catch (error) {
@@ -71,8 +94,9 @@ async function command(method, path, body, reasonId) {
   }
   const answer = await response.json().catch(() => ({}));
   if (response.status === 401) {
-    sessionStorage.removeItem("uavbar-token");
-    show(reasonId, "refused (401): the token is not valid — enter it again");
+    // Kept, not deleted: the operator is told, and the next command asks for the right one.
+    state.tokenRefused = true;
+    show(reasonId, "refused (401): the stored token is not valid — the next command asks for it");
     return null;
   }
   if (!response.ok) {
@@ -83,8 +107,19 @@ async function command(method, path, body, reasonId) {
   return answer;
 }
 
+async function command(method, path, body, reasonId) {
+  const bearer = await token();
+  if (!bearer) {
+    show(reasonId, "no token: the command was not sent");
+    return null;
+  }
+  return send(method, path, body, reasonId, bearer);
+}
+
+// At once, with whatever token there is (none, a refused one): the page's origin suffices.
 function abort() {
-  command("POST", "/api/abort", undefined, "abort-reason");
+  closeTokenDialog();
+  send("POST", "/api/abort", undefined, "abort-reason", storedToken());
 }
 
 // ---- telemetry -----------------------------------------------------------------------------
@@ -93,6 +128,8 @@ function connect() {
   const socket = new WebSocket(`${scheme}://${location.host}/api/telemetry`);
   state.socket = socket;
   socket.onopen = () => {
+    // Beyond loopback the API wants the token first (a browser cannot set headers here).
+    socket.send(JSON.stringify({ token: storedToken() }));
     state.retryMs = 500;
     setConnection(state.everConnected ? "reconnected" : "connected", "good");
     state.everConnected = true;
@@ -109,10 +146,18 @@ function connect() {
     state.everLive = true;
     render(state.telemetry);
   };
-  socket.onclose = () => {
-    setConnection(`connection lost — reconnecting in ${(state.retryMs / 1000).toFixed(1)} s`, "bad");
+  socket.onclose = async (event) => {
     state.stale = true;
     markStale(true);
+    if (event.code === WS_TOKEN_REQUIRED) {
+      setConnection("telemetry needs the token", "bad");
+      if (storedToken()) state.tokenRefused = true;
+      await token();
+      setTimeout(connect, state.retryMs);
+      state.retryMs = Math.min(state.retryMs * 2, 5000);
+      return;
+    }
+    setConnection(`connection lost — reconnecting in ${(state.retryMs / 1000).toFixed(1)} s`, "bad");
     setTimeout(connect, state.retryMs);
     state.retryMs = Math.min(state.retryMs * 2, 5000);
   };
@@ -316,7 +361,7 @@ async function showEquilibrium() {
   const thetaL = (Number(form.elements.theta_l.value) * Math.PI) / 180;
   const target = document.getElementById("equilibrium");
   try {
-    const response = await fetch(`/api/equilibria?theta_l=${thetaL}`);
+    const response = await fetch(`/api/equilibria?theta_l=${thetaL}`, { headers: authorization(storedToken()) });
     const body = await response.json();
     if (!response.ok) { target.textContent = describe(body.detail); return; }
     target.textContent = `θf ${deg(body.theta_f)} (Prop. 1); thrusts ${body.thrust.map((f) => fmt(f)).join(" / ")} N; ` +
@@ -329,10 +374,12 @@ async function showEquilibrium() {
 // ---- wiring --------------------------------------------------------------------------------
 function wire() {
   document.getElementById("abort").addEventListener("click", abort);
-  // Escape aborts wherever the focus is (capture phase: before any input handles it).
+  // Escape aborts wherever the focus is (capture phase: before any input handles it), and
+  // closes the token dialog if it is open.
   window.addEventListener("keydown", (event) => {
     if (event.key === "Escape") { event.preventDefault(); abort(); }
   }, true);
+  document.getElementById("token-cancel").addEventListener("click", closeTokenDialog);
   for (const name of ["arm", "takeoff", "land", "disarm"]) {
     document.getElementById(name).addEventListener("click", () => command("POST", `/api/${name}`, undefined, "flight-reason"));
   }

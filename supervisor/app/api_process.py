@@ -11,10 +11,12 @@ import os
 import socket
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 from api.app import create_app
-from api.server import HttpServer
+from api.guard import HttpPolicy, http_policy
+from api.server import HttpServer, TlsFiles
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config
 from supervisor.flight.setpoints import Arena
@@ -71,6 +73,20 @@ class ProcessTable:
         return dict(self.table)
 
 
+def api_policy(config: Config, token: str) -> HttpPolicy:
+    """What the API's gate enforces (api.guard), from ``config.api``."""
+    api = config.api
+    return http_policy(token, api.host, api.allowed_hosts, api.max_body_bytes)
+
+
+def api_tls(config: Config) -> TlsFiles | None:
+    """The API's certificate and key, when configured."""
+    api = config.api
+    if api.tls_cert_file is None or api.tls_key_file is None:
+        return None
+    return TlsFiles(Path(api.tls_cert_file), Path(api.tls_key_file))
+
+
 async def _world_client(start: ApiStart) -> WorldClient | None:
     if not start.embedded:
         return None
@@ -104,11 +120,11 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
         flight,
         config.system.to_params(),
         Arena.between(config.arena.min_m, config.arena.max_m),  # not assembly: no plant
-        start.token,
+        api_policy(config, start.token),
         world,
         processes=table.current,
     )
-    http = HttpServer(app, start.http_socket)
+    http = HttpServer(app, start.http_socket, api_tls(config))
     async with asyncio.TaskGroup() as group:
         server = group.create_task(http.serve())
         links = [group.create_task(flight.stay_connected(start.rendezvous.flight, start.token))]

@@ -409,6 +409,21 @@ class ApiSection(_Section):
     host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=0, le=65535)] = 8000
     token: Annotated[str, Field(min_length=8)] | None = None
+    allowed_hosts: list[Annotated[str, Field(min_length=1)]] | None = None
+    """The names a request's Host header may carry (IP addresses always pass: DNS
+    rebinding sends a name). Unset: localhost, this machine's host name and fully
+    qualified name, and ``host``."""
+    max_body_bytes: Annotated[int, Field(ge=1024, le=16 * 1024 * 1024)] = 65536
+    """The largest request body read; a larger one is refused (413) before it is read."""
+    tls_cert_file: str | None = None
+    """A PEM certificate (chain): with ``tls_key_file`` the API serves HTTPS and WSS."""
+    tls_key_file: str | None = None
+
+    @model_validator(mode="after")
+    def _both_tls_files(self) -> ApiSection:
+        if (self.tls_cert_file is None) != (self.tls_key_file is None):
+            raise ValueError("tls_cert_file and tls_key_file are set together or not at all")
+        return self
 
 
 class SafetySection(_Section):

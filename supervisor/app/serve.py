@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from api.server import bind
-from supervisor.app.api_process import GO, READY, ApiStart
+from supervisor.app.api_process import GO, READY, ApiStart, api_tls
 from supervisor.app.children import SPAWN, Child, Lifeline, stop_child
 from supervisor.app.config import TOKEN_ENV, Config, load_config
 from supervisor.app.flight_main import FlightStart
@@ -346,7 +346,8 @@ async def serve(setup: Setup) -> int:
     try:
         await service.start()
         host = config.api.host
-        url = f"http://{host}:{service.port}"
+        scheme = "https" if api_tls(config) is not None else "http"
+        url = f"{scheme}://{host}:{service.port}"
         discovery = write_discovery(
             service.port,
             {"url": url, "pid": os.getpid(), "operator_socket": str(service.rendezvous.flight)},

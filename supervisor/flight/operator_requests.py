@@ -8,20 +8,36 @@ The tick core's own checks decide; this module only translates.
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.flight.modes import Event
-from supervisor.flight.setpoints import Setpoint, SetpointError, SetpointQueueFullError
+from supervisor.flight.setpoints import Setpoint, SetpointError
 
 if TYPE_CHECKING:  # the API process parses requests without loading the tick core
     from supervisor.flight.core import FlightCore
 
-# strict: a JSON true is not a number of metres (ints are still numbers).
-Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
-NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False, strict=True)]
+# The stated ranges of a setpoint's numbers. They bound what any request may carry; the
+# arena and the equilibrium decide what can be flown. strict: a JSON true is not a number
+# (ints still are); no NaN or infinity.
+POSITION_LIMIT_M = 100.0  # |x|, |y|, |z|: far beyond any motion-capture hall
+YAW_LIMIT_RAD = 2.0 * math.pi  # one turn either way (yaw is taken modulo 2π)
+THETA_L_LIMIT_RAD = math.pi / 2.0  # θ_l in [0, π/2): horizontal cables hold nothing
+DURATION_LIMIT_S = 3600.0  # hold and timeout: an hour
+# The tick core's queue capacity (supervisor.flight.setpoints.SetpointQueue): no request
+# can queue more, so a longer list is refused by its length before any entry is read.
+MAX_SETPOINTS_PER_REQUEST = 32
+
+Coordinate = Annotated[
+    float, Field(ge=-POSITION_LIMIT_M, le=POSITION_LIMIT_M, allow_inf_nan=False, strict=True)
+]
+Yaw = Annotated[float, Field(ge=-YAW_LIMIT_RAD, le=YAW_LIMIT_RAD, allow_inf_nan=False, strict=True)]
+CableAngle = Annotated[float, Field(ge=0.0, lt=THETA_L_LIMIT_RAD, allow_inf_nan=False, strict=True)]
+HoldTime = Annotated[float, Field(ge=0.0, le=DURATION_LIMIT_S, allow_inf_nan=False, strict=True)]
+Timeout = Annotated[float, Field(gt=0.0, le=DURATION_LIMIT_S, allow_inf_nan=False, strict=True)]
 
 
 class _Message(BaseModel):
@@ -30,16 +46,17 @@ class _Message(BaseModel):
 
 
 class SetpointFields(_Message):
-    """One setpoint: bar centre [m, arena frame], bar yaw [rad], UAV yaws [rad] (default:
-    the bar yaw), cable angle θ_l [rad], hold time [s] once reached, and how long to wait
-    for it to be reached before the queue moves on anyway [s] (default: no limit)."""
+    """One setpoint: bar centre [m, arena frame, each within ±100], bar yaw [rad, within
+    ±2π], UAV yaws [rad, within ±2π] (default: the bar yaw), cable angle θ_l [rad, in
+    [0, π/2)], hold time once reached [s, 0–3600], and how long to wait for it to be reached
+    before the queue moves on anyway [s, up to 3600] (default: no limit)."""
 
-    bar_position: Annotated[list[Finite], Field(min_length=3, max_length=3)]
-    bar_yaw: Finite = 0.0
-    uav_yaw: Annotated[list[Finite], Field(min_length=2, max_length=2)] | None = None
-    theta_l: Finite = 0.0
-    hold_s: NonNegative = 5.0
-    timeout_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] | None = None
+    bar_position: Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+    bar_yaw: Yaw = 0.0
+    uav_yaw: Annotated[list[Yaw], Field(min_length=2, max_length=2)] | None = None
+    theta_l: CableAngle = 0.0
+    hold_s: HoldTime = 5.0
+    timeout_s: Timeout | None = None
 
     def to_setpoint(self) -> Setpoint:
         p = self.bar_position
@@ -50,8 +67,9 @@ class SetpointFields(_Message):
 
     @classmethod
     def of(cls, setpoint: Setpoint) -> SetpointFields:
-        """A setpoint as the API shows it (the UAV yaws filled in)."""
-        return cls(
+        """A setpoint as the API shows it (the UAV yaws filled in); not validated again:
+        it was when it was queued (the simulator's scenarios state their own ranges)."""
+        return cls.model_construct(
             bar_position=list(setpoint.bar_position_m),
             bar_yaw=setpoint.bar_yaw_rad,
             uav_yaw=list(setpoint.reference().uav_yaw_rad),
@@ -82,7 +100,9 @@ class QueueRequest(_Message):
     """Queue setpoints, all or none."""
 
     kind: Literal["queue"] = "queue"
-    setpoints: Annotated[list[SetpointFields], Field(min_length=1)]
+    setpoints: Annotated[
+        list[SetpointFields], Field(min_length=1, max_length=MAX_SETPOINTS_PER_REQUEST)
+    ]
 
 
 class ClearSetpointsRequest(_Message):
@@ -104,8 +124,9 @@ Request = Annotated[
 
 
 class Outcome(StrEnum):
-    """How a request ended: ``ok``; ``refused`` (the mode table or the queue said no: HTTP
-    409); ``invalid`` (bad data: 422); ``unavailable`` (no flight process answering: 503)."""
+    """How a request ended: ``ok``; ``refused`` (well-formed, but the mode table, the queue,
+    the arena or the equilibrium said no: HTTP 409); ``invalid`` (the request does not fit
+    its type: 422); ``unavailable`` (no flight process answering: 503)."""
 
     OK = "ok"
     REFUSED = "refused"
@@ -152,10 +173,8 @@ def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
     if isinstance(request, QueueRequest):
         try:
             core.queue_setpoints([entry.to_setpoint() for entry in request.setpoints])
-        except SetpointQueueFullError as error:
+        except SetpointError as error:  # the queue full, outside the arena, no equilibrium
             return Reply(outcome=Outcome.REFUSED, reason=str(error))
-        except SetpointError as error:
-            return Reply(outcome=Outcome.INVALID, reason=str(error))
         return Reply(outcome=Outcome.OK, data={"queued": len(core.queue.queued)})
     if isinstance(request, ClearSetpointsRequest):
         core.clear_setpoints()

@@ -14,13 +14,27 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter
 
 from supervisor.flight.operator_requests import Reply
 
 Seconds = Annotated[float, Field(gt=0.0, strict=True, description="seconds, > 0")]
 Coordinate = Annotated[float, Field(strict=True)]
-Vehicle = Annotated[int, Field(ge=1, le=2, strict=True, description="vehicle 1 or 2")]
+
+
+def _integral_number(value: object) -> object:
+    # JSON Schema's "integer" is any number without a fraction (1.0 is one); a boolean or a
+    # string is not a number, and strict int still refuses those.
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+Vehicle = Annotated[
+    int,
+    Field(ge=1, le=2, strict=True, description="vehicle 1 or 2"),
+    BeforeValidator(_integral_number),
+]
 Body = Annotated[str, Field(min_length=1, description="a rigid body of mocap.bodies")]
 
 

@@ -430,10 +430,15 @@ class FlightProcess:
             return handle_request(self.core, request, self.clock())
         # Armed although the supervisor is on the ground: in PX4's own failsafe landing
         # (after a flight process died) or armed by someone else; not the supervisor's to fly.
+        views = [link.view() for link in self.links]
         failures = [
+            f"UAV {i}'s arming state is not known yet (no heartbeat): try again in a second"
+            for i, view in enumerate(views, start=1)
+            if view.px4_mode == "unknown"
+        ] + [
             f"UAV {i} is armed already (PX4 in {view.px4_mode}): wait until it has landed and "
             "disarmed"
-            for i, view in enumerate((link.view() for link in self.links), start=1)
+            for i, view in enumerate(views, start=1)
             if view.armed
         ]
         expected = self.settings.failsafe_parameters

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import socket
+import ssl
 import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
@@ -15,7 +17,8 @@ import httpx
 import pytest
 
 from api.app import create_app
-from api.server import HttpServer, bind
+from api.guard import HttpPolicy
+from api.server import HttpServer, TlsFiles, bind
 from supervisor.app.assembly import arena_from_config, flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.core import FlightCore
@@ -43,8 +46,11 @@ class ApiUnderTest:
         return await self.http.post(path, json=json, headers=headers)
 
 
-@pytest.fixture
-async def api() -> AsyncIterator[ApiUnderTest]:
+@contextlib.asynccontextmanager
+async def serve_api(
+    policy: HttpPolicy | None = None, tls: TlsFiles | None = None
+) -> AsyncIterator[ApiUnderTest]:
+    """The API behind ``policy`` (default: the token, loopback) on a free loopback port."""
     config = load_config(CONFIGS / "sim.toml")
     core = flight_core_from_config(config, clock=time.perf_counter)
     core.tick(0.0, resting_estimate(config.system.to_params()))  # ready to arm
@@ -66,8 +72,12 @@ async def api() -> AsyncIterator[ApiUnderTest]:
             flight_side[0].send(TelemetryMessage(status=message))
             await asyncio.sleep(0.04)
 
-    app = create_app(flight, config.system.to_params(), arena_from_config(config), TOKEN)
-    server = HttpServer(app, bind("127.0.0.1", 0))
+    params, arena = config.system.to_params(), arena_from_config(config)
+    # The client shares this event loop, so its own work would read as the server's load:
+    # shedding is off unless a test asks for it (test_http_guard's, and benchmarks.api_load).
+    unshed = HttpPolicy(TOKEN, shed_lag_s=math.inf)
+    app = create_app(flight, params, arena, policy or unshed)
+    server = HttpServer(app, bind("127.0.0.1", 0), tls)
     async with asyncio.TaskGroup() as group:
         tasks = [
             group.create_task(serve_requests(flight_side[0], handle)),
@@ -77,8 +87,9 @@ async def api() -> AsyncIterator[ApiUnderTest]:
             group.create_task(server.serve()),
         ]
         # The socket is already listening: requests queue until uvicorn accepts them.
-        url = f"http://127.0.0.1:{server.port}"
-        async with httpx.AsyncClient(base_url=url, timeout=5.0) as http:
+        url = f"{server.scheme}://127.0.0.1:{server.port}"
+        verify = ssl.create_default_context(cafile=tls.cert_file) if tls else True
+        async with httpx.AsyncClient(base_url=url, timeout=5.0, verify=verify) as http:
             yield ApiUnderTest(url, core, flight, http)
         server.stop()
         for task in tasks[:-1]:
@@ -87,3 +98,9 @@ async def api() -> AsyncIterator[ApiUnderTest]:
             with contextlib.suppress(Exception):
                 await channel.close()
         await flight.close()
+
+
+@pytest.fixture
+async def api() -> AsyncIterator[ApiUnderTest]:
+    async with serve_api() as running:
+        yield running

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from api.app import create_app
+from api.guard import HttpPolicy
 from api.server import HttpServer, bind
 from sim.plant import body_slice
 from sim.px4 import BOOT_MODE, FORCE_MAGIC
@@ -68,7 +69,9 @@ async def sim_api() -> AsyncIterator[SimApi]:
     pairs = [socket.socketpair() for _ in range(2)]
     commands, urgent = [await Channel.open(a) for a, _ in pairs]
     flight = FlightClient(commands, urgent)
-    app = create_app(flight, config.system.to_params(), arena_from_config(config), TOKEN, client)
+    app = create_app(
+        flight, config.system.to_params(), arena_from_config(config), HttpPolicy(TOKEN), client
+    )
     server = HttpServer(app, bind("127.0.0.1", 0))
     async with asyncio.TaskGroup() as group:
         tasks = [
@@ -144,7 +147,6 @@ async def test_delete_ends_every_fault(sim_api: SimApi) -> None:
         ({"duration_s": 1}, "kind"),
         ({"kind": "mocap_silent", "vehicle": 1}, "vehicle"),
         ({"kind": "mocap_body_lost"}, "body"),
-        ({"kind": "mocap_body_lost", "body": "ghost"}, "body: 'ghost' is not a configured"),
         ({"kind": "mocap_jump", "body": "bar", "offset_m": [1, 2]}, "offset_m"),
         ({"kind": "link_lost", "vehicle": 3}, "vehicle"),
         ({"kind": "px4_reboot", "vehicle": "1"}, "vehicle"),
@@ -159,6 +161,15 @@ async def test_an_invalid_fault_is_422_naming_the_field_and_nothing_is_applied(
     response = await sim_api.fault(body)
     assert response.status_code == 422
     assert reason in json.dumps(response.json())
+    assert sim_api.world.fault_views() == []
+
+
+async def test_a_body_the_world_does_not_have_is_409_and_nothing_is_applied(
+    sim_api: SimApi,
+) -> None:
+    response = await sim_api.fault({"kind": "mocap_body_lost", "body": "ghost"})
+    assert response.status_code == 409
+    assert "body: 'ghost' is not a configured" in response.json()["detail"]
     assert sim_api.world.fault_views() == []
 
 

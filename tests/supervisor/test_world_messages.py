@@ -18,6 +18,7 @@ from supervisor.ipc.world_client import WORLD_GONE, WorldClient, serve_world_req
 from supervisor.ipc.world_messages import (
     WORLD_MESSAGE,
     FaultSpec,
+    LinkLostFault,
     ListFaults,
     MocapJumpFault,
     StartFault,
@@ -59,6 +60,7 @@ def test_a_fault_survives_the_channel_as_its_type() -> None:
         ({"kind": "link_lost", "vehicle": 3}, ("link_lost", "vehicle")),
         ({"kind": "link_lost", "vehicle": True}, ("link_lost", "vehicle")),
         ({"kind": "link_lost", "vehicle": "1"}, ("link_lost", "vehicle")),
+        ({"kind": "link_lost", "vehicle": 1.5}, ("link_lost", "vehicle")),
         ({"kind": "udp_loss", "fraction": 1.01}, ("udp_loss", "fraction")),
         ({"kind": "udp_loss", "fraction": math.nan}, ("udp_loss", "fraction")),
         ({"kind": "udp_loss", "fraction": "0.5"}, ("udp_loss", "fraction")),
@@ -75,6 +77,12 @@ def test_malformed_faults_are_refused_at_the_parse_naming_the_field(
     assert tuple(error["loc"][: len(where)]) == where
     if not where:
         assert "kind" in error["msg"]
+
+
+def test_a_vehicle_is_any_json_integer_1_or_2() -> None:
+    """JSON Schema's integer: 1.0 is 1 (the OpenAPI document says "integer")."""
+    fault = FAULT.validate_python({"kind": "link_lost", "vehicle": 2.0})
+    assert isinstance(fault, LinkLostFault) and fault.vehicle == 2
 
 
 async def test_requests_and_replies_over_a_socket_pair() -> None:

@@ -1,0 +1,56 @@
+"""The OpenAPI document against the answers, by schemathesis (every check, with and
+without the token): against ``serve`` on the embedded simulator, and against an API that
+listens beyond loopback (reads need the token)."""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+from pathlib import Path
+
+import pytest
+
+from api.guard import HttpPolicy
+from benchmarks.service import running_service
+from tests.api.conftest import TOKEN, serve_api
+
+pytest.importorskip("schemathesis")
+pytestmark = pytest.mark.slow
+
+SERVE_TOKEN = "contract-token-0123"
+
+
+async def schemathesis(url: str, token: str | None, workdir: Path) -> tuple[int, str]:
+    """``schemathesis run`` over ``url``'s /openapi.json with every check; its exit status
+    and output."""
+    arguments = ["-m", "schemathesis.cli", "run", f"{url}/openapi.json", "--checks", "all"]
+    arguments += ["--max-examples", "25", "--seed", "18", "--no-color", "--request-timeout", "10"]
+    if token is not None:
+        arguments += ["-H", f"Authorization: Bearer {token}"]
+    process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        *arguments,
+        cwd=workdir,  # its example database stays in the test's folder
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+    )
+    output, _ = await process.communicate()
+    assert process.returncode is not None
+    return process.returncode, output.decode(errors="replace")
+
+
+def assert_no_failure(status: int, output: str) -> None:
+    assert status == 0 and "FAILURES" not in output, output[-6000:]
+    assert "server error" not in output.lower(), output[-6000:]
+
+
+async def test_schemathesis_finds_nothing_against_serve(tmp_path: Path) -> None:
+    async with running_service(SERVE_TOKEN, tmp_path) as service:
+        for token in (SERVE_TOKEN, None):
+            assert_no_failure(*await schemathesis(service.url, token, tmp_path))
+
+
+async def test_schemathesis_finds_nothing_beyond_loopback(tmp_path: Path) -> None:
+    async with serve_api(HttpPolicy(TOKEN, reads_need_token=True)) as api:
+        for token in (TOKEN, None):
+            assert_no_failure(*await schemathesis(api.url, token, tmp_path))
