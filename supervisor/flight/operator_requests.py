@@ -15,7 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from supervisor.flight.core import FlightCore
 from supervisor.flight.modes import Event
-from supervisor.flight.setpoints import Setpoint, SetpointError, SetpointQueueFullError
+from supervisor.flight.setpoints import Setpoint, SetpointError, SetpointRefusedError
 
 # strict: a JSON true is not a number of metres (ints are still numbers).
 Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
@@ -150,7 +150,7 @@ def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
     if isinstance(request, QueueRequest):
         try:
             core.queue_setpoints([entry.to_setpoint() for entry in request.setpoints])
-        except SetpointQueueFullError as error:
+        except SetpointRefusedError as error:
             return Reply(outcome=Outcome.REFUSED, reason=str(error))
         except SetpointError as error:
             return Reply(outcome=Outcome.INVALID, reason=str(error))

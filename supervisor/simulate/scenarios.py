@@ -1,4 +1,4 @@
-"""Flight scenarios: TOML files in ``configs/scenarios/`` that script a simulated flight.
+"""Flight scenarios: TOML files in ``supervisor/configs/scenarios/`` that script a simulated flight.
 
 A scenario starts either hovering at the hanging equilibrium (``start = "hover"``, as the
 paper's Section VII) or resting on the ground (``start = "ground"``). Each ``[[step]]`` is
@@ -19,16 +19,14 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from supervisor.app.config import (
-    CONFIG_DIR,
     ConfigError,
     FiniteFloat,
     NonNegativeFloat,
     PositiveFloat,
     Vec3,
 )
+from supervisor.app.config_files import SCENARIO_DIR, shipped_scenarios
 from supervisor.flight.setpoints import Setpoint
-
-SCENARIO_DIR = CONFIG_DIR / "scenarios"
 
 
 class _Strict(BaseModel):
@@ -90,16 +88,11 @@ class Scenario(_Strict):
 
 
 def scenario_path(name: str) -> Path:
-    """A scenario by name (``configs/scenarios/NAME.toml``) or by path."""
+    """A scenario by name (``supervisor/configs/scenarios/NAME.toml``) or by path."""
     path = Path(name)
     if path.suffix == ".toml" or path.parent != Path("."):
         return path
     return SCENARIO_DIR / f"{name}.toml"
-
-
-def available_scenarios() -> list[str]:
-    """Names of the scenarios shipped in ``configs/scenarios/``."""
-    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
 
 
 def load_scenario(name: str) -> Scenario:
@@ -109,7 +102,7 @@ def load_scenario(name: str) -> Scenario:
         with path.open("rb") as handle:
             data = tomllib.load(handle)
     except FileNotFoundError:
-        known = ", ".join(available_scenarios())
+        known = ", ".join(shipped_scenarios())
         raise ConfigError(f"no scenario {name!r} (shipped: {known})") from None
     except OSError as error:
         raise ConfigError(f"cannot read scenario {path}: {error.strerror}") from error
