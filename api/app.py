@@ -51,7 +51,7 @@ from supervisor.flight.operator_requests import (
     SetpointsQuery,
 )
 from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoints
-from supervisor.ipc.client import FlightClient
+from supervisor.ipc.client import FlightClient, SubscriptionEndedError
 from supervisor.ipc.world_client import WorldClient
 from supervisor.ipc.world_messages import (
     ClearFaults,
@@ -325,11 +325,11 @@ def _telemetry_route(flight: FlightClient) -> APIRouter:
             while True:
                 message = await subscription.next()
                 await websocket.send_text(_json_text(message))
-        except WebSocketDisconnect:
+        except (WebSocketDisconnect, SubscriptionEndedError):
             pass
         finally:
             subscription.close()
-            with contextlib.suppress(RuntimeError):
+            with contextlib.suppress(RuntimeError, WebSocketDisconnect):
                 await websocket.close()
 
     return router

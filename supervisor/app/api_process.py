@@ -97,6 +97,7 @@ async def serve_api(config: Config, start: ApiStart, parent: Connection) -> None
             links.append(group.create_task(world.run()))
         start.processes.send(READY)
         await stop.wait()
+        flight.end_subscriptions()  # the WebSockets close now, not cancelled after a timeout
         http.stop()
         await server
         for task in links:

@@ -49,7 +49,9 @@ examples:
 
 exit status: 0 done, 1 refused or failed (the reason is printed), 2 a usage or setup
 error (nothing was done), 3 the service cannot be reached.
+
 environment: UAVBAR_TOKEN (the API token), UAVBAR_URL (the service's address).
+
 Each command has its own --help."""
 
 
