@@ -29,7 +29,7 @@ serve: $(BIN)/.installed
 	$(BIN)/uavbar-supervisor serve --set api.port=$(PORT) $(ARGS)
 
 equilibria: $(BIN)/.installed
-	$(BIN)/uavbar-supervisor equilibria --theta-l 45
+	$(BIN)/uavbar-supervisor equilibria --theta-l-deg 45
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check .

@@ -98,7 +98,7 @@ class ReferenceLead:
 
 
 RECOMMENDED_LEAD = ReferenceLead(position_s=0.6, yaw_s=0.2)
-"""The lead the analysis and the simulations support (README; configs/kth_sml.toml)."""
+"""The lead the analysis and the simulations support (README; supervisor/configs/kth_sml.toml)."""
 
 
 @dataclass(frozen=True)

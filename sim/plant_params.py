@@ -126,7 +126,7 @@ class BarParams:
 
     ``inertia_kgm2`` is the full body-frame inertia tensor about the CoM; ``None`` derives
     it from the geometry: m L²/12 + m (d1 − L/2)² about the perpendicular axes (a thin
-    uniform tube seen from the shifted CoM, the estimate configs/kth_sml.toml uses for
+    uniform tube seen from the shifted CoM, the estimate supervisor/configs/kth_sml.toml uses for
     J_b = 0.0706) and m r² about the tube's axis (a thin-walled tube).
     """
 

@@ -17,7 +17,7 @@ LAB_INERTIA = (0.0348, 0.0459, 0.0977)
 
 @pytest.fixture(scope="session")
 def lab_params() -> BarSystemParams:
-    """The paper's lab (configs/kth_sml.toml): asymmetric bar, d1 = 0.705, d2 = 0.765."""
+    """The paper's lab (supervisor/configs/kth_sml.toml): asymmetric bar, d1 = 0.705, d2 = 0.765."""
     return load_config(CONFIGS / "kth_sml.toml").system.to_params()
 
 

@@ -1,4 +1,5 @@
-"""The package as pip builds it: the shipped setups, scenarios and dashboard are inside the
+"""The package as pip builds it: every file of the packages that is not Python source (the
+shipped setups, scenarios, dashboard, the simulated PX4's event catalog) is inside the
 wheel, so that an installed ``uavbar-supervisor`` needs no source tree."""
 
 from __future__ import annotations
@@ -13,6 +14,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 NOT_SOURCES = (".git", ".venv", "build", "flight-logs", "*.egg-info", "__pycache__", ".*_cache")
+PACKAGES = ("geometry", "supervisor", "controllers", "mocap", "api", "sim", "benchmarks")
+
+
+def package_data() -> set[str]:
+    """The files of the packages that are not Python source, as git tracks them."""
+    tracked = subprocess.run(
+        ["git", "ls-files", *PACKAGES], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.split()
+    return {name for name in tracked if not name.endswith(".py")}
 
 
 @pytest.mark.slow
@@ -28,13 +38,9 @@ def test_the_wheel_holds_the_configs_scenarios_and_dashboard(tmp_path: Path) -> 
     )
     [wheel] = tmp_path.glob("uavbar_supervisor-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
-    shipped = {
-        str(path.relative_to(ROOT))
-        for folder in ("supervisor/configs", "api/static")
-        for path in (ROOT / folder).rglob("*")
-        if path.is_file()
-    }
+    shipped = package_data()
     assert {"supervisor/configs/sim.toml", "supervisor/configs/scenarios/paper.toml"} <= shipped
+    assert {"api/static/index.html", "sim/px4_events.json"} <= shipped
     assert shipped <= names, shipped - names
     assert not any(name.startswith("tests/") for name in names)
     entry_points = next(name for name in names if name.endswith("entry_points.txt"))

@@ -91,4 +91,9 @@ def service_address(args: argparse.Namespace) -> ServiceAddress:
     running = _running_services()
     if len(running) == 1:
         return ServiceAddress(running[0].rstrip("/"), "the one serve running here")
+    if running:
+        others = ", ".join(running)
+        return ServiceAddress(
+            configured.url, f"{configured.found_by}; serves running here: {others}"
+        )
     return configured

@@ -125,6 +125,9 @@ def test_the_client_finds_the_service(tmp_path: Path, monkeypatch: pytest.Monkey
     write_discovery(8131, {"url": "http://127.0.0.1:8131", "pid": os.getpid()})
     found = service_address(args)
     assert found.url == "http://127.0.0.1:8131" and found.found_by == "the one serve running here"
+    write_discovery(8132, {"url": "http://127.0.0.1:8132", "pid": os.getpid()})
+    several = service_address(args)  # which one is meant? the setup's, naming the others
+    assert several.url == "http://127.0.0.1:8000" and "http://127.0.0.1:8132" in several.found_by
     write_discovery(8000, {"url": "http://127.0.0.1:8000", "pid": os.getpid()})
     assert service_address(args).found_by == "serve's discovery file"  # the setup's port first
     named = build_parser().parse_args(["status", "--set", "api.port=8200"])

@@ -151,7 +151,7 @@ def test_with_the_reference_lead_the_decentralized_bar_needs_no_hand_over(
     tmp_path: Path,
 ) -> None:
     """The same sequence under the decentralized MPC with the lead beyond the paper
-    (configs/kth_sml.toml's comment): no swing reaches the hand-over angle, and the bar's
+    (supervisor/configs/kth_sml.toml's comment): no swing reaches the hand-over angle, and the bar's
     x-error spread stays well below Section V alone's (108 mm, README)."""
     lead = f"[{RECOMMENDED_LEAD.position_s}, {RECOMMENDED_LEAD.yaw_s}]"
     led = load_config(CONFIGS / "sim.toml", [f"mpc.decentralized.reference_lead_s={lead}"])
