@@ -8,8 +8,8 @@ import json
 
 import pytest
 
-from supervisor.cli.client import format_status
 from supervisor.cli.main import main
+from supervisor.cli.output import format_status
 from supervisor.flight.modes import Mode
 from tests.api.conftest import TOKEN, ApiUnderTest
 
