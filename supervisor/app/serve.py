@@ -133,7 +133,7 @@ def _bind_http(config: Config) -> socket.socket:
         ) from None
 
 
-def dashboard_address(host: str, port: int, token: str) -> str:
+def _dashboard_address(host: str, port: int, token: str) -> str:
     """The address to open: the dashboard reads its token from the fragment, which the
     browser never sends to the server."""
     shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
@@ -346,7 +346,7 @@ async def serve(setup: Setup) -> int:
             log.info(
                 "API token (generated; set %s or api.token to choose one): %s", TOKEN_ENV, token
             )
-        log.info("dashboard: %s", dashboard_address(host, service.port, token))
+        log.info("dashboard: %s", _dashboard_address(host, service.port, token))
         await stop.wait()
         log.info("stopping: landing whatever is airborne, then stopping every process")
     finally:
