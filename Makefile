@@ -1,25 +1,35 @@
 # Two commands on a fresh machine: `make serve` (the service on the embedded simulator)
 # and `make test` (lint, type-check and the whole test suite). Both create the virtualenv
-# in .venv on first use.
+# in .venv on first use. `make serve PORT=8131 ARGS='--config kth_sml'` chooses the port
+# and passes more options to `uavbar-supervisor serve`.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+PORT ?= 8000
+ARGS ?=
 export OPENBLAS_NUM_THREADS := 1
 
 .PHONY: serve equilibria test test-fast test-px4-flight lint browser
 
+# Set-up takes a few minutes on a fresh machine (numpy, scipy, casadi, ...): each step
+# says what it does, and pip shows what it downloads.
 $(BIN)/.installed: pyproject.toml
+	@echo "set-up 1/4: a virtualenv in $(VENV)"
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
-	-$(BIN)/python -m supervisor.cli.hpipm_install  # AVX2 HPIPM; on failure casadi's own
+	@echo "set-up 2/4: pip itself"
+	$(BIN)/pip install --upgrade pip
+	@echo "set-up 3/4: the project and its dependencies (a few minutes the first time)"
+	$(BIN)/pip install -e '.[dev]'
+	@echo "set-up 4/4: HPIPM's AVX2 build (optional; on failure casadi's own is used)"
+	-$(BIN)/python -m supervisor.cli.hpipm_install
 	touch $@
+	@echo "set-up done"
 
 serve: $(BIN)/.installed
-	$(BIN)/uavbar-supervisor serve
+	$(BIN)/uavbar-supervisor serve --set api.port=$(PORT) $(ARGS)
 
 equilibria: $(BIN)/.installed
-	$(BIN)/uavbar-supervisor equilibria --theta-l 45
+	$(BIN)/uavbar-supervisor equilibria --theta-l-deg 45
 
 lint: $(BIN)/.installed
 	$(BIN)/ruff check .

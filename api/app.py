@@ -61,7 +61,7 @@ from supervisor.flight.operator_requests import (
     SetpointsQuery,
 )
 from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoints
-from supervisor.ipc.client import FlightClient
+from supervisor.ipc.client import FlightClient, SubscriptionEndedError
 from supervisor.ipc.world_client import WorldClient
 from supervisor.ipc.world_messages import (
     ClearFaults,
@@ -474,11 +474,11 @@ def _telemetry_route(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
             while True:
                 message = await subscription.next()
                 await websocket.send_text(text_of(message))
-        except (WebSocketDisconnect, OSError):
-            pass  # gone (uvicorn's ClientDisconnected is an OSError)
+        except (WebSocketDisconnect, SubscriptionEndedError, OSError):
+            pass  # gone (uvicorn's ClientDisconnected is an OSError), or serve is stopping
         finally:
             subscription.close()
-            with contextlib.suppress(RuntimeError, OSError):
+            with contextlib.suppress(RuntimeError, OSError, WebSocketDisconnect):
                 await websocket.close()
 
     return router

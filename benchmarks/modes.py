@@ -26,8 +26,9 @@ from controllers.equilibria import Reference
 from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
 from controllers.params import RECOMMENDED_LEAD, ReferenceLead
+from supervisor.app.config_files import CONFIG_DIR
 
-DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "kth_sml.toml"
+DEFAULT_CONFIG = CONFIG_DIR / "kth_sml.toml"
 EQUILIBRIA = {
     "hover": Reference((0.0, 0.0, 1.0)),
     "theta_l 20°, turned": Reference((0.5, -0.3, 1.2), 0.8, (0.8, 1.4), math.radians(20)),

@@ -32,8 +32,9 @@ from controllers.mpc import CentralizedMpc, DecentralizedMpc, agent_state, measu
 from controllers.params import BarSystemParams, MpcSettings
 from controllers.qp.registry import BACKEND_NAMES
 from geometry.state import uav_slices
+from supervisor.app.config_files import DEFAULT_SETUP
 
-DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "configs" / "sim.toml"
+DEFAULT_CONFIG = DEFAULT_SETUP
 REFERENCE_BACKEND = "daqp"
 BASELINE_BACKEND = "osqp"
 Sequence = list[tuple[np.ndarray, Reference]]

@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from controllers.equilibria import Reference, bar_equilibrium
 from controllers.params import BarSystemParams, UavParams
 from geometry.state import bar_ends, uav_slices
-from supervisor.app.config import load_config
+from supervisor.app.config import CONFIG_DIR, load_config
 from supervisor.flight.estimation import Estimate
 
-CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+CONFIGS = CONFIG_DIR
 LAB_INERTIA = (0.0348, 0.0459, 0.0977)
 
 

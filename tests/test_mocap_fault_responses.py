@@ -16,7 +16,7 @@ import pytest
 from benchmarks.service import running_service
 from benchmarks.tick import world_truth
 from geometry.state import uav_position
-from supervisor.cli.client import format_status
+from supervisor.cli.output import format_status
 from supervisor.flight.safety import SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_fault_responses import TICK_MS

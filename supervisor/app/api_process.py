@@ -132,6 +132,7 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
             links.append(group.create_task(world.run()))
         start.processes.send(READY)
         await stop.wait()
+        flight.end_subscriptions()  # the WebSockets close now, not cancelled after a timeout
         http.stop()
         await server
         for task in links:

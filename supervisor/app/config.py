@@ -1,9 +1,11 @@
 """Typed configuration: TOML files validated by pydantic, frozen after load.
 
-A setup is one TOML file (``configs/*.toml``). A file may name another with
-``extends = "other.toml"`` (relative to itself); its own tables are merged over the
-other's, key by key. Command-line overrides ``--set section.key=value`` are applied last,
-with values parsed as TOML literals (``--set system.cable_length=[1.0, 1.1]``).
+A setup is one TOML file (the shipped ones in ``configs/``). A file may name
+another with ``extends = "other.toml"`` (relative to itself); its own tables are merged
+over the other's, key by key. Command-line overrides ``--set section.key=value`` are
+applied last, with values parsed as TOML literals (``--set system.cable_length=[1.0, 1.1]``).
+Reading and merging is ``supervisor.app.config_files`` (standard library only); this module
+validates.
 
 Every error names the offending key; nothing is applied from an invalid setup.
 """
@@ -12,8 +14,7 @@ from __future__ import annotations
 
 import ipaddress
 import math
-import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -36,7 +37,7 @@ from controllers.params import (
     UavParams,
 )
 from controllers.qp.registry import BACKEND_NAMES
-from supervisor.errors import OperatorError
+from supervisor.app.config_files import CONFIG_DIR, TOKEN_ENV, ConfigError, read_setup
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -44,10 +45,9 @@ NonNegativeFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 Vec3 = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
 PositiveVec3 = Annotated[list[PositiveFloat], Field(min_length=3, max_length=3)]
 
-# The shipped setups and scenarios: configs/ at the top of the repository.
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
-# The API token of `serve` and of the terminal client, when not configured or given.
-TOKEN_ENV = "UAVBAR_TOKEN"
+# Re-exported: what the setup files are and where, for the modules that validate them.
+__all__ = ["CONFIG_DIR", "TOKEN_ENV", "Config", "ConfigError", "load_config"]
+
 LOOPBACK = "127.0.0.1"
 
 
@@ -55,10 +55,6 @@ def host_port(address: str) -> tuple[str, int]:
     """ "host:port" (already validated) as (host, port)."""
     host, _, port = address.rpartition(":")
     return host, int(port)
-
-
-class ConfigError(OperatorError):
-    """A setup that cannot be used: unreadable file, unknown key, wrong type or value."""
 
 
 class _Section(BaseModel):
@@ -482,60 +478,6 @@ class Config(_Section):
         )
 
 
-def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
-    merged = dict(base)
-    for key, value in over.items():
-        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
-            merged[key] = _merge(merged[key], value)
-        else:
-            merged[key] = value
-    return merged
-
-
-def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
-    path = path.resolve()
-    if path in seen:
-        raise ConfigError(f"{path}: 'extends' loops back to itself")
-    try:
-        with path.open("rb") as handle:
-            data = tomllib.load(handle)
-    except OSError as error:
-        raise ConfigError(f"cannot read config {path}: {error.strerror}") from error
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"{path}: not valid TOML: {error}") from error
-    parent = data.pop("extends", None)
-    if parent is None:
-        return data
-    if not isinstance(parent, str):
-        raise ConfigError(f"{path}: 'extends' must be a file name")
-    return _merge(_read_toml(path.parent / parent, (*seen, path)), data)
-
-
-def parse_override(assignment: str) -> tuple[list[str], Any]:
-    """Split ``section.key=value`` into its key path and the TOML literal's value."""
-    key, sep, literal = assignment.partition("=")
-    key = key.strip()
-    if not sep or not key or any(not part for part in key.split(".")):
-        raise ConfigError(f"--set {assignment!r}: expected section.key=value")
-    try:
-        value = tomllib.loads(f"v = {literal.strip()}")["v"]
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(
-            f"--set {key}: {literal.strip()!r} is not a TOML value ({error})"
-        ) from error
-    return key.split("."), value
-
-
-def _apply_override(data: dict[str, Any], path: list[str], value: Any) -> None:
-    node = data
-    for part in path[:-1]:
-        child = node.setdefault(part, {})
-        if not isinstance(child, dict):
-            raise ConfigError(f"--set {'.'.join(path)}: {part!r} is a value, not a section")
-        node = child
-    node[path[-1]] = value
-
-
 def _describe(error: ValidationError) -> str:
     lines = []
     for item in error.errors():
@@ -551,10 +493,7 @@ def _describe(error: ValidationError) -> str:
 
 def load_config(path: Path, overrides: Sequence[str] = ()) -> Config:
     """Read, merge, override and validate a setup. Raises ``ConfigError`` naming the key."""
-    data = _read_toml(path)
-    for assignment in overrides:
-        key_path, value = parse_override(assignment)
-        _apply_override(data, key_path, value)
+    data = read_setup(path, overrides).data
     try:
         config = Config.model_validate(data)
     except ValidationError as error:

@@ -30,7 +30,7 @@ from typing import Any
 from api.server import bind
 from supervisor.app.api_process import GO, READY, ApiStart, api_tls
 from supervisor.app.children import SPAWN, Child, Lifeline, stop_child
-from supervisor.app.config import TOKEN_ENV, Config, load_config
+from supervisor.app.config import TOKEN_ENV, Config, ConfigError, load_config
 from supervisor.app.flight_main import FlightStart
 from supervisor.app.relay_main import relay_addresses
 from supervisor.app.signing_keys import load_signing_keys, signing_keys_path
@@ -121,6 +121,27 @@ def _signing_keys(config: Config) -> SigningKeys:
     return load_signing_keys(signing_keys_path(v.signing_keys), v.system_ids)
 
 
+def _bind_http(config: Config) -> socket.socket:
+    """The API's listening socket; a port in use (or not ours to take) is a setup error,
+    said in one line."""
+    host, port = config.api.host, config.api.port
+    try:
+        return bind(host, port)
+    except OSError as error:
+        raise ConfigError(
+            f"cannot listen on {host}:{port}: {error.strerror} (another serve? choose a "
+            "port with --set api.port=N, or PORT=N with make serve)"
+        ) from None
+
+
+def _dashboard_address(host: str, port: int, token: str) -> str:
+    """The address to open: the dashboard reads its token from the fragment, which the
+    browser never sends to the server."""
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+    shown = f"[{shown}]" if ":" in shown else shown
+    return f"http://{shown}:{port}/#token={token}"
+
+
 def _spawn(name: str, target: Any, *args: Any) -> tuple[BaseProcess, Lifeline]:
     """Start ``target(*args, lifeline)`` as process ``name``; serve keeps the other end."""
     parent, child = SPAWN.Pipe()
@@ -157,8 +178,8 @@ class Service:
         self.token = token
         config.link_bind_host()  # a lab without its interface: refused before anything starts
         self.signing_keys = _signing_keys(config)
+        self.http_socket = _bind_http(config)
         self.rendezvous = Rendezvous.create()
-        self.http_socket = bind(config.api.host, config.api.port)
         self.world_addresses: dict[str, Any] | None = None
         self.link_sockets: LinkSockets | None = None
         self.children: dict[str, Child] = {}
@@ -352,11 +373,17 @@ async def serve(setup: Setup) -> int:
             service.port,
             {"url": url, "pid": os.getpid(), "operator_socket": str(service.rendezvous.flight)},
         )
-        log.info("uavbar-supervisor serving %s/ (setup %s)", url, config.name)
+        log.info(
+            "uavbar-supervisor serving %s/ (setup %s; API docs %s/docs; Ctrl-C stops)",
+            url,
+            config.name,
+            url,
+        )
         if generated:
             log.info(
                 "API token (generated; set %s or api.token to choose one): %s", TOKEN_ENV, token
             )
+        log.info("dashboard: %s", _dashboard_address(host, service.port, token))
         await stop.wait()
         log.info("stopping: landing whatever is airborne, then stopping every process")
     finally:
@@ -365,6 +392,7 @@ async def serve(setup: Setup) -> int:
         await service.stop()
         if discovery is not None:
             discovery.unlink(missing_ok=True)
+    log.info("stopped")
     return 0
 
 

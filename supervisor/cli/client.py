@@ -1,12 +1,14 @@
-"""The terminal client: ``uavbar-supervisor status|arm|takeoff|land|abort|disarm|kill|mode|
-setpoint`` against a running service's REST API, for scripts and the laptop next to the
-drones; ``fault`` and ``reset`` for the embedded simulated world (docs/faults.md).
+"""The terminal client: status, arm, takeoff, land, abort, disarm, kill, mode and setpoint
+against a running service's REST API; fault and reset for the embedded simulated world
+(docs/faults.md).
 
-The URL defaults to the configured ``api.host``/``api.port``; the token comes from
-``--token`` or the environment variable ``UAVBAR_TOKEN``. ``abort`` and ``kill`` give the
-API 0.3 s, then go straight to the flight process (``supervisor.cli.direct``). Exit
-status: 0 done, 1 refused (the reason is printed), 3 the service cannot be reached (2 is a
-usage error, as for every command).
+It imports the standard library only (``supervisor.cli.rest_client``), so that it starts
+at once. The service is
+found as ``supervisor.cli.address`` says; the token comes from ``--token`` or the
+environment variable ``UAVBAR_TOKEN``. Abort and kill give the API 0.3 s, then go straight
+to the flight process (``supervisor.cli.direct``). Angles are degrees here and radians in
+REST. Exit status: 0 done, 1 refused or failed (the reason is printed), 2 a usage error,
+3 the service cannot be reached.
 """
 
 from __future__ import annotations
@@ -16,32 +18,38 @@ import json
 import math
 import os
 import sys
+import time
 from typing import Any
 
-import httpx
-
-from supervisor.app.config import TOKEN_ENV, Config
+from supervisor.app.config_files import TOKEN_ENV
+from supervisor.cli import awaiting
+from supervisor.cli.address import URL_ENV, ServiceAddress, service_address
 from supervisor.cli.direct import DirectPathError, direct_request
-from supervisor.cli.usage import UsageError
+from supervisor.cli.output import (
+    format_answer,
+    format_detail,
+    format_faults,
+    format_setpoints,
+    format_status,
+)
+from supervisor.cli.parsing import finite_float, non_negative_float, positive_float
+from supervisor.cli.rest_client import JsonClient, UnreachableError
+from supervisor.cli.usage import EXIT_REFUSED, EXIT_UNREACHABLE, UsageError
 
-EXIT_REFUSED = 1
-EXIT_UNREACHABLE = 3
-SIMPLE_REQUESTS = ("arm", "takeoff", "land", "abort", "disarm")
+SIMPLE_REQUESTS = {
+    "arm": "arm both vehicles (PX4's refusal is printed)",
+    "takeoff": "lift the bar to 1 m above its resting height and hover",
+    "land": "lower the bar, land both vehicles, disarm",
+    "abort": "coordinated landing now, from any airborne mode (on the ground: disarm)",
+    "disarm": "disarm both vehicles on the ground",
+}
 URGENT_COMMANDS = ("abort", "kill")
 URGENT_HTTP_TIMEOUT_S = 0.3
-
-
-def add_client_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--url", metavar="URL", help="service address (default: from config)")
-    parser.add_argument("--token", metavar="TOKEN", help=f"API token (default: ${TOKEN_ENV})")
-    parser.add_argument("--json", action="store_true", help="print the raw JSON answer")
-
-
-def _base_url(config: Config, args: argparse.Namespace) -> str:
-    if args.url:
-        return str(args.url).rstrip("/")
-    host = config.api.host if config.api.host not in ("0.0.0.0", "::") else "127.0.0.1"
-    return f"http://{host}:{config.api.port}"
+HTTP_TIMEOUT_S = 10.0
+# How long --wait waits by default: a take-off climbs for about 10 s, a landing from a few
+# metres takes under a minute, a setpoint travels and holds.
+WAIT_TIMEOUT_S = {"arm": 15.0, "takeoff": 60.0, "land": 120.0, "setpoint": 120.0, "mode": 10.0}
+CONTROLLERS = ("centralized", "decentralized")
 
 
 def _token(args: argparse.Namespace) -> str | None:
@@ -53,70 +61,35 @@ def _headers(args: argparse.Namespace) -> dict[str, str]:
     return {"Authorization": f"Bearer {token}"} if token else {}
 
 
-def _urgent_directly(url: str, args: argparse.Namespace, why: Exception) -> int:
+def _unreachable(address: ServiceAddress, why: object) -> int:
+    print(
+        f"cannot reach the service at {address.url} ({address.found_by}): {why}; "
+        f"is `uavbar-supervisor serve` running? (--url or ${URL_ENV} to name another)",
+        file=sys.stderr,
+    )
+    return EXIT_UNREACHABLE
+
+
+def _urgent_directly(address: ServiceAddress, args: argparse.Namespace, why: Exception) -> int:
     """Abort or kill through the flight process's own socket (the API did not answer)."""
     try:
-        reply, took_s = direct_request(url, _token(args), args.command)
+        reply, took_s = direct_request(address.url, _token(args), args.command)
     except DirectPathError as error:
-        print(f"cannot reach the service at {url}: {why}; directly: {error}", file=sys.stderr)
-        return EXIT_UNREACHABLE
+        return _unreachable(address, f"{why}; directly: {error}")
     print(f"the API did not answer ({why}): sent straight to the flight process", file=sys.stderr)
     if reply.get("outcome") != "ok":
-        print(f"refused: {reply.get('reason')}", file=sys.stderr)
+        print(f"{args.command} refused: {reply.get('reason')}", file=sys.stderr)
         return EXIT_REFUSED
+    answer = {**reply.get("data", {}), "direct": True, "took_s": took_s}
     if args.json:
-        print(json.dumps({**reply.get("data", {}), "direct": True, "took_s": took_s}))
+        print(json.dumps(answer))
     else:
-        answer = {**reply.get("data", {}), "direct": True}
-        print(", ".join(f"{k}: {v}" for k, v in answer.items()) + f" ({took_s * 1e3:.0f} ms)")
+        print(format_answer(args.command, answer) + f" (direct, {took_s * 1e3:.0f} ms)")
     return 0
 
 
-def _format_position(values: Any) -> str:
-    if not values or any(v is None for v in values):
-        return "unknown"
-    return "(" + ", ".join(f"{v:+.3f}" for v in values) + ") m"
-
-
-def format_status(status: dict[str, Any]) -> str:
-    """A few lines an operator reads at a glance."""
-    bar = status.get("bar", {})
-    yaw = bar.get("yaw")
-    tick = status.get("tick", {})
-    mocap = status.get("mocap", {})
-    lines = [
-        f"mode {status.get('mode')} ({status.get('phase', '-')}), controller "
-        f"{status.get('controller')}{'  [STALE]' if status.get('stale') else ''}",
-        f"bar  {_format_position(bar.get('position'))}, yaw "
-        + (f"{math.degrees(yaw):+.1f}°" if yaw is not None else "unknown"),
-    ]
-    for i, uav in enumerate(status.get("uavs", []), start=1):
-        armed = status.get("armed", [False, False])[i - 1]
-        lines.append(
-            f"uav{i} {_format_position(uav.get('position'))}, px4 {uav.get('px4_mode')}, "
-            f"{'armed' if armed else 'disarmed'}, link {'up' if uav.get('connected') else 'DOWN'}"
-        )
-    refused = ", ".join(f"{reason} {n}" for reason, n in (mocap.get("refused") or {}).items())
-    lines.append(
-        f"mocap {'healthy' if mocap.get('healthy') else 'NOT HEALTHY'} at "
-        f"{mocap.get('rate_hz') or 0:.0f} Hz{f' (refused: {refused})' if refused else ''}; "
-        "setpoints: "
-        f"{'active' if status.get('setpoints', {}).get('active') else 'none active'}, "
-        f"{len(status.get('setpoints', {}).get('queued', []))} queued"
-    )
-    lines.append(
-        f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
-        f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
-    )
-    lines += [
-        f"notice ({notice['age_s']:.0f} s ago): {notice['message']}"
-        for notice in status.get("notices", [])[-3:]
-    ]
-    return "\n".join(lines)
-
-
 FAULT_OPTIONS = (
-    ("duration", "duration_s"),
+    ("duration_s", "duration_s"),
     ("body", "body"),
     ("offset_m", "offset_m"),
     ("vehicle", "vehicle"),
@@ -136,17 +109,26 @@ def _fault_request(args: argparse.Namespace) -> tuple[str, str, Any]:
         if given:
             raise UsageError("fault: name a KIND for the options to apply to")
         return "GET", "/api/sim/faults", None
-    for option in given:
-        value = getattr(args, option)
-        numbers = value if isinstance(value, list) else [value]
-        if any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
-            # JSON has no NaN or infinity: say so here rather than send what cannot be sent.
-            flag = "--" + option.replace("_", "-")
-            raise UsageError(f"{flag} {value}: must be finite")
     fields = dict(FAULT_OPTIONS)
     body: dict[str, Any] = {"kind": args.kind}
     body.update((fields[option], getattr(args, option)) for option in given)
     return "POST", "/api/sim/faults", body
+
+
+def _setpoint_body(args: argparse.Namespace) -> dict[str, Any]:
+    """The REST body of ``setpoint X Y Z ...`` (degrees in, radians out)."""
+    if len(args.position) != 3:
+        raise UsageError(f"setpoint takes X Y Z (metres), got {len(args.position)} numbers")
+    body: dict[str, Any] = {"bar_position": args.position, "hold_s": args.hold_s}
+    if args.yaw_deg is not None:
+        body["bar_yaw"] = math.radians(args.yaw_deg)
+    if args.uav_yaw_deg is not None:
+        body["uav_yaw"] = [math.radians(v) for v in args.uav_yaw_deg]
+    if args.theta_l_deg is not None:
+        if not 0.0 <= args.theta_l_deg < 90.0:
+            raise UsageError(f"--theta-l-deg {args.theta_l_deg:g}: must lie in [0, 90) degrees")
+        body["theta_l"] = math.radians(args.theta_l_deg)
+    return body
 
 
 def _request_for(args: argparse.Namespace) -> tuple[str, str, Any]:
@@ -167,114 +149,214 @@ def _request_for(args: argparse.Namespace) -> tuple[str, str, Any]:
     if command == "mode":
         return "POST", "/api/mode", {"controller": args.controller}
     if args.clear:
+        if args.position:
+            raise UsageError("setpoint --clear drops every setpoint: give it no X Y Z")
         return "DELETE", "/api/setpoints", None
     if not args.position:
         return "GET", "/api/setpoints", None
-    if len(args.position) != 3:
-        raise UsageError(f"setpoint takes X Y Z (metres), got {len(args.position)} numbers")
-    body: dict[str, Any] = {"bar_position": args.position, "hold_s": args.hold}
-    if args.yaw is not None:
-        body["bar_yaw"] = args.yaw
-    if args.uav_yaw is not None:
-        body["uav_yaw"] = args.uav_yaw
-    if args.theta_l is not None:
-        body["theta_l"] = args.theta_l
-    return "POST", "/api/setpoints", body
+    return "POST", "/api/setpoints", _setpoint_body(args)
 
 
-def _format_fault(fault: dict[str, Any]) -> str:
-    params = " ".join(f"{k} {v}" for k, v in fault.get("params", {}).items())
-    remaining = fault.get("remaining_s")
-    left = "until cleared" if remaining is None else f"{remaining:.1f} s left"
-    return f"{fault.get('kind')}{' ' + params if params else ''} ({left})"
+def _goal(args: argparse.Namespace, body: Any) -> awaiting.Goal:
+    command = args.command
+    if command == "arm":
+        return awaiting.armed
+    if command == "takeoff":
+        return awaiting.hovering
+    if command == "land":
+        return awaiting.landed
+    if command == "mode":
+        return awaiting.controller(args.controller)
+    return awaiting.setpoint_flown(body)
 
 
-def format_faults(answer: dict[str, Any]) -> str:
-    """The answer of ``fault`` or ``reset``: what ended, then what is in effect."""
-    if not answer.get("embedded", True):
-        return "no simulated world here (sim.embedded is false): no faults"
-    lines = []
-    if answer.get("reset"):
-        lines.append("world reset: resting pose, PX4s disarmed in their boot mode")
-    lines += [f"ended: {_format_fault(fault)}" for fault in answer.get("cleared", [])]
-    faults = answer.get("faults", [])
-    lines += [f"in effect: {_format_fault(fault)}" for fault in faults]
-    if not faults:
-        lines.append("no fault in effect")
-    return "\n".join(lines)
-
-
-def _field(location: list[Any]) -> str:
-    """Where a validation error is, without FastAPI's leading "body" (the request's)."""
-    parts = location[1:] if location[:1] == ["body"] else location
-    return ".".join(str(part) for part in parts) or "body"
-
-
-def _format_detail(detail: Any) -> str:
-    """A refusal's reason; a validation error list as ``field: message`` per problem."""
-    if isinstance(detail, list) and all(isinstance(d, dict) and "msg" in d for d in detail):
-        return "; ".join(f"{_field(list(d.get('loc', [])))}: {d['msg']}" for d in detail)
-    return str(detail)
-
-
-def run_client(config: Config, args: argparse.Namespace) -> int:
-    """Send the command, print the answer; returns the exit status."""
-    method, path, body = _request_for(args)
-    url = _base_url(config, args)
-    urgent = args.command in URGENT_COMMANDS
-    timeout_s = URGENT_HTTP_TIMEOUT_S if urgent else 10.0
-    try:
-        response = httpx.request(
-            method, url + path, json=body, headers=_headers(args), timeout=timeout_s
-        )
-    except httpx.HTTPError as error:
-        if urgent:
-            return _urgent_directly(url, args, error)
-        print(f"cannot reach the service at {url}: {error}", file=sys.stderr)
-        return EXIT_UNREACHABLE
-    try:
-        answer = response.json()
-    except ValueError:
-        answer = {"detail": response.text}
-    if response.status_code >= 400:
-        detail = answer.get("detail", answer) if isinstance(answer, dict) else answer
-        print(f"refused ({response.status_code}): {_format_detail(detail)}", file=sys.stderr)
-        return EXIT_REFUSED
+def _print_answer(args: argparse.Namespace, answer: Any) -> None:
     if args.json:
         print(json.dumps(answer))
     elif args.command == "status":
         print(format_status(answer))
     elif args.command in ("fault", "reset"):
         print(format_faults(answer))
+    elif args.command == "setpoint" and "queued" in answer and isinstance(answer["queued"], list):
+        print(format_setpoints(answer))
     else:
-        print(", ".join(f"{k}: {v}" for k, v in answer.items()))
+        print(format_answer(args.command, answer))
+
+
+def _wait(client: JsonClient, args: argparse.Namespace, body: Any, sent_at_s: float) -> int:
+    """Poll the status until the request's outcome is known; its exit status."""
+
+    def fetch() -> dict[str, Any]:
+        response = client.request("GET", "/api/status")
+        if response.status != 200 or not isinstance(response.body, dict):
+            raise UnreachableError(f"GET /api/status answered {response.status}")
+        return response.body
+
+    timeout_s = args.timeout if args.timeout is not None else WAIT_TIMEOUT_S[args.command]
+    outcome = awaiting.await_goal(_goal(args, body), fetch, sent_at_s, timeout_s)
+    if args.json:
+        print(json.dumps({"reached": outcome.reached, "message": outcome.message}))
+    elif outcome.reached:
+        print(f"{args.command}: {outcome.message}")
+    if not outcome.reached:
+        print(f"{args.command}: {outcome.message}", file=sys.stderr)
+        return EXIT_REFUSED
     return 0
+
+
+def run_client(args: argparse.Namespace) -> int:
+    """Send the command, print the answer (and with ``--wait`` the outcome); returns the
+    exit status."""
+    method, path, body = _request_for(args)
+    waiting = bool(getattr(args, "wait", False))
+    if waiting and method != "POST":
+        raise UsageError("--wait waits for a request: give the setpoint X Y Z")
+    address = service_address(args)
+    urgent = args.command in URGENT_COMMANDS
+    timeout_s = URGENT_HTTP_TIMEOUT_S if urgent else HTTP_TIMEOUT_S
+    try:
+        client = JsonClient(address.url, _headers(args), timeout_s)
+    except ValueError as error:
+        raise UsageError(f"{error} (from {address.found_by})") from None
+    with client:
+        sent_at_s = time.monotonic()
+        try:
+            response = client.request(method, path, body)
+        except UnreachableError as error:
+            if urgent:
+                return _urgent_directly(address, args, error)
+            return _unreachable(address, error)
+        answer = response.body
+        if response.status >= 400:
+            detail = answer.get("detail", answer) if isinstance(answer, dict) else answer
+            print(
+                f"{args.command} refused ({response.status}): {format_detail(detail)}",
+                file=sys.stderr,
+            )
+            return EXIT_REFUSED
+        if not waiting:
+            _print_answer(args, answer)
+            return 0
+        try:
+            return _wait(client, args, body, sent_at_s)
+        except UnreachableError as error:
+            return _unreachable(address, f"while waiting: {error}")
+
+
+def _add_client_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--url",
+        metavar="URL",
+        help=f"the service's address (default: ${URL_ENV}, else the serve running here, "
+        "else http://127.0.0.1:8000 from the setup)",
+    )
+    parser.add_argument("--token", metavar="TOKEN", help=f"API token (default: ${TOKEN_ENV})")
+    parser.add_argument("--json", action="store_true", help="print the raw JSON answer")
+
+
+def _add_wait_options(parser: argparse.ArgumentParser, command: str) -> None:
+    parser.add_argument(
+        "--wait",
+        action="store_true",
+        help="return when the system is there (exit 0) or cannot get there (exit 1, with "
+        "the reason: an abort's notice, PX4's refusal)",
+    )
+    parser.add_argument(
+        "--timeout",
+        type=positive_float,
+        metavar="S",
+        help=f"with --wait: give up after S seconds, exit 1 (default: {WAIT_TIMEOUT_S[command]:g})",
+    )
+
+
+EXAMPLES = {
+    "status": "  uavbar-supervisor status\n  uavbar-supervisor status --json | jq .mode",
+    "arm": "  uavbar-supervisor arm --wait",
+    "takeoff": "  uavbar-supervisor takeoff --wait --timeout 30   # exit 0 once hovering",
+    "land": "  uavbar-supervisor land --wait   # exit 0 once disarmed on the ground",
+    "abort": "  uavbar-supervisor abort   # no API answer in 0.3 s: straight to the flight process",
+    "disarm": "  uavbar-supervisor disarm",
+    "kill": "  uavbar-supervisor kill --confirm",
+    "mode": "  uavbar-supervisor mode decentralized --wait",
+    "setpoint": (
+        "  uavbar-supervisor setpoint 0.5 0.3 1.2 --yaw-deg 20 --hold-s 3 --wait\n"
+        "  uavbar-supervisor setpoint 0 0 1 --theta-l-deg 30   # the θ_l = 30° equilibrium\n"
+        "  uavbar-supervisor setpoint                          # list active and queued\n"
+        "  uavbar-supervisor setpoint --clear                  # drop them, hold where it is"
+    ),
+    "fault": (
+        "  uavbar-supervisor fault mocap_silent --duration-s 1\n"
+        "  uavbar-supervisor fault link_lost --vehicle 2\n"
+        "  uavbar-supervisor fault --clear"
+    ),
+    "reset": "  uavbar-supervisor reset",
+}
 
 
 def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
     """The client subcommands, each with ``handler`` set to ``run_client``."""
-    parsers = [commands.add_parser("status", help="the running service's status")]
-    parsers += [
-        commands.add_parser(name, help=f"ask the running service to {name}")
-        for name in SIMPLE_REQUESTS
-    ]
-    kill = commands.add_parser("kill", help="force-disarm both vehicles (they fall)")
+
+    def command(name: str, help_text: str, description: str = "") -> argparse.ArgumentParser:
+        parser: argparse.ArgumentParser = commands.add_parser(
+            name,
+            help=help_text,
+            description=description or help_text[0].upper() + help_text[1:] + ".",
+            epilog="examples:\n" + EXAMPLES[name],
+        )
+        return parser
+
+    parsers = [command("status", "the running service's status: mode, bar, UAVs, mocap, ticks")]
+    for name, text in SIMPLE_REQUESTS.items():
+        parser = command(name, text)
+        if name in ("arm", "takeoff", "land"):
+            _add_wait_options(parser, name)
+        parsers.append(parser)
+    kill = command("kill", "force-disarm both vehicles at once: they fall")
     kill.add_argument("--confirm", action="store_true", help="required: yes, kill")
-    mode = commands.add_parser("mode", help="switch the controller")
-    mode.add_argument("controller", choices=("centralized", "decentralized"))
-    setpoint = commands.add_parser(
-        "setpoint", help="queue a bar setpoint (no position: list them; --clear: drop them)"
+    mode = command("mode", "switch the controller (bumpless in flight)")
+    mode.add_argument("controller", choices=CONTROLLERS, help="the MPC to fly the bar")
+    _add_wait_options(mode, "mode")
+    setpoint = command(
+        "setpoint",
+        "queue a bar setpoint (no X Y Z: list them; --clear: drop them)",
+        "Queue a bar setpoint: the bar's centre in the arena frame (metres, z up), its yaw, "
+        "the UAVs' yaws and the cable angle θ_l (degrees), held for --hold-s seconds once "
+        "reached, then the next one. Taken only while armed or flying (refused disarmed, "
+        "landing or aborting).",
     )
-    setpoint.add_argument("position", nargs="*", type=float, metavar="X Y Z")
-    setpoint.add_argument("--yaw", type=float, metavar="RAD", help="bar yaw")
-    setpoint.add_argument("--uav-yaw", type=float, nargs=2, metavar=("PSI1", "PSI2"))
-    setpoint.add_argument("--theta-l", type=float, metavar="RAD", help="cable angle")
-    setpoint.add_argument("--hold", type=float, default=5.0, metavar="S", help="hold time")
-    setpoint.add_argument("--clear", action="store_true", help="drop queue and active")
-    fault = commands.add_parser(
+    setpoint.add_argument(
+        "position", nargs="*", type=finite_float, metavar="X Y Z", help="bar centre [m]"
+    )
+    setpoint.add_argument(
+        "--yaw-deg", type=finite_float, metavar="DEG", help="bar yaw [°] (default: 0)"
+    )
+    setpoint.add_argument(
+        "--uav-yaw-deg",
+        type=finite_float,
+        nargs=2,
+        metavar=("PSI1", "PSI2"),
+        help="each UAV's yaw [°] (default: the bar's)",
+    )
+    setpoint.add_argument(
+        "--theta-l-deg",
+        type=finite_float,
+        metavar="DEG",
+        help="cable angle θ_l [°], in [0, 90) (default: 0, cables vertical)",
+    )
+    setpoint.add_argument(
+        "--hold-s",
+        "--hold",
+        type=non_negative_float,
+        default=5.0,
+        metavar="S",
+        help="seconds to hold once reached (default: 5)",
+    )
+    setpoint.add_argument("--clear", action="store_true", help="drop the queue and the active")
+    _add_wait_options(setpoint, "setpoint")
+    fault = command(
         "fault",
-        help="inject a fault into the embedded simulated world (no KIND: list them; "
-        "--clear: end them all)",
+        "inject a fault into the embedded simulated world (no KIND: list them; --clear: "
+        "end them all)",
     )
     fault.add_argument(
         "kind",
@@ -284,18 +366,22 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
         "px4_reboot or udp_loss (docs/faults.md)",
     )
     fault.add_argument(
-        "--duration", type=float, metavar="S", help="seconds (default: until cleared)"
+        "--duration-s",
+        "--duration",
+        type=positive_float,
+        metavar="S",
+        help="seconds (default: until cleared)",
     )
     fault.add_argument("--body", metavar="NAME", help="a rigid body of mocap.bodies")
-    fault.add_argument("--offset-m", type=float, nargs=3, metavar=("X", "Y", "Z"), help="metres")
-    fault.add_argument("--vehicle", type=int, metavar="N", help="1 or 2")
-    fault.add_argument("--fraction", type=float, metavar="F", help="in [0, 1]")
-    fault.add_argument("--clear", action="store_true", help="end every fault")
-    reset = commands.add_parser(
-        "reset", help="put the embedded simulated world back in its resting pose (disarmed)"
+    fault.add_argument(
+        "--offset-m", type=finite_float, nargs=3, metavar=("X", "Y", "Z"), help="metres"
     )
+    fault.add_argument("--vehicle", type=int, metavar="N", help="1 or 2")
+    fault.add_argument("--fraction", type=finite_float, metavar="F", help="in [0, 1]")
+    fault.add_argument("--clear", action="store_true", help="end every fault")
+    reset = command("reset", "put the embedded simulated world back in its resting pose (disarmed)")
     parsers += [kill, mode, setpoint, fault, reset]
     for parser in parsers:
-        add_client_options(parser)
+        _add_client_options(parser)
         parser.set_defaults(handler=run_client)
     return parsers

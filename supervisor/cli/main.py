@@ -1,51 +1,66 @@
-"""``uavbar-supervisor``: the command line.
+"""The ``uavbar-supervisor`` command line.
 
-Every command takes ``--config PATH`` (default: the embedded simulator's setup) and repeated
-``--set section.key=value``. A bad setup or argument prints one clear message and exits
-with status 2 before anything runs.
+Building the parser imports the standard library only, and the terminal client's commands
+import nothing more than httpx (``supervisor.cli.client``): the service stack, the
+controllers and the simulator are imported by the commands that use them, when they run.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import pydantic_core
-
-from benchmarks.mpc import add_arguments as _bench_arguments
-from benchmarks.mpc import run as run_mpc_benchmark
-from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
-from supervisor.app.config import CONFIG_DIR, Config, ConfigError, load_config
-from supervisor.cli.client import add_client_commands
-from supervisor.cli.console import SimulationProgress, format_summary
+from supervisor.app.config_files import (
+    DEFAULT_SETUP,
+    ConfigError,
+    setup_path,
+    shipped_scenarios,
+    shipped_setups,
+)
+from supervisor.cli.client import CONTROLLERS, add_client_commands
 from supervisor.cli.keys import add_keys_command
-from supervisor.cli.usage import UsageError
-from supervisor.flight.core import CONTROLLERS
-from supervisor.flight.equilibrium_summary import equilibrium_summary
-from supervisor.logs.flight_log import read_flight_log
-from supervisor.logs.logging_setup import configure_logging
-from supervisor.logs.report import summarize, write_report
-from supervisor.runtime.cpu import single_threaded_blas
-from supervisor.simulate.closed_loop import result_summary, run_scenario
-from supervisor.simulate.scenarios import available_scenarios, load_scenario, scenario_duration_s
+from supervisor.cli.parsing import PROG, Parser, VersionAction, finite_float
+from supervisor.cli.usage import EXIT_USAGE, UsageError
 
-DEFAULT_CONFIG = CONFIG_DIR / "sim.toml"
+if TYPE_CHECKING:
+    from supervisor.app.config import Config
 
-EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+DESCRIPTION = """\
+Flight supervisor for two PX4 quadrotors carrying a bar under model predictive control:
+the service (serve), its terminal client, the fast simulator and the tools around them.
+
+Units: metres, degrees and seconds on the command line (named in each option: --yaw-deg,
+--hold-s); the REST API takes SI units and radians."""
+
+EPILOG = """\
+examples:
+  uavbar-supervisor serve                          # the embedded simulator, dashboard on :8000
+  uavbar-supervisor serve --set api.port=8131      # another port; the client finds it
+  uavbar-supervisor takeoff --wait                 # exit 0 once hovering
+  uavbar-supervisor setpoint 0.5 0 1.2 --yaw-deg 20 --wait
+  uavbar-supervisor land --wait
+  uavbar-supervisor simulate --scenario paper --controller decentralized
+  uavbar-supervisor config show --config kth_sml
+
+exit status: 0 done, 1 refused or failed (the reason is printed), 2 a usage or setup
+error (nothing was done), 3 the service cannot be reached.
+
+environment: UAVBAR_TOKEN (the API token), UAVBAR_URL (the service's address).
+
+Each command has its own --help."""
 
 
 def _add_config_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
-        type=Path,
-        default=DEFAULT_CONFIG,
-        metavar="PATH",
-        help=f"setup file (default: {DEFAULT_CONFIG.relative_to(CONFIG_DIR.parent)})",
+        metavar="PATH|NAME",
+        help="setup file, or the name of a shipped setup "
+        f"({', '.join(shipped_setups())}; default: {DEFAULT_SETUP.stem})",
     )
     parser.add_argument(
         "--set",
@@ -57,10 +72,33 @@ def _add_config_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _equilibria(config: Config, args: argparse.Namespace) -> int:
-    theta_l_deg: float = args.theta_l
-    if not (math.isfinite(theta_l_deg) and 0.0 <= theta_l_deg < 90.0):
-        raise UsageError(f"--theta-l {theta_l_deg}: must lie in [0, 90) degrees")
+def _setup_path(args: argparse.Namespace) -> Path:
+    return setup_path(args.config) if args.config is not None else DEFAULT_SETUP
+
+
+def _config(args: argparse.Namespace) -> Config:
+    from supervisor.app.config import load_config
+
+    return load_config(_setup_path(args), args.overrides)
+
+
+def _logging() -> None:
+    from supervisor.logs.logging_setup import configure_logging
+
+    configure_logging()
+
+
+def _equilibria(args: argparse.Namespace) -> int:
+    import json
+    import math
+
+    from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
+    from supervisor.flight.equilibrium_summary import equilibrium_summary
+
+    config = _config(args)
+    theta_l_deg: float = args.theta_l_deg
+    if not 0.0 <= theta_l_deg < 90.0:
+        raise UsageError(f"--theta-l-deg {theta_l_deg}: must lie in [0, 90) degrees")
     params = config.system.to_params()
     try:
         result = equilibrium_summary(params, math.radians(theta_l_deg))
@@ -86,14 +124,32 @@ def _equilibria(config: Config, args: argparse.Namespace) -> int:
     return 0
 
 
-def _bench(config: Config, args: argparse.Namespace) -> int:
-    return run_mpc_benchmark(args.config, args.ticks, args.backends, args.json)
+def _bench(args: argparse.Namespace) -> int:
+    from benchmarks.mpc import run as run_mpc_benchmark
+    from controllers.qp.registry import BACKEND_NAMES
+
+    _config(args)  # a bad setup stops here, with its key named
+    backends = args.backends or ",".join(BACKEND_NAMES)
+    return run_mpc_benchmark(_setup_path(args), args.ticks, backends, args.json)
 
 
-def _simulate(config: Config, args: argparse.Namespace) -> int:
+def _simulate(args: argparse.Namespace) -> int:
+    import tempfile
+
+    import pydantic_core
+
+    from supervisor.cli.console import SimulationProgress, format_summary
+    from supervisor.logs.flight_log import read_flight_log
+    from supervisor.logs.report import summarize
+    from supervisor.runtime.cpu import single_threaded_blas
+    from supervisor.simulate.closed_loop import result_summary, run_scenario
+    from supervisor.simulate.scenarios import load_scenario, scenario_duration_s
+
+    config = _config(args)
     scenario = load_scenario(args.scenario)
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed {args.seed}: must be >= 0")
+    _logging()
     single_threaded_blas()
     with tempfile.TemporaryDirectory() as scratch:
         destination = args.log or Path(scratch) / "flight.jsonl"
@@ -115,19 +171,26 @@ def _simulate(config: Config, args: argparse.Namespace) -> int:
     return 0 if result.completed else 1
 
 
-def _serve(config: Config, args: argparse.Namespace) -> int:
+def _serve(args: argparse.Namespace) -> int:
     from supervisor.app.serve import run_serve  # the service stack only when serving
 
-    return run_serve(args.config, args.overrides)
+    _config(args)  # a bad setup stops here, before anything starts
+    _logging()
+    return run_serve(_setup_path(args), args.overrides)
 
 
-def _sitl(config: Config, args: argparse.Namespace) -> int:
+def _sitl(args: argparse.Namespace) -> int:
     from supervisor.app.world_process import run_sitl
 
+    config = _config(args)
+    _logging()
     return run_sitl(config)
 
 
-def _report(config: Config, args: argparse.Namespace) -> int:
+def _report(args: argparse.Namespace) -> int:
+    from supervisor.logs.flight_log import read_flight_log
+    from supervisor.logs.report import write_report
+
     paths: list[Path] = args.logs
     if len(paths) > 2:
         raise UsageError("report takes one or two logs")
@@ -140,57 +203,104 @@ def _report(config: Config, args: argparse.Namespace) -> int:
     return 0
 
 
-Handler = Callable[[Config, argparse.Namespace], int]
+def _config_command(args: argparse.Namespace) -> int:
+    from supervisor.cli.config_show import show_config
+
+    return show_config(_setup_path(args), args.overrides, args.json)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every subcommand."""
-    parser = argparse.ArgumentParser(prog="uavbar-supervisor", description=__doc__.splitlines()[0])
-    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+def _keys(args: argparse.Namespace) -> int:
+    from supervisor.cli.keys import make_keys
 
+    return make_keys(_config(args), args)
+
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
     eq = commands.add_parser(
-        "equilibria", help="equilibrium of the bar system for a cable angle θ_l"
+        "equilibria",
+        help="equilibrium of the bar system for a cable angle θ_l",
+        description="The static equilibrium (Proposition 1) of the setup for a cable angle.",
+        epilog="example:\n  uavbar-supervisor equilibria --theta-l-deg 45",
     )
     eq.add_argument(
+        "--theta-l-deg",
         "--theta-l",
-        type=float,
+        type=finite_float,
         required=True,
         metavar="DEG",
-        help="cable angle θ_l, degrees in [0, 90)",
+        help="cable angle θ_l [°], in [0, 90)",
     )
     eq.add_argument("--json", action="store_true", help="print one JSON object")
     eq.set_defaults(handler=_equilibria)
 
-    bench = commands.add_parser("bench", help="time every QP back-end on the same MPC ticks")
-    _bench_arguments(bench)
+    bench = commands.add_parser(
+        "bench",
+        help="time every QP back-end on the same MPC ticks",
+        description="Time every QP back-end on the same closed-loop-like MPC ticks.",
+        epilog="example:\n  uavbar-supervisor bench --ticks 600 --backends hpipm,osqp",
+    )
+    bench.add_argument(
+        "--ticks", type=int, default=600, metavar="N", help="ticks in the sequence (default: 600)"
+    )
+    bench.add_argument("--json", action="store_true", help="print one JSON object")
+    bench.add_argument(
+        "--backends", metavar="A,B", help="comma-separated subset (default: every back-end)"
+    )
     bench.set_defaults(handler=_bench)
 
     serve = commands.add_parser(
-        "serve", help="the flight supervisor service (default setup: the embedded simulator)"
+        "serve",
+        help="the flight supervisor service (default setup: the embedded simulator)",
+        description="The flight supervisor: API and dashboard, flight process, mocap relay "
+        "(and the simulated world with sim.embedded). Ctrl-C lands whatever is airborne, "
+        "then stops.",
+        epilog="examples:\n  uavbar-supervisor serve\n"
+        "  uavbar-supervisor serve --set api.port=8131\n"
+        "  uavbar-supervisor serve --config kth_sml --set 'vehicles.bind_host=\"192.168.1.20\"'",
     )
     serve.set_defaults(handler=_serve)
     sitl = commands.add_parser(
-        "sitl", help="the simulated world alone, in real time: plant, two PX4s, a QTM server"
+        "sitl",
+        help="the simulated world alone, in real time: plant, two PX4s, a QTM server",
+        description="The simulated world alone, in real time: physics plant, two PX4s "
+        "(MAVLink on UDP 14580+i to 14540+i), a QTM RT server on TCP 22223.",
     )
     sitl.set_defaults(handler=_sitl)
 
     simulate = commands.add_parser(
-        "simulate", help="fly a scenario on the embedded simulator, faster than real time"
+        "simulate",
+        help="fly a scenario on the embedded simulator, faster than real time",
+        description="Fly a scenario through the service's tick core against the physics "
+        "plant, on simulated time.",
+        epilog="example:\n  uavbar-supervisor simulate --scenario paper --controller "
+        "decentralized --log flight.jsonl",
     )
     simulate.add_argument(
         "--scenario",
         required=True,
-        metavar="NAME",
-        help=f"configs/scenarios/NAME.toml or a path ({', '.join(available_scenarios())})",
+        metavar="NAME|PATH",
+        help=f"a shipped scenario ({', '.join(shipped_scenarios())}) or a scenario file",
     )
-    simulate.add_argument("--controller", choices=CONTROLLERS, default="centralized")
+    simulate.add_argument(
+        "--controller", choices=CONTROLLERS, default="centralized", help="(default: centralized)"
+    )
     simulate.add_argument("--log", type=Path, metavar="PATH", help="write the flight log here")
-    simulate.add_argument("--seed", type=int, metavar="N", help="noise seed (default sim.seed)")
+    simulate.add_argument(
+        "--seed", type=int, metavar="N", help="noise seed (default: the setup's sim.seed)"
+    )
     simulate.add_argument("--json", action="store_true", help="print one JSON object")
     simulate.set_defaults(handler=_simulate)
 
     report = commands.add_parser(
-        "report", help="figures (Figs 6-8) and a Table III summary of flight logs"
+        "report",
+        help="figures (Figs 6-8) and a Table III summary of flight logs",
+        description="Figures like the paper's Figs 6-8 and a Table III summary of one "
+        "flight log, or two overlaid.",
+        epilog="example:\n  uavbar-supervisor report flight-logs/2024-05-01T10-00-00.jsonl "
+        "--out report/",
     )
     report.add_argument(
         "logs", nargs="+", type=Path, metavar="LOG", help="one log, or two to overlay"
@@ -198,8 +308,30 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     report.set_defaults(handler=_report)
 
+    config = commands.add_parser(
+        "config",
+        help="print the effective configuration, each key with its source",
+        description="Print the effective configuration (the setup file, the files it "
+        "extends, --set overrides and the defaults), each key with where it came from.",
+        epilog="examples:\n  uavbar-supervisor config show\n"
+        "  uavbar-supervisor config show --config kth_sml --set api.port=8131",
+    )
+    config.add_argument("action", choices=("show",), help="what to do (show)")
+    config.add_argument("--json", action="store_true", help="print one JSON object")
+    config.set_defaults(handler=_config_command)
+
     add_client_commands(commands)
-    add_keys_command(commands)
+    add_keys_command(commands, _keys)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand."""
+    parser = Parser(prog=PROG, description=DESCRIPTION, epilog=EPILOG)
+    parser.add_argument("--version", action=VersionAction)
+    commands = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=Parser
+    )
+    _add_commands(commands)
     for sub in commands.choices.values():
         _add_config_options(sub)
     return parser
@@ -207,16 +339,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    configure_logging()
     try:
-        config = load_config(args.config, args.overrides)
-        handler: Handler = args.handler
-        return handler(config, args)
+        args = build_parser().parse_args(argv)
+    except SystemExit as done:  # --help, --version, or a usage error already printed
+        return done.code if isinstance(done.code, int) else EXIT_USAGE
+    handler: Handler = args.handler
+    try:
+        return handler(args)
     except (ConfigError, UsageError) as error:
-        print(f"uavbar-supervisor {args.command}: {error}", file=sys.stderr)
+        print(f"{PROG} {args.command}: {error}", file=sys.stderr)
         return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"{PROG} {args.command}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

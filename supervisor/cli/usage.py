@@ -1,6 +1,10 @@
-"""Command-line usage errors (exit status 2), shared by every command's module."""
+"""Command-line usage errors and the exit statuses every command shares."""
 
 from supervisor.errors import OperatorError
+
+EXIT_REFUSED = 1  # the service (or the OS) said no; the reason is printed
+EXIT_USAGE = 2  # a bad argument or setup: nothing was done
+EXIT_UNREACHABLE = 3  # the service cannot be reached
 
 
 class UsageError(OperatorError):

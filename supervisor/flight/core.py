@@ -51,12 +51,17 @@ from supervisor.flight.setpoints import (
     Arena,
     Setpoint,
     SetpointQueue,
+    SetpointRefusedError,
     validate_setpoints,
 )
 from supervisor.flight.tick_record import TickRecord
 from supervisor.vehicles.types import UavCommand
 
 CONTROLLERS = ("centralized", "decentralized")
+# The modes in which setpoints are taken: armed (flown after the take-off) up to tracking.
+# Disarmed, landing, aborting, blind or killed, a setpoint is refused rather than kept to
+# fly on the next take-off; entering any of those modes empties the queue.
+TAKES_SETPOINTS = frozenset({Mode.ARMED, Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING})
 NOTICES_KEPT = 20
 SET_DOWN_FAST_MPS = 0.5  # the landing bound above 0.2 m (docs/safety.md)
 SET_DOWN_LEVEL_M = 0.1  # the connected UAV's bar end higher than this: catch up
@@ -251,9 +256,14 @@ class FlightCore:
         self._entered(Mode.HOVER, now_s)
 
     def queue_setpoints(self, setpoints: list[Setpoint]) -> None:
-        """Queue setpoints, all or none: they must fit the queue (checked first, raises
+        """Queue setpoints, all or none: only in a mode that flies them (``TAKES_SETPOINTS``,
+        else raises ``SetpointRefusedError``), they must fit the queue (raises
         ``SetpointQueueFullError``) and each is validated against the arena and equilibrium
         feasibility (raises ``SetpointError`` naming which one)."""
+        mode = self.modes.mode
+        if mode not in TAKES_SETPOINTS:
+            hint = "arm first" if mode is Mode.DISARMED else "nothing is flown until armed again"
+            raise SetpointRefusedError(f"setpoints are not taken in mode '{mode.value}': {hint}")
         self.queue.check_room(len(setpoints))
         validate_setpoints(setpoints, self.params, self.arena)
         self.queue.extend(setpoints)
@@ -449,6 +459,8 @@ class FlightCore:
             self._hold_target = None
         elif mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
             self._enter_phase(Phase.GROUND)
+            if mode is not Mode.ARMED:
+                self.queue.clear()
             self._shaper = None
             self._hold_target = None
             self.left_to_px4 = None

@@ -173,7 +173,7 @@ def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
     if isinstance(request, QueueRequest):
         try:
             core.queue_setpoints([entry.to_setpoint() for entry in request.setpoints])
-        except SetpointError as error:  # the queue full, outside the arena, no equilibrium
+        except SetpointError as error:  # not in this mode, queue full, outside the arena, ...
             return Reply(outcome=Outcome.REFUSED, reason=str(error))
         return Reply(outcome=Outcome.OK, data={"queued": len(core.queue.queued)})
     if isinstance(request, ClearSetpointsRequest):

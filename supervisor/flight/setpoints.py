@@ -26,7 +26,12 @@ class SetpointError(OperatorError, ValueError):
     """A setpoint that cannot be flown (outside the arena, no equilibrium, not finite)."""
 
 
-class SetpointQueueFullError(SetpointError):
+class SetpointRefusedError(SetpointError):
+    """Setpoints the queue does not take now (a mode that flies none, or no room): none of
+    them was queued."""
+
+
+class SetpointQueueFullError(SetpointRefusedError):
     """Setpoints that do not fit the queue: none of them was queued."""
 
 

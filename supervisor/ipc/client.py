@@ -40,23 +40,33 @@ def _unavailable(reason: str) -> Reply:
     return Reply(outcome=Outcome.UNAVAILABLE, reason=reason)
 
 
+class SubscriptionEndedError(Exception):
+    """The API process is stopping: no more telemetry for this subscriber."""
+
+
 class TelemetrySubscription:
     """Telemetry for one consumer; a slow consumer loses the oldest messages, never
     slows the others."""
 
     def __init__(self, owner: FlightClient, depth: int) -> None:
         self._owner = owner
-        self.queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue(maxsize=depth)
+        self.queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue(maxsize=depth)
         self.dropped = 0
 
-    def offer(self, message: dict[str, Any]) -> None:
+    def offer(self, message: dict[str, Any] | None) -> None:
+        """Queue ``message`` (None: the end), dropping the oldest when full."""
         if self.queue.full():
             self.queue.get_nowait()
             self.dropped += 1
         self.queue.put_nowait(message)
 
     async def next(self) -> dict[str, Any]:
-        return await self.queue.get()
+        """The next message; raises ``SubscriptionEndedError`` once the client ends them."""
+        message = await self.queue.get()
+        if message is None:
+            self.queue.put_nowait(None)  # and for any later call
+            raise SubscriptionEndedError
+        return message
 
     def close(self) -> None:
         self._owner.unsubscribe(self)
@@ -162,6 +172,12 @@ class FlightClient:
 
     def unsubscribe(self, subscription: TelemetrySubscription) -> None:
         self._subscribers.discard(subscription)
+
+    def end_subscriptions(self) -> None:
+        """End every subscription (the API is stopping): each consumer's ``next`` raises
+        ``SubscriptionEndedError``, so that a WebSocket closes at once and normally."""
+        for subscriber in list(self._subscribers):
+            subscriber.offer(None)
 
     async def close(self) -> None:
         for channel in self._channels.values():

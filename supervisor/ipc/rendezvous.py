@@ -54,14 +54,19 @@ def listen_unix(path: Path) -> socket.socket:
     return sock
 
 
-def discovery_file(port: int) -> Path:
-    """Where ``serve`` listening on TCP ``port`` says how to reach it without HTTP: one
-    file per port, in the user's runtime directory (else a private one in /tmp)."""
+def discovery_folder() -> Path:
+    """Where every ``serve`` of this user writes its discovery file: the user's runtime
+    directory, else a private one in /tmp."""
     runtime = os.environ.get("XDG_RUNTIME_DIR")
-    folder = Path(runtime) / "uavbar-supervisor" if runtime else None
-    if folder is None:
-        folder = Path(tempfile.gettempdir()) / f"uavbar-supervisor-{os.getuid()}"
-    return folder / f"serve-{port}.json"
+    if runtime:
+        return Path(runtime) / "uavbar-supervisor"
+    return Path(tempfile.gettempdir()) / f"uavbar-supervisor-{os.getuid()}"
+
+
+def discovery_file(port: int) -> Path:
+    """Where ``serve`` listening on TCP ``port`` says how to reach it without HTTP (its
+    URL, its PID, the flight process's socket): one file per port."""
+    return discovery_folder() / f"serve-{port}.json"
 
 
 def write_discovery(port: int, contents: dict[str, Any]) -> Path:

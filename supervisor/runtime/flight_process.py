@@ -14,7 +14,6 @@ disarmed; when the control loop stops, setpoints stop.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import gc
 import logging
 import math
@@ -190,11 +189,16 @@ class FlightProcess:
 
     async def _land_if_airborne(self) -> None:
         now = self.clock()
-        if self.core.modes.mode.airborne:
+        mode = self.core.modes.mode
+        if mode.airborne:
+            log.info("stopping: landing first (the system is in %s)", mode.value)
             self.core.request(Event.LAND, now)
-            with contextlib.suppress(TimeoutError):
+            try:
                 async with asyncio.timeout(LANDING_TIMEOUT_S):
                     await self._on_ground.wait()
+                log.info("landed: stopping")
+            except TimeoutError:
+                log.error("not on the ground after %.0f s: stopping anyway", LANDING_TIMEOUT_S)
         if self.core.modes.mode is Mode.ARMED:
             self.core.request(Event.DISARM, self.clock())
         if self.streaming:

@@ -19,16 +19,14 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from supervisor.app.config import (
-    CONFIG_DIR,
     ConfigError,
     FiniteFloat,
     NonNegativeFloat,
     PositiveFloat,
     Vec3,
 )
+from supervisor.app.config_files import SCENARIO_DIR, shipped_scenarios
 from supervisor.flight.setpoints import Setpoint
-
-SCENARIO_DIR = CONFIG_DIR / "scenarios"
 
 
 class _Strict(BaseModel):
@@ -97,11 +95,6 @@ def scenario_path(name: str) -> Path:
     return SCENARIO_DIR / f"{name}.toml"
 
 
-def available_scenarios() -> list[str]:
-    """Names of the scenarios shipped in ``configs/scenarios/``."""
-    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
-
-
 def load_scenario(name: str) -> Scenario:
     """Read and validate a scenario; raises ``ConfigError`` naming the bad key."""
     path = scenario_path(name)
@@ -109,7 +102,7 @@ def load_scenario(name: str) -> Scenario:
         with path.open("rb") as handle:
             data = tomllib.load(handle)
     except FileNotFoundError:
-        known = ", ".join(available_scenarios())
+        known = ", ".join(shipped_scenarios())
         raise ConfigError(f"no scenario {name!r} (shipped: {known})") from None
     except OSError as error:
         raise ConfigError(f"cannot read scenario {path}: {error.strerror}") from error

@@ -38,6 +38,7 @@ async def test_mutating_requests_need_the_token(
 
 
 async def test_delete_needs_the_token_too(api: ApiUnderTest) -> None:
+    assert (await api.post("/api/arm")).status_code == 200  # setpoints are taken once armed
     await api.post("/api/setpoints", {"bar_position": [0.0, 0.0, 1.0]})
     response = await api.http.delete("/api/setpoints")
     assert response.status_code == 401
@@ -142,6 +143,7 @@ async def test_non_finite_numbers_are_refused(api: ApiUnderTest) -> None:
 async def test_a_list_is_queued_all_or_none(api: ApiUnderTest) -> None:
     good = {"bar_position": [0.5, 0.0, 1.0], "bar_yaw": 0.3, "hold_s": 2}
     bad = {"bar_position": [9.0, 0.0, 1.0]}
+    assert (await api.post("/api/arm")).status_code == 200
     response = await api.post("/api/setpoints", [good, bad])
     assert response.status_code == 409 and "setpoint 1" in response.json()["detail"]
     assert api.core.queue.queued == []
@@ -159,6 +161,7 @@ async def test_a_list_is_queued_all_or_none(api: ApiUnderTest) -> None:
 async def test_a_full_queue_is_409(api: ApiUnderTest) -> None:
     entry = {"bar_position": [0.0, 0.0, 1.0]}
     capacity = api.core.queue.capacity
+    assert (await api.post("/api/arm")).status_code == 200
     assert (await api.post("/api/setpoints", [entry] * capacity)).status_code == 200
     response = await api.post("/api/setpoints", entry)
     assert response.status_code == 409 and "at most" in response.json()["detail"]

@@ -269,7 +269,7 @@ async def test_fault_refusals_exit_1_with_the_reason(
     assert await cli(url, "fault", "mocap_silent", "--fraction", "0.2") == 1
     assert "mocap_silent.fraction: Extra inputs are not permitted" in capsys.readouterr().err
     assert await cli(url, "fault", "udp_loss", "--fraction", "nan") == 2  # a usage error
-    assert "--fraction nan: must be finite" in capsys.readouterr().err
+    assert "--fraction: 'nan' is not a finite number" in capsys.readouterr().err
     assert await cli(url, "fault", "mocap_body_lost", "--body", "ghost") == 1
     assert "not a configured rigid body" in capsys.readouterr().err
     assert await cli(url, "fault", "--clear", "--vehicle", "1") == 2  # a usage error

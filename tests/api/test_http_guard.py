@@ -228,6 +228,7 @@ async def test_booleans_and_numbers_out_of_range_are_422(
 
 
 async def test_the_range_limits_themselves_are_accepted(api: ApiUnderTest) -> None:
+    await api.post("/api/arm")  # setpoints are taken only armed or flying
     edge = {"bar_position": [0, 0, 1], "bar_yaw": 6.28, "uav_yaw": [-6.28, 6.28], "hold_s": 3600}
     response = await api.post("/api/setpoints", {**edge, "timeout_s": 3600})
     assert response.status_code == 200

@@ -8,8 +8,8 @@ import json
 
 import pytest
 
-from supervisor.cli.client import format_status
 from supervisor.cli.main import main
+from supervisor.cli.output import format_status
 from supervisor.flight.modes import Mode
 from tests.api.conftest import TOKEN, ApiUnderTest
 
@@ -34,7 +34,7 @@ async def test_commands_change_the_service(
     assert api.core.modes.mode is Mode.ARMED
     assert await cli(api, "mode", "decentralized") == 0
     assert api.core.controller == "decentralized"
-    assert await cli(api, "setpoint", "0.5", "0", "1", "--yaw", "0.2", "--hold", "3") == 0
+    assert await cli(api, "setpoint", "0.5", "0", "1", "--yaw-deg", "20", "--hold-s", "3") == 0
     assert await cli(api, "setpoint", "--json") == 0
     listed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert listed["queued"][0]["bar_position"] == [0.5, 0.0, 1.0]

@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from supervisor.app.config import ConfigError, load_config, parse_override
+from supervisor.app.config import ConfigError, load_config
+from supervisor.app.config_files import parse_override
 from supervisor.cli.main import main
 from tests.conftest import CONFIGS
 
@@ -109,13 +110,16 @@ def test_cli_rejects_bad_config_with_status_2(capsys: pytest.CaptureFixture[str]
     assert "system.bar_mass" in err
 
 
-@pytest.mark.parametrize("theta_l", ["-1", "90", "120", "nan"])
+@pytest.mark.parametrize(
+    ("theta_l", "why"),
+    [("-1", "[0, 90)"), ("90", "[0, 90)"), ("120", "[0, 90)"), ("nan", "not a finite number")],
+)
 def test_cli_rejects_theta_l_outside_range(
-    theta_l: str, capsys: pytest.CaptureFixture[str]
+    theta_l: str, why: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert main(["equilibria", "--theta-l", theta_l]) == 2
+    assert main(["equilibria", "--theta-l-deg", theta_l]) == 2
     out, err = capsys.readouterr()
-    assert out == "" and "[0, 90)" in err
+    assert out == "" and why in err and len(err.strip().splitlines()) == 1
 
 
 def test_cli_equilibria_json(capsys: pytest.CaptureFixture[str]) -> None:

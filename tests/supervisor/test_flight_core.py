@@ -6,6 +6,7 @@ import math
 import time
 
 import numpy as np
+import pytest
 
 from controllers.equilibria import Reference, bar_equilibrium
 from geometry.state import BAR_PITCH, uav_slices
@@ -15,6 +16,7 @@ from supervisor.flight.core import CoreSettings
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
 from supervisor.flight.safety import SafetyLimits
+from supervisor.flight.setpoints import Setpoint, SetpointRefusedError
 from tests.conftest import CONFIGS
 
 CONFIG = load_config(CONFIGS / "sim.toml")
@@ -125,3 +127,29 @@ def test_one_link_lost_leaves_that_vehicle_to_px4_and_the_other_sets_its_bar_end
     result = both.tick(0.02, Estimate(x, 0.005, ()), (False, False))
     assert result.mode is Mode.PX4_LANDING
     assert "both vehicle links lost" in result.notices[0].text
+
+
+def test_setpoints_are_taken_only_in_a_mode_that_flies_them() -> None:
+    """Disarmed, landing, aborting or killed a setpoint is refused (nothing is kept for the
+    next take-off); armed it is taken, and a disarm empties the queue again."""
+    params = CONFIG.system.to_params()
+    x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    setpoint = Setpoint((0.3, 0.0, 1.0), 0.0, None, 0.0, 1.0)
+    core = flight_core_from_config(CONFIG, clock=time.perf_counter)
+    core.tick(0.0, Estimate(x, 0.005, ()))
+    with pytest.raises(SetpointRefusedError, match="mode 'disarmed': arm first"):
+        core.queue_setpoints([setpoint])
+    assert core.request(Event.ARM, 0.02).accepted
+    core.queue_setpoints([setpoint])
+    assert core.queue.queued == [setpoint]
+    assert core.request(Event.DISARM, 0.04).accepted
+    assert core.queue.queued == [] and core.queue.active is None
+    for event in (Event.LAND, Event.ABORT, Event.KILL):
+        core = flight_core_from_config(CONFIG, clock=time.perf_counter)
+        core.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07))
+        core.queue_setpoints([setpoint, setpoint])
+        assert core.request(event, 0.02).accepted
+        assert core.queue.queued == [] and core.queue.active is None
+        with pytest.raises(SetpointRefusedError, match=f"mode '{core.modes.mode.value}'"):
+            core.queue_setpoints([setpoint])
+        assert core.queue.queued == []

@@ -8,11 +8,12 @@ from pathlib import Path
 import pytest
 
 from supervisor.app.config import ConfigError
-from supervisor.simulate.scenarios import available_scenarios, load_scenario
+from supervisor.app.config_files import shipped_scenarios
+from supervisor.simulate.scenarios import load_scenario
 
 
 def test_shipped_scenarios_load() -> None:
-    assert {"paper", "takeoff-land"} <= set(available_scenarios())
+    assert {"paper", "takeoff-land"} <= set(shipped_scenarios())
     paper = load_scenario("paper")
     assert paper.start == "hover" and len(paper.step) == 5
     second = paper.step[1].setpoint()

@@ -1,0 +1,192 @@
+"""``--wait``: poll ``GET /api/status`` until a request's outcome is known.
+
+A ``Goal`` reads one status answer and says whether the system is there (``REACHED``),
+can no longer get there (``FAILED``, with the reason: the newest notice since the request,
+such as an abort's or PX4's refusal, else the mode it ended in), or is on its way (None).
+The goals are pure functions of the status; ``await_goal`` is the polling loop.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any
+
+POLL_INTERVAL_S = 0.2
+# Mocap or the flight process silent this long while waiting: say so rather than wait on.
+STALE_LIMIT_S = 3.0
+# The poll after which a setpoint never seen in the queue counts as flown (see _Setpoint).
+UNSEEN_SETPOINT_S = 1.0
+COMING_DOWN = frozenset({"landing", "abort", "px4_landing", "disarmed", "killed"})
+
+Status = dict[str, Any]
+
+
+class Verdict(Enum):
+    REACHED = "reached"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How a wait ended, in words."""
+
+    verdict: Verdict
+    message: str
+
+    @property
+    def reached(self) -> bool:
+        return self.verdict is Verdict.REACHED
+
+
+def notices_since(status: Status, elapsed_s: float) -> list[str]:
+    """The notices made since the request (sent ``elapsed_s`` ago), oldest first."""
+    return [
+        str(notice.get("message"))
+        for notice in status.get("notices", [])
+        if isinstance(notice, dict) and float(notice.get("age_s", math.inf)) <= elapsed_s
+    ]
+
+
+def _failed(status: Status, elapsed_s: float, what: str) -> Outcome:
+    notices = notices_since(status, elapsed_s)
+    reason = notices[-1] if notices else f"the system is in mode {status.get('mode')}"
+    return Outcome(Verdict.FAILED, f"{what}: {reason}")
+
+
+def _vehicles_armed(status: Status) -> list[bool]:
+    return [bool(armed) for armed in status.get("armed", [])]
+
+
+Goal = Callable[[Status, float], Outcome | None]
+
+
+def armed(status: Status, elapsed_s: float) -> Outcome | None:
+    """``arm``: armed, and both PX4s say so; a vehicle's notice (it refused, or disarmed by
+    itself) is a failure. (The REST answer already carries PX4's refusal to arm.)"""
+    flags = _vehicles_armed(status)
+    if status.get("mode") == "armed" and flags and all(flags):
+        return Outcome(Verdict.REACHED, "armed")
+    if notices_since(status, elapsed_s):
+        return _failed(status, elapsed_s, "not armed")
+    return None
+
+
+def hovering(status: Status, elapsed_s: float) -> Outcome | None:
+    """``takeoff``: airborne and hovering under the MPC (tracking counts: the queue, filled
+    while armed, took over right after the hover began); an abort, a landing, PX4's
+    landing or the ground is a failure."""
+    mode = status.get("mode")
+    if mode in ("hover", "tracking"):
+        return Outcome(Verdict.REACHED, f"airborne, {mode}")
+    if mode in COMING_DOWN:
+        return _failed(status, elapsed_s, "take-off failed")
+    return None
+
+
+def landed(status: Status, elapsed_s: float) -> Outcome | None:
+    """``land``: on the ground and disarmed (also after an abort or PX4's own landing, said
+    in the message); killed is a failure (the motors were stopped in the air)."""
+    mode = status.get("mode")
+    if mode == "disarmed" and not any(_vehicles_armed(status)):
+        notices = notices_since(status, elapsed_s)
+        return Outcome(
+            Verdict.REACHED, "landed and disarmed" + (f" ({notices[-1]})" if notices else "")
+        )
+    if mode == "killed":
+        return _failed(status, elapsed_s, "not landed")
+    return None
+
+
+def controller(name: str) -> Goal:
+    """``mode NAME``: the status shows ``NAME`` flying."""
+
+    def switched(status: Status, elapsed_s: float) -> Outcome | None:
+        if status.get("controller") == name:
+            return Outcome(Verdict.REACHED, f"controller {name}")
+        return None
+
+    return switched
+
+
+def _same_setpoint(shown: Any, wanted: dict[str, Any]) -> bool:
+    if not isinstance(shown, dict):
+        return False
+    for key in ("bar_position", "bar_yaw", "theta_l", "hold_s"):
+        a, b = shown.get(key), wanted.get(key, 0.0)
+        pairs = zip(a, b, strict=False) if isinstance(a, list) and isinstance(b, list) else [(a, b)]
+        if not all(
+            isinstance(x, int | float) and math.isclose(x, y, abs_tol=1e-9) for x, y in pairs
+        ):
+            return False
+    return True
+
+
+@dataclass
+class _Setpoint:
+    """``setpoint``: flown, i.e. gone from the queue (reached and held) after having been
+    seen in it, or never seen while nothing is queued for a second (reached and held
+    between two polls); the system coming down first is a failure."""
+
+    wanted: dict[str, Any]
+    seen: bool = field(default=False)
+
+    def __call__(self, status: Status, elapsed_s: float) -> Outcome | None:
+        mode = status.get("mode")
+        if mode in COMING_DOWN:
+            return _failed(status, elapsed_s, "setpoint not flown")
+        setpoints = status.get("setpoints", {})
+        shown = [setpoints.get("active"), *setpoints.get("queued", [])]
+        if any(_same_setpoint(entry, self.wanted) for entry in shown):
+            self.seen = True
+            return None
+        idle = mode == "hover" and not any(shown)
+        if self.seen or (idle and elapsed_s > UNSEEN_SETPOINT_S):
+            return Outcome(Verdict.REACHED, "setpoint reached and held")
+        return None
+
+
+def setpoint_flown(wanted: dict[str, Any]) -> Goal:
+    """The goal of ``setpoint`` for the body that was queued (REST fields, radians)."""
+    return _Setpoint(wanted)
+
+
+def await_goal(
+    goal: Goal,
+    fetch_status: Callable[[], Status],
+    sent_at_s: float,
+    timeout_s: float,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Outcome:
+    """Poll ``fetch_status`` until ``goal`` decides or ``timeout_s`` has passed since the
+    request was sent (at ``sent_at_s`` on ``clock``). ``fetch_status`` raises when the
+    service cannot be reached (the caller says so)."""
+    stale_since_s: float | None = None
+    while True:
+        status = fetch_status()
+        now_s = clock()
+        elapsed_s = now_s - sent_at_s
+        if status.get("stale"):
+            stale_since_s = now_s if stale_since_s is None else stale_since_s
+            if now_s - stale_since_s > STALE_LIMIT_S:
+                return Outcome(
+                    Verdict.FAILED,
+                    f"the flight process has not reported for {STALE_LIMIT_S:.0f} s "
+                    "(status stale): outcome unknown",
+                )
+        else:
+            stale_since_s = None
+            outcome = goal(status, elapsed_s)
+            if outcome is not None:
+                return outcome
+        if elapsed_s > timeout_s:
+            return Outcome(
+                Verdict.FAILED,
+                f"not there after {timeout_s:g} s (mode {status.get('mode')}, "
+                f"phase {status.get('phase')})",
+            )
+        sleep(POLL_INTERVAL_S)

@@ -1,0 +1,142 @@
+"""What the terminal client prints: the service's JSON (SI, radians) as lines and tables an
+operator reads, in metres, degrees and seconds."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """Columns padded to their widest cell, two spaces apart."""
+    widths = [max(len(str(cell)) for cell in column) for column in zip(header, *rows, strict=True)]
+    lines = [header, *rows]
+    return "\n".join(
+        "  ".join(str(cell).ljust(width) for cell, width in zip(line, widths, strict=True)).rstrip()
+        for line in lines
+    )
+
+
+def degrees(radians: Any) -> str:
+    """An angle in radians as degrees ("-" when unknown)."""
+    if not isinstance(radians, int | float):
+        return "-"
+    return f"{math.degrees(radians):+.1f}°"
+
+
+def _position(values: Any) -> str:
+    if not values or any(v is None for v in values):
+        return "unknown"
+    return "(" + ", ".join(f"{v:+.3f}" for v in values) + ") m"
+
+
+def format_status(status: dict[str, Any]) -> str:
+    """A few lines an operator reads at a glance."""
+    bar = status.get("bar", {})
+    tick = status.get("tick", {})
+    mocap = status.get("mocap", {})
+    setpoints = status.get("setpoints", {})
+    lines = [
+        f"mode {status.get('mode')} ({status.get('phase', '-')}), controller "
+        f"{status.get('controller')}{'  [STALE]' if status.get('stale') else ''}",
+        f"bar  {_position(bar.get('position'))}, yaw "
+        + (degrees(bar["yaw"]) if bar.get("yaw") is not None else "unknown"),
+    ]
+    for i, uav in enumerate(status.get("uavs", []), start=1):
+        armed = status.get("armed", [False, False])[i - 1]
+        battery = uav.get("battery_v")
+        lines.append(
+            f"uav{i} {_position(uav.get('position'))}, px4 {uav.get('px4_mode')}, "
+            f"{'armed' if armed else 'disarmed'}, link {'up' if uav.get('connected') else 'DOWN'}"
+            + (f", battery {battery:.1f} V" if isinstance(battery, int | float) else "")
+        )
+    refused = ", ".join(f"{reason} {n}" for reason, n in (mocap.get("refused") or {}).items())
+    lines.append(
+        f"mocap {'healthy' if mocap.get('healthy') else 'NOT HEALTHY'} at "
+        f"{mocap.get('rate_hz') or 0:.0f} Hz{f' (refused: {refused})' if refused else ''}; "
+        "setpoints: "
+        f"{'active' if setpoints.get('active') else 'none active'}, "
+        f"{len(setpoints.get('queued', []))} queued"
+    )
+    lines.append(
+        f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
+        f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
+    )
+    lines += [
+        f"notice ({notice['age_s']:.0f} s ago): {notice['message']}"
+        for notice in status.get("notices", [])[-3:]
+    ]
+    return "\n".join(lines)
+
+
+def _setpoint_row(label: str, setpoint: dict[str, Any]) -> list[str]:
+    x, y, z = setpoint.get("bar_position", [math.nan] * 3)
+    uav_yaw = setpoint.get("uav_yaw") or [None, None]
+    return [
+        label,
+        f"{x:+.3f}",
+        f"{y:+.3f}",
+        f"{z:+.3f}",
+        degrees(setpoint.get("bar_yaw")),
+        f"{degrees(uav_yaw[0])} {degrees(uav_yaw[1])}",
+        degrees(setpoint.get("theta_l")),
+        f"{setpoint.get('hold_s', 0.0):g}",
+    ]
+
+
+def format_setpoints(answer: dict[str, Any]) -> str:
+    """The active setpoint and the queue, one row each."""
+    rows = []
+    if answer.get("active"):
+        rows.append(_setpoint_row("active", answer["active"]))
+    rows += [_setpoint_row(str(k), s) for k, s in enumerate(answer.get("queued", []), start=1)]
+    if not rows:
+        return "no setpoint active or queued"
+    header = ["", "x [m]", "y [m]", "z [m]", "bar yaw", "UAV yaws", "θ_l", "hold [s]"]
+    return table(header, rows)
+
+
+def _format_fault(fault: dict[str, Any]) -> str:
+    params = " ".join(f"{k} {v}" for k, v in fault.get("params", {}).items())
+    remaining = fault.get("remaining_s")
+    left = "until cleared" if remaining is None else f"{remaining:.1f} s left"
+    return f"{fault.get('kind')}{' ' + params if params else ''} ({left})"
+
+
+def format_faults(answer: dict[str, Any]) -> str:
+    """The answer of ``fault`` or ``reset``: what ended, then what is in effect."""
+    if not answer.get("embedded", True):
+        return "no simulated world here (sim.embedded is false): no faults"
+    lines = []
+    if answer.get("reset"):
+        lines.append("world reset: resting pose, PX4s disarmed in their boot mode")
+    lines += [f"ended: {_format_fault(fault)}" for fault in answer.get("cleared", [])]
+    faults = answer.get("faults", [])
+    lines += [f"in effect: {_format_fault(fault)}" for fault in faults]
+    if not faults:
+        lines.append("no fault in effect")
+    return "\n".join(lines)
+
+
+def format_answer(command: str, answer: Any) -> str:
+    """An accepted request's answer in one line: ``takeoff: accepted, mode takeoff``."""
+    if not isinstance(answer, dict):
+        return f"{command}: {answer}"
+    details = [
+        f"{key} {value}" for key, value in answer.items() if key not in ("accepted", "direct")
+    ]
+    return f"{command}: accepted" + (", " + ", ".join(details) if details else "")
+
+
+def _field(location: list[Any]) -> str:
+    """Where a validation error is, without FastAPI's leading "body" (the request's)."""
+    parts = location[1:] if location[:1] == ["body"] else location
+    return ".".join(str(part) for part in parts) or "body"
+
+
+def format_detail(detail: Any) -> str:
+    """A refusal's reason; a validation error list as ``field: message`` per problem."""
+    if isinstance(detail, list) and all(isinstance(d, dict) and "msg" in d for d in detail):
+        return "; ".join(f"{_field(list(d.get('loc', [])))}: {d['msg']}" for d in detail)
+    return str(detail)

@@ -1,0 +1,165 @@
+"""The command line as a user meets it: in a process of its own, what it imports, its help,
+its one-line errors and exit statuses, and where it looks for the service."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from supervisor.cli.address import service_address
+from supervisor.cli.config_show import effective_config
+from supervisor.cli.main import build_parser
+from supervisor.ipc.rendezvous import write_discovery
+from tests.conftest import CONFIGS
+
+ROOT = Path(__file__).resolve().parents[2]
+HEAVY = ("matplotlib", "numba", "casadi", "scipy", "numpy", "pydantic", "httpx")
+
+
+def cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """``uavbar-supervisor ARGS`` in its own process, from another directory."""
+    environment = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
+    environment.pop("UAVBAR_URL", None)
+    return subprocess.run(
+        [sys.executable, "-m", "supervisor.cli.main", *args],
+        capture_output=True,
+        text=True,
+        env=environment,
+        cwd="/",
+        timeout=120,
+    )
+
+
+def test_the_client_commands_import_none_of_the_heavy_libraries() -> None:
+    code = (
+        "import sys; import supervisor.cli.main, supervisor.cli.client; "
+        "supervisor.cli.main.build_parser(); "
+        f"print([m for m in {HEAVY!r} if m in sys.modules])"
+    )
+    environment = {**os.environ, "PYTHONPATH": str(ROOT)}
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=True
+    )
+    assert result.stdout.strip() == "[]", result.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "status", "words"),
+    [
+        (["setpoint", "nan", "0", "1"], 2, "'nan' is not a finite number"),
+        (["setpoint", "inf", "0", "1"], 2, "'inf' is not a finite number"),
+        (["setpoint", "0", "0", "1", "--yaw", "0.4"], 2, "unrecognized arguments: --yaw"),
+        (["setpoint", "0", "0"], 2, "takes X Y Z"),
+        (["setpoint", "0", "0", "1", "--theta-l-deg", "95"], 2, "[0, 90) degrees"),
+        (["setpoint", "--wait"], 2, "--wait waits for a request"),
+        (["takeoff", "--wait", "--timeout", "-1"], 2, "'-1' must be > 0"),
+        (["kill"], 2, "add --confirm"),
+        (["fault", "udp_loss", "--fraction", "nan"], 2, "'nan' is not a finite number"),
+        (["status", "--config", "no-such-setup"], 2, "no such shipped setup"),
+        (["status", "--set", "api.port=x"], 2, "is not a TOML value"),
+        (["stat"], 2, "invalid choice: 'stat'"),
+        (["status", "--url", "http://127.0.0.1:9"], 3, "cannot reach the service"),
+        (["status", "--url", "ftp://somewhere"], 2, "is not an http:// or https:// address"),
+        (["abort", "--url", "http://127.0.0.1:9"], 3, "directly: no service on port 9"),
+    ],
+)
+def test_a_mistake_is_one_line_and_an_exit_status(args: list[str], status: int, words: str) -> None:
+    result = cli(*args)
+    assert result.returncode == status, result.stderr
+    assert words in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert "Traceback" not in result.stderr and result.stdout == ""
+
+
+def test_serve_on_a_port_in_use_says_so_in_one_line() -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = cli("serve", "--set", f"api.port={port}", env={"UAVBAR_TOKEN": "t" * 16})
+    assert result.returncode == 2
+    assert f"cannot listen on 127.0.0.1:{port}: Address already in use" in result.stderr
+    assert "--set api.port=N" in result.stderr
+    assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_version_and_help_name_units_defaults_and_examples() -> None:
+    version = cli("--version")
+    assert version.returncode == 0 and version.stdout.startswith("uavbar-supervisor ")
+    top = cli("--help")
+    assert top.returncode == 0
+    assert "examples:" in top.stdout and "exit status:" in top.stdout
+    assert "``" not in top.stdout
+    setpoint = " ".join(cli("setpoint", "--help").stdout.split())
+    for words in (
+        "--yaw-deg DEG",
+        "--theta-l-deg DEG",
+        "--hold-s S",
+        "[m]",
+        "default: 5",
+        "--wait",
+    ):
+        assert words in setpoint, words
+    assert "(default: 60)" in " ".join(cli("takeoff", "--help").stdout.split())  # --timeout
+
+
+def test_no_option_is_taken_by_its_abbreviation() -> None:
+    """``--yaw 0.4`` (radians, before) must never be read as ``--yaw-deg 0.4``."""
+    parser = build_parser()
+    for prefix in ("--yaw", "--theta", "--hold-"):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["setpoint", "0", "0", "1", prefix, "1"])
+
+
+def test_the_client_finds_the_service(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    monkeypatch.delenv("UAVBAR_URL", raising=False)
+    args = build_parser().parse_args(["status"])
+    assert service_address(args).url == "http://127.0.0.1:8000"  # nothing running
+    write_discovery(8131, {"url": "http://127.0.0.1:8131", "pid": os.getpid()})
+    found = service_address(args)
+    assert found.url == "http://127.0.0.1:8131" and found.found_by == "the one serve running here"
+    write_discovery(8132, {"url": "http://127.0.0.1:8132", "pid": os.getpid()})
+    several = service_address(args)  # which one is meant? the setup's, naming the others
+    assert several.url == "http://127.0.0.1:8000" and "http://127.0.0.1:8132" in several.found_by
+    write_discovery(8000, {"url": "http://127.0.0.1:8000", "pid": os.getpid()})
+    assert service_address(args).found_by == "serve's discovery file"  # the setup's port first
+    named = build_parser().parse_args(["status", "--set", "api.port=8200"])
+    assert service_address(named).url == "http://127.0.0.1:8200"  # --set is what was asked
+    monkeypatch.setenv("UAVBAR_URL", "http://10.0.0.5:8000/")
+    assert service_address(args).url == "http://10.0.0.5:8000"
+    given = build_parser().parse_args(["status", "--url", "http://h:1"])
+    assert service_address(given).url == "http://h:1"
+
+
+def test_a_dead_serve_s_discovery_file_is_ignored(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    monkeypatch.delenv("UAVBAR_URL", raising=False)
+    gone = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    write_discovery(8131, {"url": "http://127.0.0.1:8131", "pid": int(gone.stdout)})
+    assert service_address(build_parser().parse_args(["status"])).url == "http://127.0.0.1:8000"
+
+
+def test_config_show_names_each_key_s_source() -> None:
+    shown = effective_config(CONFIGS / "sim.toml", ["api.port=8131", 'api.token="secret-token"'])
+    assert shown["api.port"] == {"value": 8131, "source": "--set"}
+    assert shown["api.token"]["value"] == "(set, not shown)"
+    assert shown["api.host"] == {"value": "127.0.0.1", "source": "default"}
+    assert shown["name"]["source"].endswith("sim.toml")
+    assert shown["system.bar_mass"]["source"].endswith("kth_sml.toml")  # sim.toml extends it
+    result = cli("config", "show", "--json", "--config", "kth_sml")
+    assert result.returncode == 0
+    assert json.loads(result.stdout)["name"]["value"] == "kth_sml"

@@ -1,0 +1,108 @@
+"""End to end: the terminal client, each command its own process, against ``serve`` on the
+embedded simulator, found through ``serve``'s discovery file; awaited commands exit 0 only
+once the system is there, and with the reason when it cannot get there; Ctrl-C with a
+dashboard's WebSocket open lands, says so and stops without a traceback."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import sys
+from pathlib import Path
+
+import pytest
+import websockets
+
+from benchmarks.service import RunningService, all_connected, running_service
+
+TOKEN = "cli-e2e-token-0123456789"
+ROOT = Path(__file__).resolve().parent.parent
+
+
+async def cli(*args: str) -> tuple[int, str, str]:
+    """``uavbar-supervisor ARGS`` in a process of its own: exit status, stdout, stderr."""
+    env = {**os.environ, "UAVBAR_TOKEN": TOKEN, "PYTHONPATH": str(ROOT)}
+    env.pop("UAVBAR_URL", None)
+    process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "supervisor.cli.main",
+        *args,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+        env=env,
+    )
+    out, err = await process.communicate()
+    assert process.returncode is not None
+    return process.returncode, out.decode(), err.decode()
+
+
+async def telemetry_messages(service: RunningService, opened: asyncio.Event) -> int:
+    """A dashboard's WebSocket: the messages it got until the service closed it."""
+    count = 0
+    async with websockets.connect(service.url.replace("http", "ws") + "/api/telemetry") as ws:
+        opened.set()
+        async for _ in ws:
+            count += 1
+    return count
+
+
+@pytest.mark.slow
+async def test_awaited_commands_and_a_quiet_ctrl_c(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # only this serve is found
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        opened = asyncio.Event()
+        dashboard = asyncio.create_task(telemetry_messages(service, opened))
+        await opened.wait()
+        await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
+        assert f"#token={TOKEN}" in "\n".join(service.output)  # the address to open
+
+        status, out, err = await cli("setpoint", "0.3", "0", "1.1")
+        assert status == 1 and "not taken in mode 'disarmed'" in err
+        assert (await cli("arm", "--wait"))[0] == 0
+        status, out, err = await cli("takeoff", "--wait")
+        assert status == 0 and "airborne, hover" in out, err
+        assert (await service.status(http))["mode"] == "hover"
+        status, out, err = await cli(
+            "setpoint", "0.3", "0", "1.1", "--yaw-deg", "10", "--hold-s", "1", "--wait"
+        )
+        assert status == 0 and "reached and held" in out, err
+        bar = (await service.status(http))["bar"]
+        assert abs(bar["position"][0] - 0.3) < 0.1 and abs(bar["yaw"] - 0.1745) < 0.1
+        status, out, err = await cli("land", "--wait")
+        assert status == 0 and "landed and disarmed" in out, err
+        assert (await service.status(http))["armed"] == [False, False]
+
+        # A take-off that an abort ends: exit 1 with the abort's reason. (The landing put
+        # the UAVs down 0.3 m from the bar's ends: the world's reset puts them back.)
+        assert (await cli("reset"))[0] == 0
+        await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
+        status, out, err = await cli("arm", "--wait")
+        assert status == 0, err
+        takeoff = asyncio.create_task(cli("takeoff", "--wait"))
+        await service.wait_for(http, lambda s: s["phase"] == "lift", 30.0, "lifting the bar")
+        fault = {"kind": "link_lost", "vehicle": 1, "duration_s": 3.0}
+        assert (await http.post("/api/sim/faults", json=fault)).status_code == 200
+        status, out, err = await takeoff
+        assert status == 1 and "take-off failed: abort: vehicle 1 link lost" in err, (out, err)
+        await service.wait_for(http, lambda s: s["armed"] == [False, False], 90.0, "landed")
+
+        status, out, err = await cli("takeoff", "--wait", "--timeout", "1")
+        assert status == 1 and "refused (409)" in err  # disarmed: refused at once
+
+        # Ctrl-C (to serve; its children leave SIGINT to it) with the dashboard connected.
+        assert (await cli("reset"))[0] == 0
+        await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
+        assert (await cli("arm", "--wait"))[0] == 0
+        assert (await cli("takeoff", "--wait"))[0] == 0
+        service.process.send_signal(signal.SIGINT)
+        async with asyncio.timeout(120.0):
+            assert await service.process.wait() == 0
+        assert await dashboard > 0  # it ended when serve closed it
+    said = "\n".join(service.output)
+    assert "stopping: landing first (the system is in hover)" in said
+    assert "landed: stopping" in said and said.rstrip().endswith("stopped")
+    assert "Traceback" not in said and "ERROR" not in said, said[-3000:]
