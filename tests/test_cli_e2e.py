@@ -87,7 +87,10 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
         fault = {"kind": "link_lost", "vehicle": 1, "duration_s": 3.0}
         assert (await http.post("/api/sim/faults", json=fault)).status_code == 200
         status, out, err = await takeoff
-        assert status == 1 and "take-off failed: abort: vehicle 1 link lost" in err, (out, err)
+        assert status == 1 and "take-off failed: land_other: vehicle 1 link lost" in err, (
+            out,
+            err,
+        )
         await service.wait_for(http, lambda s: s["armed"] == [False, False], 90.0, "landed")
 
         status, out, err = await cli("takeoff", "--wait", "--timeout", "1")
