@@ -49,6 +49,25 @@ async def telemetry_messages(service: RunningService, opened: asyncio.Event) -> 
     return count
 
 
+CHILDREN = ("world", "relay", "flight", "api")
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+async def wait_for_line(service: RunningService, text: str, timeout_s: float = 30.0) -> None:
+    for _ in range(int(timeout_s / 0.05)):
+        if any(text in line for line in service.output):
+            return
+        await asyncio.sleep(0.05)
+    raise TimeoutError(f"serve did not say {text!r} within {timeout_s} s")
+
+
 async def reset_and_arm(service: RunningService, http: httpx.AsyncClient) -> tuple[int, str, str]:
     """``reset``, then ``arm --wait`` at once: the reset answers once the motion capture
     tracks the bodies at their resting pose, so nothing needs waiting for in between."""
@@ -108,11 +127,21 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
         # Ctrl-C (to serve; its children leave SIGINT to it) with the dashboard connected.
         assert (await reset_and_arm(service, http))[0] == 0
         assert (await cli("takeoff", "--wait"))[0] == 0
+        children = [service.child_pid(f"uavbar-{name}") for name in CHILDREN]
+        service.process.send_signal(signal.SIGINT)
+        # An impatient second Ctrl-C during the landing: said, and the landing goes on.
+        await wait_for_line(service, "stopping: landing whatever is airborne")
         service.process.send_signal(signal.SIGINT)
         async with asyncio.timeout(120.0):
             assert await service.process.wait() == 0
+        for _ in range(50):  # init reaps what serve stopped
+            if not (left := [pid for pid in children if alive(pid)]):
+                break
+            await asyncio.sleep(0.1)
+        assert not left, f"serve left {left} running"
         assert await dashboard > 0  # it ended when serve closed it
     said = "\n".join(service.output)
     assert "stopping: landing first (the system is in hover)" in said
     assert "landed: stopping" in said and said.rstrip().endswith("stopped")
+    assert "already stopping: landing first" in said and "interrupted" not in said
     assert "Traceback" not in said and "ERROR" not in said, said[-3000:]
