@@ -435,9 +435,12 @@ class SafetySection(_Section):
 
 
 class LogSection(_Section):
-    """Flight logs: one JSON Lines file per flight, named by its start time."""
+    """Flight logs: one file per flight, named by its start time."""
 
     folder: str = "flight-logs"
+    format: Literal["jsonl", "mcap"] = "jsonl"
+    """``jsonl`` (JSON Lines, one line per tick) or ``mcap`` (Foxglove's and our own
+    channels: docs/flight-logs.md)."""
 
 
 class Config(_Section):

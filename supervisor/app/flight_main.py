@@ -80,6 +80,7 @@ async def fly(
                     config.mocap.phase_lock,
                     config.name,
                     forward_mocap=not start.relayed,
+                    log_format=config.log.format,
                     failsafe_parameters={
                         "COM_OF_LOSS_T": config.vehicles.offboard_loss_timeout_s,
                         "COM_OBL_RC_ACT": OFFBOARD_LOSS_LAND,

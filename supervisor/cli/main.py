@@ -139,7 +139,7 @@ def _simulate(args: argparse.Namespace) -> int:
     import pydantic_core
 
     from supervisor.cli.console import SimulationProgress, format_summary
-    from supervisor.logs.flight_log import read_flight_log
+    from supervisor.logs.flight_log import SUFFIXES, read_flight_log
     from supervisor.logs.report import summarize
     from supervisor.runtime.cpu import single_threaded_blas
     from supervisor.simulate.closed_loop import result_summary, run_scenario
@@ -149,6 +149,8 @@ def _simulate(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed {args.seed}: must be >= 0")
+    if args.log is not None and args.log.suffix not in SUFFIXES:
+        raise UsageError(f"--log {args.log}: a flight log is .jsonl or .mcap (the format)")
     _logging()
     single_threaded_blas()
     with tempfile.TemporaryDirectory() as scratch:

@@ -14,7 +14,7 @@ from typing import Any
 from mocap.fusion import MocapFusion
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import BodyNames, Estimate, estimate_state
-from supervisor.logs.flight_log import FlightLogWriter
+from supervisor.logs.flight_log import FlightLogSink
 
 
 class TickDriver:
@@ -24,7 +24,7 @@ class TickDriver:
         self.core = core
         self.fusion = fusion
         self.names = names
-        self.log: FlightLogWriter | None = None
+        self.log: FlightLogSink | None = None
         self.estimate: Estimate | None = None
 
     def estimate_at(self, now_s: float) -> Estimate:
@@ -49,5 +49,5 @@ class TickDriver:
         """Log the tick (with the caller's ``extra`` figures) and prepare the next one."""
         if self.log is not None:
             result.record.extra.update(extra)
-            self.log.append(result.record)
+            self.log.append(result.record, tuple(str(notice) for notice in result.notices))
         self.core.prepare_next()
