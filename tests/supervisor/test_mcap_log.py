@@ -108,8 +108,8 @@ def test_the_mcap_reader_lists_the_channels_and_their_schemas(
             assert summary.schemas[channel.schema_id].encoding == "jsonschema"
             assert json.loads(summary.schemas[channel.schema_id].data) == schema
         for topic, kind in WELL_KNOWN.items():
-            schema = summary.schemas[channels[topic].schema_id]
-            assert (schema.name, schema.encoding) == (kind.get_schema().name, "protobuf")
+            written = summary.schemas[channels[topic].schema_id]
+            assert (written.name, written.encoding) == (kind.get_schema().name, "protobuf")
         counts = summary.statistics.channel_message_counts
         assert counts[channels["/uavbar/state"].id] == 60
         assert counts[channels["/tf"].id] == 59  # not the tick without an estimate
