@@ -205,6 +205,19 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _csv(args: argparse.Namespace) -> int:
+    from supervisor.logs.csv_export import write_csv
+    from supervisor.logs.flight_log import read_flight_log
+
+    out: Path = args.out or args.log.with_suffix(".csv")
+    try:
+        rows = write_csv(read_flight_log(args.log), out)
+    except (OSError, ValueError) as error:
+        raise UsageError(str(error)) from error
+    print(f"{out}: {rows} ticks")
+    return 0
+
+
 def _config_command(args: argparse.Namespace) -> int:
     from supervisor.cli.config_show import show_config
 
@@ -278,7 +291,7 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         description="Fly a scenario through the service's tick core against the physics "
         "plant, on simulated time.",
         epilog="example:\n  uavbar-supervisor simulate --scenario paper --controller "
-        "decentralized --log flight.jsonl",
+        "decentralized --log flight.mcap",
     )
     simulate.add_argument(
         "--scenario",
@@ -289,7 +302,12 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
     simulate.add_argument(
         "--controller", choices=CONTROLLERS, default="centralized", help="(default: centralized)"
     )
-    simulate.add_argument("--log", type=Path, metavar="PATH", help="write the flight log here")
+    simulate.add_argument(
+        "--log",
+        type=Path,
+        metavar="PATH",
+        help="write the flight log here: PATH.mcap (MCAP) or PATH.jsonl (JSON Lines)",
+    )
     simulate.add_argument(
         "--seed", type=int, metavar="N", help="noise seed (default: the setup's sim.seed)"
     )
@@ -301,14 +319,32 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         help="figures (Figs 6-8) and a Table III summary of flight logs",
         description="Figures like the paper's Figs 6-8 and a Table III summary of one "
         "flight log, or two overlaid.",
-        epilog="example:\n  uavbar-supervisor report flight-logs/2024-05-01T10-00-00.jsonl "
+        epilog="example:\n  uavbar-supervisor report flight-logs/flight-20261123-031500.mcap "
         "--out report/",
     )
     report.add_argument(
-        "logs", nargs="+", type=Path, metavar="LOG", help="one log, or two to overlay"
+        "logs",
+        nargs="+",
+        type=Path,
+        metavar="LOG",
+        help="one log (.jsonl or .mcap), or two to overlay",
     )
     report.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     report.set_defaults(handler=_report)
+
+    export = commands.add_parser(
+        "csv",
+        help="a flight log as one CSV table (PlotJuggler, spreadsheets)",
+        description="Write a flight log (.jsonl or .mcap) as CSV: a row per tick, t_s first, "
+        "then the state, the reference and the inputs by name, the timings, mode, "
+        "controller and plan status; a value that was not finite is an empty cell.",
+        epilog="example:\n  uavbar-supervisor csv flight-logs/flight-20261123-031500.mcap",
+    )
+    export.add_argument("log", type=Path, metavar="LOG", help="a .jsonl or .mcap flight log")
+    export.add_argument(
+        "--out", type=Path, metavar="FILE", help="the CSV file (default: LOG with .csv)"
+    )
+    export.set_defaults(handler=_csv)
 
     config = commands.add_parser(
         "config",

@@ -3,6 +3,7 @@ leaves (a real subprocess, SIGKILL) read up to its last complete chunk."""
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
@@ -220,3 +221,26 @@ def test_report_gives_the_same_table_for_both_formats(
         assert (tmp_path / "jsonl" / name).read_text() == (tmp_path / "mcap" / name).read_text()
     for png in (tmp_path / "jsonl").glob("*.png"):
         assert png.read_bytes() == (tmp_path / "mcap" / png.name).read_bytes()
+
+
+def test_csv_export_has_a_named_column_per_figure(
+    tmp_path: Path, lab_params: BarSystemParams, capsys: pytest.CaptureFixture[str]
+) -> None:
+    records = flight_records(lab_params, 20)
+    with McapFlightLogWriter(tmp_path / "f.mcap", {}, START) as log:
+        for record in records:
+            log.append(record)
+    assert main(["csv", str(tmp_path / "f.mcap")]) == 0
+    assert "f.csv: 20 ticks" in capsys.readouterr().out
+    with (tmp_path / "f.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 20
+    row = rows[7]
+    assert float(row["t_s"]) == records[7].t_s
+    assert float(row["state.bar.position_m.x"]) == records[7].state[0]
+    assert float(row["state.uav2.euler_rad.yaw"]) == records[7].state[32]
+    assert float(row["reference.uav1.position_m.z"]) == records[7].state_ref[14]
+    assert float(row["inputs.uav2.torque_nm.z"]) == records[7].inputs[7]
+    assert (row["mode"], row["controller"]) == ("hover", "decentralized")
+    assert rows[3]["state.bar.position_m.x"] == ""  # not finite: an empty cell
+    assert main(["csv", str(tmp_path / "absent.mcap")]) == 2
