@@ -244,3 +244,17 @@ def test_csv_export_has_a_named_column_per_figure(
     assert (row["mode"], row["controller"]) == ("hover", "decentralized")
     assert rows[3]["state.bar.position_m.x"] == ""  # not finite: an empty cell
     assert main(["csv", str(tmp_path / "absent.mcap")]) == 2
+
+
+@pytest.mark.slow
+def test_simulate_writes_an_mcap_log_with_the_same_flight_as_json_lines(tmp_path: Path) -> None:
+    for suffix in (".mcap", ".jsonl"):
+        command = ["simulate", "--scenario", "takeoff-land", "--seed", "3", "--json"]
+        assert main([*command, "--log", str(tmp_path / f"f{suffix}")]) == 0
+    mcap_log, jsonl_log = (read_flight_log(tmp_path / f"f{s}") for s in (".mcap", ".jsonl"))
+    assert len(mcap_log.t_s) > 500
+    for name in ("t_s", "state", "state_ref", "inputs", "mocap_age_ms"):
+        assert np.array_equal(getattr(mcap_log, name), getattr(jsonl_log, name), equal_nan=True)
+    assert (mcap_log.modes, mcap_log.notices) == (jsonl_log.modes, jsonl_log.notices)
+    assert mcap_log.header["arms_m"] == jsonl_log.header["arms_m"]
+    assert main(["simulate", "--scenario", "takeoff-land", "--log", str(tmp_path / "f.txt")]) == 2
