@@ -22,7 +22,7 @@ import foxglove.messages as fg
 import numpy as np
 
 from geometry.frames import quaternion_from_euler_zyx
-from geometry.state import UAV_OFFSETS, bar_ends
+from geometry.state import BAR_YAW, UAV_OFFSETS, bar_ends
 from supervisor.flight.tick_record import TickRecord
 
 WORLD_FRAME = "world"
@@ -140,7 +140,10 @@ def _errors(state: Sequence[float], ref: Sequence[float]) -> dict[str, Any]:
         )
 
     return {
-        "bar": {"position_m": position(0), "yaw_deg": _finite(_wrapped_deg(state[8] - ref[8]))},
+        "bar": {
+            "position_m": position(0),
+            "yaw_deg": _finite(_wrapped_deg(state[BAR_YAW] - ref[BAR_YAW])),
+        },
         **{uav: {"position_m": position(o), "attitude_deg": attitude(o)} for uav, o in BODIES[1:]},
     }
 
