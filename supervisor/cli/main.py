@@ -218,6 +218,28 @@ def _csv(args: argparse.Namespace) -> int:
     return 0
 
 
+def _mocap(args: argparse.Namespace) -> int:
+    from supervisor.app.mocap_recording import run_record, run_replay
+
+    if args.action == "record":
+        if not args.duration > 0:
+            raise UsageError(f"--duration {args.duration}: must be > 0 (seconds)")
+        return run_record(args.host, args.port, args.duration, args.out, _say)
+    if not args.file.is_file():
+        raise UsageError(f"{args.file}: no such recording")
+    try:
+        from mocap.recording import read_recording
+
+        read_recording(args.file)
+    except ValueError as error:
+        raise UsageError(str(error)) from error
+    return run_replay(args.file, args.host, args.port, args.loop, _say)
+
+
+def _say(line: str) -> None:
+    print(line, flush=True)
+
+
 def _config_command(args: argparse.Namespace) -> int:
     from supervisor.cli.config_show import show_config
 
@@ -345,6 +367,32 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         "--out", type=Path, metavar="FILE", help="the CSV file (default: LOG with .csv)"
     )
     export.set_defaults(handler=_csv)
+
+    mocap = commands.add_parser(
+        "mocap",
+        help="record a QTM RT stream to a file, or serve a recording as a QTM RT server",
+        description="Record a QTM RT stream (a real QTM or the simulator) with every "
+        "packet's arrival time, or replay a recording as a QTM RT server (TCP commands, "
+        "UDP or TCP frames, the recorded timing) for the supervisor or Qualisys' SDK.",
+        epilog="examples:\n  uavbar-supervisor mocap record --host 192.168.1.10 --port 22223 "
+        "--duration 20 --out hover.qtm.gz\n"
+        "  uavbar-supervisor mocap replay hover.qtm.gz --port 22223 --loop",
+    )
+    mocap_actions = mocap.add_subparsers(dest="action", required=True, metavar="ACTION")
+    record = mocap_actions.add_parser("record", help="record a stream into a file")
+    record.add_argument("--host", default="127.0.0.1", help="QTM's address (default: loopback)")
+    record.add_argument("--port", type=int, default=22223, help="QTM's little-endian port")
+    record.add_argument("--duration", type=float, required=True, metavar="S", help="how long [s]")
+    record.add_argument("--out", type=Path, required=True, metavar="FILE", help="the recording")
+    record.set_defaults(handler=_mocap)
+    replay = mocap_actions.add_parser("replay", help="serve a recording as a QTM RT server")
+    replay.add_argument("file", type=Path, metavar="FILE", help="a recording (mocap record)")
+    replay.add_argument(
+        "--port", type=int, default=22223, help="the TCP port to serve on (default 22223)"
+    )
+    replay.add_argument("--host", default="127.0.0.1", help="the address to serve on")
+    replay.add_argument("--loop", action="store_true", help="start over at the end, until stopped")
+    replay.set_defaults(handler=_mocap)
 
     config = commands.add_parser(
         "config",
