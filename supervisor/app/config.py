@@ -443,6 +443,15 @@ class LogSection(_Section):
     channels: docs/flight-logs.md)."""
 
 
+class FoxgloveSection(_Section):
+    """The live Foxglove view: a WebSocket server (subprotocol foxglove.sdk.v1) on the API's
+    host streaming the flight log's channels (docs/flight-logs.md)."""
+
+    enabled: bool = True
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+    """0: a free port, logged at start."""
+
+
 class Config(_Section):
     """One complete setup."""
 
@@ -454,6 +463,7 @@ class Config(_Section):
     vehicles: VehiclesSection = VehiclesSection()
     api: ApiSection = ApiSection()
     log: LogSection = LogSection()
+    foxglove: FoxgloveSection = FoxgloveSection()
     safety: SafetySection = SafetySection()
     sim: SimSection = SimSection()
 

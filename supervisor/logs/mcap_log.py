@@ -93,6 +93,38 @@ class _McapPackageSink:
         self._file.close()
 
 
+class FoxgloveChannels:
+    """Every channel of the flight log (``JSON_SCHEMAS``, ``WELL_KNOWN``) on a
+    ``foxglove.Context``: what is written to them reaches every sink of the context (an
+    MCAP file, a WebSocket server)."""
+
+    def __init__(self, context: foxglove.Context) -> None:
+        self._channels: dict[str, Any] = {}
+        for topic, (name, schema) in JSON_SCHEMAS.items():
+            self._channels[topic] = foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(
+                    name=name, encoding="jsonschema", data=_json_schema_bytes(schema)
+                ),
+                message_encoding="json",
+                context=context,
+            )
+        for topic, kind in WELL_KNOWN.items():
+            channel_type = getattr(foxglove.channels, f"{kind.__name__}Channel")
+            self._channels[topic] = channel_type(topic, context=context)
+
+    def write(self, topic: str, log_time_ns: int, message: bytes | Any) -> None:
+        self._channels[topic].log(message, log_time=log_time_ns)
+
+    def has_sinks(self) -> bool:
+        """Whether anything (a file, a subscribed WebSocket client) takes any channel."""
+        return any(channel.has_sinks() for channel in self._channels.values())
+
+    def close(self) -> None:
+        for channel in self._channels.values():
+            channel.close()
+
+
 class _FoxgloveSdkSink:
     """``foxglove-sdk``'s writer, on a context of its own (no other sink sees it)."""
 
@@ -104,30 +136,39 @@ class _FoxgloveSdkSink:
         self._writer = foxglove.open_mcap(
             path, allow_overwrite=True, context=self._context, writer_options=options
         )
-        self._channels: dict[str, Any] = {}
-        for topic, (name, schema) in JSON_SCHEMAS.items():
-            self._channels[topic] = foxglove.Channel(
-                topic,
-                schema=foxglove.Schema(
-                    name=name, encoding="jsonschema", data=_json_schema_bytes(schema)
-                ),
-                message_encoding="json",
-                context=self._context,
-            )
-        for topic, kind in WELL_KNOWN.items():
-            channel_type = getattr(foxglove.channels, f"{kind.__name__}Channel")
-            self._channels[topic] = channel_type(topic, context=self._context)
+        self._channels = FoxgloveChannels(self._context)
         self._writer.write_metadata(HEADER_METADATA, metadata)
         self._writer.flush()
 
     def write(self, topic: str, log_time_ns: int, message: bytes | Any) -> None:
-        self._channels[topic].log(message, log_time=log_time_ns)
+        self._channels.write(topic, log_time_ns, message)
 
     def flush(self) -> None:
         self._writer.flush()
 
     def close(self) -> None:
         self._writer.close()
+
+
+def tick_messages(
+    record: TickRecord, notices: tuple[str, ...], log_time_ns: int, style: SceneStyle | None
+) -> Iterator[tuple[str, bytes | Any]]:
+    """Every message of one tick, by topic: our JSON (encoded) and, with a ``style`` to
+    draw with, Foxglove's (to be encoded by the sink)."""
+    for topic, payload in json_messages(record):
+        yield topic, pydantic_core.to_json(payload, inf_nan_mode="null")
+    for text in notices:
+        notice = {"t_s": record.t_s, "text": text}
+        yield "/uavbar/notices", pydantic_core.to_json(notice, inf_nan_mode="null")
+    if style is not None:
+        stamp = fg.Timestamp(log_time_ns // 1_000_000_000, log_time_ns % 1_000_000_000)
+        yield from well_known_messages(record, stamp, style)
+
+
+def scene_style(header: dict[str, Any]) -> SceneStyle | None:
+    """How to draw the scene, from a header's ``arms_m`` (None without: no scene)."""
+    arms = header.get("arms_m")
+    return SceneStyle((float(arms[0]), float(arms[1]))) if arms else None
 
 
 class McapFlightLogWriter:
@@ -156,8 +197,7 @@ class McapFlightLogWriter:
         self._start_ns = int(started.timestamp() * 1e9)
         self._first_t_s: float | None = None
         self._last_flush_s = 0.0
-        arms = header.get("arms_m")
-        self._style = SceneStyle((float(arms[0]), float(arms[1]))) if arms else None
+        self._style = scene_style(header)
         self._closed = False
 
     def append(self, record: TickRecord, notices: tuple[str, ...] = ()) -> None:
