@@ -67,7 +67,7 @@ async def test_a_client_is_advertised_the_channels_and_gets_the_ticks(
             assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms"
             subscribe = {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": state["id"]}]}
             await socket.send(json.dumps(subscribe))
-            received = []
+            received: list[tuple[int, int, bytes]] = []
             async with asyncio.timeout(10.0):
                 for record in records:
                     view.append(record)
