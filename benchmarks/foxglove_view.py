@@ -1,8 +1,9 @@
 """What the live Foxglove view and the MCAP log cost the ticks of a real flight, in one run:
-``python -m benchmarks.foxglove_view [--duration S] [--json]``.
+``python -m benchmarks.foxglove_view [--duration S] [--rate N] [--websockets N] [--json]``.
 
 Three flights of ``benchmarks.tick`` (``serve`` on the embedded simulator, the paper's
-setpoints, 200 API requests/s and 10 telemetry WebSocket clients), one after the other:
+setpoints, by default 200 API requests/s and 10 telemetry WebSocket clients), one after
+the other:
 the view off with a JSON Lines log (the baseline), the view off with an MCAP log, and the
 view on with an MCAP log and a Foxglove client subscribed to every channel throughout. For
 each: the tick figures from the flight log (compute p50/p99, lateness p99, missed
@@ -66,13 +67,15 @@ async def subscriber(service: RunningService, stop: asyncio.Event) -> int:
     return received
 
 
-async def flight(duration_s: float, overrides: list[str]) -> dict[str, Any]:
+async def flight(
+    duration_s: float, overrides: list[str], rate_hz: float, n_websockets: int
+) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as scratch:
         async with running_service(TOKEN, Path(scratch), overrides) as service:
             stop = asyncio.Event()
             started = time.monotonic()
-            tasks = [asyncio.create_task(load(service.url, 200.0, stop))]
-            tasks += [asyncio.create_task(watch(service.url, stop)) for _ in range(10)]
+            tasks = [asyncio.create_task(load(service.url, rate_hz, stop))]
+            tasks += [asyncio.create_task(watch(service.url, stop)) for _ in range(n_websockets)]
             viewing = "foxglove.port=0" in overrides
             viewer = asyncio.create_task(subscriber(service, stop)) if viewing else None
             log_path = await fly(service, duration_s)
@@ -85,16 +88,21 @@ async def flight(duration_s: float, overrides: list[str]) -> dict[str, Any]:
             return result
 
 
-async def run(duration_s: float) -> dict[str, dict[str, Any]]:
-    return {name: await flight(duration_s, overrides) for name, overrides in RUNS.items()}
+async def run(duration_s: float, rate_hz: float, n_websockets: int) -> dict[str, dict[str, Any]]:
+    return {
+        name: await flight(duration_s, overrides, rate_hz, n_websockets)
+        for name, overrides in RUNS.items()
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=30.0, metavar="S")
+    parser.add_argument("--rate", type=float, default=200.0, help="API requests per second")
+    parser.add_argument("--websockets", type=int, default=10, help="telemetry clients")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
-    result = asyncio.run(run(args.duration))
+    result = asyncio.run(run(args.duration, args.rate, args.websockets))
     if args.json:
         print(json.dumps(result))
         return 0
