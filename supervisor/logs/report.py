@@ -38,7 +38,7 @@ FALLBACK_STATUSES = frozenset(s.value for s in PlanStatus if s.is_fallback)
 
 
 @contextmanager
-def warnings_ignored() -> Iterator[None]:
+def _warnings_ignored() -> Iterator[None]:
     """numpy's "mean of empty slice" where a window holds no finite value (an NaN is the
     answer wanted there)."""
     with warnings.catch_warnings():
@@ -227,7 +227,7 @@ def _filtered(values: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray, 
     pad = window // 2
     padded = np.pad(values, (pad, window - 1 - pad), constant_values=np.nan)
     views = np.lib.stride_tricks.sliding_window_view(padded, window)
-    with np.errstate(all="ignore"), warnings_ignored():
+    with np.errstate(all="ignore"), _warnings_ignored():
         return np.nanmean(views, axis=1), np.nanmin(views, axis=1), np.nanmax(views, axis=1)
 
 
