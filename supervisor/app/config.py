@@ -435,9 +435,21 @@ class SafetySection(_Section):
 
 
 class LogSection(_Section):
-    """Flight logs: one JSON Lines file per flight, named by its start time."""
+    """Flight logs: one file per flight, named by its start time."""
 
     folder: str = "flight-logs"
+    format: Literal["jsonl", "mcap"] = "jsonl"
+    """``jsonl`` (JSON Lines, one line per tick) or ``mcap`` (Foxglove's and our own
+    channels: docs/flight-logs.md)."""
+
+
+class FoxgloveSection(_Section):
+    """The live Foxglove view: a WebSocket server (subprotocol foxglove.sdk.v1) on the API's
+    host streaming the flight log's channels (docs/flight-logs.md)."""
+
+    enabled: bool = True
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+    """0: a free port, logged at start."""
 
 
 class Config(_Section):
@@ -451,6 +463,7 @@ class Config(_Section):
     vehicles: VehiclesSection = VehiclesSection()
     api: ApiSection = ApiSection()
     log: LogSection = LogSection()
+    foxglove: FoxgloveSection = FoxgloveSection()
     safety: SafetySection = SafetySection()
     sim: SimSection = SimSection()
 

@@ -24,6 +24,7 @@ from supervisor.app.assembly import (
 )
 from supervisor.app.config import Config, host_port
 from supervisor.flight.core import Notice, NoticeKind
+from supervisor.logs.foxglove_live import FoxgloveLiveView
 from supervisor.logs.logging_setup import queued_logging
 from supervisor.mavlink.link import MavlinkLink
 from supervisor.runtime.cpu import raise_priority, single_threaded_blas, title_process
@@ -80,6 +81,7 @@ async def fly(
                     config.mocap.phase_lock,
                     config.name,
                     forward_mocap=not start.relayed,
+                    log_format=config.log.format,
                     failsafe_parameters={
                         "COM_OF_LOSS_T": config.vehicles.offboard_loss_timeout_s,
                         "COM_OBL_RC_ACT": OFFBOARD_LOSS_LAND,
@@ -101,10 +103,30 @@ async def fly(
             loop.add_signal_handler(signal.SIGTERM, process.stop)
             loop.add_signal_handler(signal.SIGINT, lambda: None)  # serve decides
             loop.add_reader(parent.fileno(), process.stop)  # serve is gone
-            await process.run(start.listener, start.token)
+            process.driver.live = _live_view(config)
+            try:
+                await process.run(start.listener, start.token)
+            finally:
+                if process.driver.live is not None:
+                    process.driver.live.close()
     finally:
         for link in links:
             await link.close()
+
+
+def _live_view(config: Config) -> FoxgloveLiveView | None:
+    """The Foxglove WebSocket view on the API's host, unless off or its port is taken (a
+    view is never worth a flight: the flight process goes on without it)."""
+    if not config.foxglove.enabled:
+        return None
+    host, port = config.api.host, config.foxglove.port
+    try:
+        view = FoxgloveLiveView(host, port, config.system.to_params().arms_m)
+    except RuntimeError as error:
+        log.warning("Foxglove view off: cannot serve on %s:%d (%s)", host, port, error)
+        return None
+    log.info("Foxglove view: ws://%s:%d (foxglove.sdk.v1)", host, view.port)
+    return view
 
 
 def run_flight_process(

@@ -139,7 +139,7 @@ def _simulate(args: argparse.Namespace) -> int:
     import pydantic_core
 
     from supervisor.cli.console import SimulationProgress, format_summary
-    from supervisor.logs.flight_log import read_flight_log
+    from supervisor.logs.flight_log import SUFFIXES, read_flight_log
     from supervisor.logs.report import summarize
     from supervisor.runtime.cpu import single_threaded_blas
     from supervisor.simulate.closed_loop import result_summary, run_scenario
@@ -149,6 +149,8 @@ def _simulate(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     if args.seed is not None and args.seed < 0:
         raise UsageError(f"--seed {args.seed}: must be >= 0")
+    if args.log is not None and args.log.suffix not in SUFFIXES:
+        raise UsageError(f"--log {args.log}: a flight log is .jsonl or .mcap (the format)")
     _logging()
     single_threaded_blas()
     with tempfile.TemporaryDirectory() as scratch:
@@ -201,6 +203,41 @@ def _report(args: argparse.Namespace) -> int:
     for path in write_report(logs, args.out):
         print(path)
     return 0
+
+
+def _csv(args: argparse.Namespace) -> int:
+    from supervisor.logs.csv_export import write_csv
+    from supervisor.logs.flight_log import read_flight_log
+
+    out: Path = args.out or args.log.with_suffix(".csv")
+    try:
+        rows = write_csv(read_flight_log(args.log), out)
+    except (OSError, ValueError) as error:
+        raise UsageError(str(error)) from error
+    print(f"{out}: {rows} ticks")
+    return 0
+
+
+def _mocap(args: argparse.Namespace) -> int:
+    from supervisor.app.mocap_recording import run_record, run_replay
+
+    if args.action == "record":
+        if not args.duration > 0:
+            raise UsageError(f"--duration {args.duration}: must be > 0 (seconds)")
+        return run_record(args.host, args.port, args.duration, args.out, _say)
+    if not args.file.is_file():
+        raise UsageError(f"{args.file}: no such recording")
+    try:
+        from mocap.recording import read_recording
+
+        read_recording(args.file)
+    except ValueError as error:
+        raise UsageError(str(error)) from error
+    return run_replay(args.file, args.host, args.port, args.loop, _say)
+
+
+def _say(line: str) -> None:
+    print(line, flush=True)
 
 
 def _config_command(args: argparse.Namespace) -> int:
@@ -276,7 +313,7 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         description="Fly a scenario through the service's tick core against the physics "
         "plant, on simulated time.",
         epilog="example:\n  uavbar-supervisor simulate --scenario paper --controller "
-        "decentralized --log flight.jsonl",
+        "decentralized --log flight.mcap",
     )
     simulate.add_argument(
         "--scenario",
@@ -287,7 +324,12 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
     simulate.add_argument(
         "--controller", choices=CONTROLLERS, default="centralized", help="(default: centralized)"
     )
-    simulate.add_argument("--log", type=Path, metavar="PATH", help="write the flight log here")
+    simulate.add_argument(
+        "--log",
+        type=Path,
+        metavar="PATH",
+        help="write the flight log here: PATH.mcap (MCAP) or PATH.jsonl (JSON Lines)",
+    )
     simulate.add_argument(
         "--seed", type=int, metavar="N", help="noise seed (default: the setup's sim.seed)"
     )
@@ -299,14 +341,58 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         help="figures (Figs 6-8) and a Table III summary of flight logs",
         description="Figures like the paper's Figs 6-8 and a Table III summary of one "
         "flight log, or two overlaid.",
-        epilog="example:\n  uavbar-supervisor report flight-logs/2024-05-01T10-00-00.jsonl "
+        epilog="example:\n  uavbar-supervisor report flight-logs/flight-20261123-031500.mcap "
         "--out report/",
     )
     report.add_argument(
-        "logs", nargs="+", type=Path, metavar="LOG", help="one log, or two to overlay"
+        "logs",
+        nargs="+",
+        type=Path,
+        metavar="LOG",
+        help="one log (.jsonl or .mcap), or two to overlay",
     )
     report.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     report.set_defaults(handler=_report)
+
+    export = commands.add_parser(
+        "csv",
+        help="a flight log as one CSV table (PlotJuggler, spreadsheets)",
+        description="Write a flight log (.jsonl or .mcap) as CSV: a row per tick, t_s first, "
+        "then the state, the reference and the inputs by name, the timings, mode, "
+        "controller and plan status; a value that was not finite is an empty cell.",
+        epilog="example:\n  uavbar-supervisor csv flight-logs/flight-20261123-031500.mcap",
+    )
+    export.add_argument("log", type=Path, metavar="LOG", help="a .jsonl or .mcap flight log")
+    export.add_argument(
+        "--out", type=Path, metavar="FILE", help="the CSV file (default: LOG with .csv)"
+    )
+    export.set_defaults(handler=_csv)
+
+    mocap = commands.add_parser(
+        "mocap",
+        help="record a QTM RT stream to a file, or serve a recording as a QTM RT server",
+        description="Record a QTM RT stream (a real QTM or the simulator) with every "
+        "packet's arrival time, or replay a recording as a QTM RT server (TCP commands, "
+        "UDP or TCP frames, the recorded timing) for the supervisor or Qualisys' SDK.",
+        epilog="examples:\n  uavbar-supervisor mocap record --host 192.168.1.10 --port 22223 "
+        "--duration 20 --out hover.qtm.gz\n"
+        "  uavbar-supervisor mocap replay hover.qtm.gz --port 22223 --loop",
+    )
+    mocap_actions = mocap.add_subparsers(dest="action", required=True, metavar="ACTION")
+    record = mocap_actions.add_parser("record", help="record a stream into a file")
+    record.add_argument("--host", default="127.0.0.1", help="QTM's address (default: loopback)")
+    record.add_argument("--port", type=int, default=22223, help="QTM's little-endian port")
+    record.add_argument("--duration", type=float, required=True, metavar="S", help="how long [s]")
+    record.add_argument("--out", type=Path, required=True, metavar="FILE", help="the recording")
+    record.set_defaults(handler=_mocap)
+    replay = mocap_actions.add_parser("replay", help="serve a recording as a QTM RT server")
+    replay.add_argument("file", type=Path, metavar="FILE", help="a recording (mocap record)")
+    replay.add_argument(
+        "--port", type=int, default=22223, help="the TCP port to serve on (default 22223)"
+    )
+    replay.add_argument("--host", default="127.0.0.1", help="the address to serve on")
+    replay.add_argument("--loop", action="store_true", help="start over at the end, until stopped")
+    replay.set_defaults(handler=_mocap)
 
     config = commands.add_parser(
         "config",

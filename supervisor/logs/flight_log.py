@@ -1,43 +1,82 @@
-"""The flight log: one JSON Lines file per flight, one line per tick, crash-safe.
+"""The flight log: one file per flight, JSON Lines or MCAP (``mcap_log``), crash-safe.
 
-The first line is a header (``{"kind": "header", ...}``: setup name, parameters, start
-time); every tick appends ``{"kind": "tick", ...}`` with the fields of ``TickRecord``.
-Each line is flushed to the OS as it is written and the file is fsync'ed at least once a
-second, so a killed process loses at most the last second and a reader skips a torn last
-line. Files are named by the flight's start time: ``flight-20261123-031500.jsonl``.
+``open_flight_log`` picks the format by the path's extension (``.jsonl``, ``.mcap``), or
+for a folder by ``log_format``; ``read_flight_log`` reads either. In JSON Lines the first
+line is a header (``{"kind": "header", ...}``: setup name, parameters, start time); every
+tick appends ``{"kind": "tick", ...}`` with the fields of ``TickRecord``. Each line is
+flushed to the OS as it is written and the file is fsync'ed at least once a second (in a
+thread: ``background_sync``), so a killed process loses at most the last second and a
+reader skips a torn last line. Files are named by the flight's start time:
+``flight-20261123-031500.jsonl``.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Literal, Protocol
 
 import numpy as np
 import pydantic_core
 
 from geometry.arrays import FloatArray
 from supervisor.flight.tick_record import TickRecord
+from supervisor.logs.background_sync import BackgroundSync
 
 FSYNC_INTERVAL_S = 1.0
+LogFormat = Literal["jsonl", "mcap"]
+SUFFIXES: dict[str, LogFormat] = {".jsonl": "jsonl", ".mcap": "mcap"}
 
 
 _TICK_FIELDS = tuple(f.name for f in fields(TickRecord))
 
 
-def _new_log_path(folder: Path, started: datetime) -> Path:
+def _new_log_path(folder: Path, started: datetime, extension: str = ".jsonl") -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     stem = f"flight-{started:%Y%m%d-%H%M%S}"
-    path = folder / f"{stem}.jsonl"
+    path = folder / f"{stem}{extension}"
     suffix = 1
     while path.exists():  # two flights started within the same second
-        path = folder / f"{stem}-{suffix}.jsonl"
+        path = folder / f"{stem}-{suffix}{extension}"
         suffix += 1
     return path
+
+
+class FlightLogSink(Protocol):
+    """What the tick driver writes to: either format's writer."""
+
+    path: Path
+
+    def append(self, record: TickRecord, notices: tuple[str, ...] = ()) -> None: ...
+    def close(self) -> None: ...
+
+
+def open_flight_log(
+    destination: Path,
+    header: dict[str, Any],
+    log_format: LogFormat = "jsonl",
+    started: datetime | None = None,
+) -> FlightLogSink:
+    """A writer for ``destination``: a ``.jsonl`` or ``.mcap`` file (its extension picks the
+    format; created or replaced), or a folder, where a new file named by the start time is
+    created in ``log_format``. Raises ``ValueError`` for a file of another extension."""
+    started = started or datetime.now(UTC)
+    if destination.suffix:
+        if destination.suffix not in SUFFIXES:
+            raise ValueError(
+                f"{destination}: a flight log is .jsonl or .mcap, not {destination.suffix}"
+            )
+        log_format, path = SUFFIXES[destination.suffix], destination
+    else:
+        path = _new_log_path(destination, started, f".{log_format}")
+    if log_format == "mcap":
+        from supervisor.logs.mcap_log import McapFlightLogWriter
+
+        return McapFlightLogWriter(path, header, started)
+    return FlightLogWriter(path, header, started)
 
 
 class FlightLogWriter:
@@ -60,7 +99,8 @@ class FlightLogWriter:
         self._file: IO[str] = path.open(mode, encoding="utf-8")
         self._last_sync_s = -math.inf
         self._write({"kind": "header", "started": started.isoformat(), **header})
-        self._sync()
+        self._sync = BackgroundSync(path)
+        self._sync.request()
 
     def _write(self, payload: dict[str, Any]) -> None:
         # JSON has no NaN: the serializer writes non-finite numbers as null.
@@ -68,21 +108,21 @@ class FlightLogWriter:
         self._file.write(line + "\n")
         self._file.flush()
 
-    def _sync(self) -> None:
-        os.fsync(self._file.fileno())
-
-    def append(self, record: TickRecord) -> None:
-        """Write one tick; fsync when the last sync is more than a second (of ``t_s``) old."""
+    def append(self, record: TickRecord, notices: tuple[str, ...] = ()) -> None:
+        """Write one tick (with the notices it raised); fsync when the last sync is more than
+        a second (of ``t_s``) old."""
         values = {name: getattr(record, name) for name in _TICK_FIELDS}  # shallow: no deepcopy
+        if notices:
+            values["notices"] = list(notices)
         self._write({"kind": "tick", **values})
         if record.t_s - self._last_sync_s >= FSYNC_INTERVAL_S:
-            self._sync()
+            self._sync.request()
             self._last_sync_s = record.t_s
 
     def close(self) -> None:
         if not self._file.closed:
-            self._sync()
             self._file.close()
+            self._sync.close()
 
     def __enter__(self) -> FlightLogWriter:
         return self
@@ -109,6 +149,7 @@ class FlightLog:
     controllers: list[str]
     plan_status: list[str]
     extra: list[dict[str, Any]]
+    notices: list[tuple[float, str]]  # (t_s, "kind: text"), each when it was raised
 
     @property
     def controller(self) -> str:
@@ -137,8 +178,49 @@ def _array(rows: list[Any], width: int | None = None) -> FloatArray:
 
 
 def read_flight_log(path: Path) -> FlightLog:
-    """Read a log; a torn last line (the process was killed mid-write) is skipped.
-    Raises ``ValueError`` for a file that is not a flight log."""
+    """Read a log of either format, chosen by its extension; what a killed writer tore at
+    the end (a last line, a last chunk) is skipped. Raises ``ValueError`` for a file that is
+    not a flight log."""
+    if path.suffix == ".mcap":
+        return _read_mcap(path)
+    return _read_jsonl(path)
+
+
+def _flight_log(
+    path: Path,
+    header: dict[str, Any],
+    ticks: list[dict[str, Any]],
+    notices: list[tuple[float, str]],
+) -> FlightLog:
+    return FlightLog(
+        path=path,
+        header=header,
+        t_s=_array([t["t_s"] for t in ticks]),
+        state=_array([t["state"] for t in ticks], 36),
+        state_ref=_array([t["state_ref"] for t in ticks], 36),
+        inputs=_array([t["inputs"] for t in ticks], 8),
+        solve_ms=_array([t["solve_ms"] for t in ticks]),
+        compute_ms=_array([t["compute_ms"] for t in ticks]),
+        lateness_ms=_array([t["lateness_ms"] for t in ticks]),
+        mocap_age_ms=_array([t["mocap_age_ms"] for t in ticks]),
+        modes=[t["mode"] for t in ticks],
+        controllers=[t["controller"] for t in ticks],
+        plan_status=[t["plan_status"] for t in ticks],
+        extra=[t.get("extra", {}) for t in ticks],
+        notices=notices,
+    )
+
+
+def _read_mcap(path: Path) -> FlightLog:
+    from supervisor.logs.mcap_log import read_mcap_records
+
+    recovered = read_mcap_records(path)
+    assert recovered.header is not None
+    ticks = [{name: getattr(r, name) for name in _TICK_FIELDS} for r in recovered.records]
+    return _flight_log(path, recovered.header, ticks, recovered.notices)
+
+
+def _read_jsonl(path: Path) -> FlightLog:
     header: dict[str, Any] | None = None
     ticks: list[dict[str, Any]] = []
     with path.open(encoding="utf-8") as handle:
@@ -158,19 +240,5 @@ def read_flight_log(path: Path) -> FlightLog:
             ticks.append(entry)
     if header is None:
         raise ValueError(f"{path}: no flight-log header")
-    return FlightLog(
-        path=path,
-        header=header,
-        t_s=_array([t["t_s"] for t in ticks]),
-        state=_array([t["state"] for t in ticks], 36),
-        state_ref=_array([t["state_ref"] for t in ticks], 36),
-        inputs=_array([t["inputs"] for t in ticks], 8),
-        solve_ms=_array([t["solve_ms"] for t in ticks]),
-        compute_ms=_array([t["compute_ms"] for t in ticks]),
-        lateness_ms=_array([t["lateness_ms"] for t in ticks]),
-        mocap_age_ms=_array([t["mocap_age_ms"] for t in ticks]),
-        modes=[t["mode"] for t in ticks],
-        controllers=[t["controller"] for t in ticks],
-        plan_status=[t["plan_status"] for t in ticks],
-        extra=[t.get("extra", {}) for t in ticks],
-    )
+    notices = [(t["t_s"], text) for t in ticks for text in t.get("notices", ())]
+    return _flight_log(path, header, ticks, notices)

@@ -2,14 +2,21 @@
 
 ``write_report([log], out)`` writes ``positions.png``, ``orientations.png`` (Fig. 6),
 ``inputs.png`` (Fig. 7), ``errors.png`` (Fig. 8) and ``summary.md`` / ``summary.json``.
-With two logs (e.g. centralized and decentralized) the second is drawn dashed over the
-first, as in Fig. 8. References are dashed in Figs 6 (thin, grey-toned) as in the paper.
+With two logs (e.g. centralized and decentralized) the second is drawn dashed, in its own
+colour, over the first in Figs 6 and 7, and in a column of its own in Fig. 8 (the errors
+of the two would hide each other). References are dotted black; angles are unwrapped in
+Fig. 6 and errors wrapped to ±180° in Fig. 8; inputs are a moving mean with the raw range
+shaded (the MPC's tick-to-tick input chatter otherwise fills the panel). Every panel has
+its legend.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +35,15 @@ ANGLES = ("roll", "pitch", "yaw")
 
 
 FALLBACK_STATUSES = frozenset(s.value for s in PlanStatus if s.is_fallback)
+
+
+@contextmanager
+def _warnings_ignored() -> Iterator[None]:
+    """numpy's "mean of empty slice" where a window holds no finite value (an NaN is the
+    answer wanted there)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
 
 
 def _wrap(angles: np.ndarray) -> np.ndarray:
@@ -74,126 +90,231 @@ def summarize(log: FlightLog) -> dict[str, Any]:
     }
 
 
+COLOURS = ("tab:blue", "tab:orange")
+FILTER_S = 0.5  # the inputs' moving window: the MPC's tick-to-tick chatter is ~20 ms
+
+
 def _style(index: int) -> str:
     return "-" if index == 0 else "--"
 
 
-def _positions(logs: list[FlightLog], out: Path) -> Path:
+def _unwrap(angles_rad: np.ndarray) -> np.ndarray:
+    """np.unwrap over the finite samples only (a NaN would spread through the rest)."""
+    out = np.full_like(angles_rad, np.nan)
+    finite = np.isfinite(angles_rad)
+    out[finite] = np.unwrap(angles_rad[finite])
+    return out
+
+
+def _unwrapped_pair(state_rad: np.ndarray, ref_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """State and reference angles without ±180° jumps; the reference is put within half a
+    turn of the state where both exist, so a line never sits a turn away from its
+    reference."""
+    state = _unwrap(state_rad)
+    ref = np.where(np.isfinite(state), state + _wrap(ref_rad - state), _unwrap(ref_rad))
+    return state, ref
+
+
+def _legend(ax: Any, **kwargs: Any) -> None:
+    ax.legend(fontsize=7, loc="best", framealpha=0.8, **kwargs)
+
+
+def _label(log: FlightLog, logs: list[FlightLog]) -> str:
+    if len(logs) == 1:
+        return log.controller
+    return f"{log.controller} ({'solid' if log is logs[0] else 'dashed'})"
+
+
+def _positions(logs: list[FlightLog]) -> Any:
+    """Fig. 6, positions: bar, UAV 1, UAV 2 (columns) × x, y, z (rows), reference dotted."""
     fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
     for col, (body, offset) in enumerate(BODIES):
         for row, axis in enumerate(AXES):
             ax = axes[row, col]
             for k, log in enumerate(logs):
                 ax.plot(
-                    log.t_s, log.state[:, offset + row], _style(k), lw=1.2, label=log.controller
+                    log.t_s,
+                    log.state[:, offset + row],
+                    _style(k),
+                    color=COLOURS[k],
+                    lw=1.1,
+                    label=_label(log, logs),
                 )
-                ax.plot(log.t_s, log.state_ref[:, offset + row], ":", color="k", lw=0.9)
-            ax.set_ylabel(f"{body} {axis} [m]")
+                ax.plot(
+                    log.t_s,
+                    log.state_ref[:, offset + row],
+                    ":",
+                    color="k",
+                    lw=0.9,
+                    label="reference" if k == 0 else None,
+                )
+            ax.set_title(f"{body} {axis}", fontsize=9)
+            ax.set_ylabel("[m]")
             ax.grid(alpha=0.3)
+            _legend(ax)
         axes[-1, col].set_xlabel("t [s]")
-    axes[0, 0].legend(loc="best", fontsize=8)
     fig.suptitle("Positions (dotted: reference)")
-    fig.tight_layout()
-    path = out / "positions.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig
 
 
-def _orientations(logs: list[FlightLog], out: Path) -> Path:
+# The bar's attitude is its pitch and yaw: it cannot roll about its own axis in the model
+# (n_b depends on θ_b and ψ_b only, geometry/state.py), so its roll is not drawn.
+ORIENTATION_PANELS = (
+    ("bar", 0, ("pitch", "yaw")),
+    ("UAV 1", 12, ANGLES),
+    ("UAV 2", 24, ANGLES),
+)
+
+
+def _orientations(logs: list[FlightLog]) -> Any:
+    """Fig. 6, orientations, unwrapped (no ±180° stripes); the bar has no roll panel."""
     fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
-    for col, (body, offset) in enumerate(BODIES):
-        for row, angle in enumerate(ANGLES):
+    for col, (body, offset, angles) in enumerate(ORIENTATION_PANELS):
+        rows = [ANGLES.index(angle) for angle in angles]
+        for row in range(3):
             ax = axes[row, col]
+            if row not in rows:  # the bar's roll
+                ax.axis("off")
+                ax.text(
+                    0.5,
+                    0.5,
+                    f"{body}: no roll\n(it cannot turn about its own axis)",
+                    ha="center",
+                    va="center",
+                    fontsize=9,
+                    color="0.4",
+                    transform=ax.transAxes,
+                )
+                continue
             for k, log in enumerate(logs):
+                state, ref = _unwrapped_pair(
+                    log.state[:, offset + 6 + row], log.state_ref[:, offset + 6 + row]
+                )
                 ax.plot(
                     log.t_s,
-                    np.degrees(log.state[:, offset + 6 + row]),
+                    np.degrees(state),
                     _style(k),
-                    lw=1.2,
-                    label=log.controller,
+                    color=COLOURS[k],
+                    lw=1.1,
+                    label=_label(log, logs),
                 )
                 ax.plot(
-                    log.t_s, np.degrees(log.state_ref[:, offset + 6 + row]), ":", color="k", lw=0.9
+                    log.t_s,
+                    np.degrees(ref),
+                    ":",
+                    color="k",
+                    lw=0.9,
+                    label="reference" if k == 0 else None,
                 )
-            ax.set_ylabel(f"{body} {angle} [°]")
+            ax.set_title(f"{body} {ANGLES[row]}", fontsize=9)
+            ax.set_ylabel("[°]")
             ax.grid(alpha=0.3)
-        axes[-1, col].set_xlabel("t [s]")
-    axes[0, 0].legend(loc="best", fontsize=8)
-    fig.suptitle("Orientations (dotted: reference)")
-    fig.tight_layout()
-    path = out / "orientations.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+            _legend(ax)
+            ax.xaxis.set_tick_params(labelbottom=True)
+        axes[max(rows), col].set_xlabel("t [s]")
+    fig.suptitle("Orientations, unwrapped (dotted: reference)")
+    return fig
 
 
-def _inputs(logs: list[FlightLog], out: Path) -> Path:
-    fig, axes = plt.subplots(2, 2, figsize=(12, 6), sharex=True)
+def _window(log: FlightLog) -> int:
+    dt = float(np.nanmedian(np.diff(log.t_s))) if len(log.t_s) > 1 else 0.02
+    return max(1, round(FILTER_S / dt))
+
+
+def _filtered(values: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centred moving mean, min and max over ``window`` samples (NaN-aware; the ends with
+    a shorter window)."""
+    pad = window // 2
+    padded = np.pad(values, (pad, window - 1 - pad), constant_values=np.nan)
+    views = np.lib.stride_tricks.sliding_window_view(padded, window)
+    with np.errstate(all="ignore"), _warnings_ignored():
+        return np.nanmean(views, axis=1), np.nanmin(views, axis=1), np.nanmax(views, axis=1)
+
+
+INPUT_ROWS = (
+    ("thrust F", 0, "[N]"),
+    ("torque τx", 1, "[N m]"),
+    ("torque τy", 2, "[N m]"),
+    ("torque τz", 3, "[N m]"),
+)
+
+
+def _inputs(logs: list[FlightLog]) -> Any:
+    """Fig. 7: each UAV's thrust and torques, one panel each, as a 0.5 s moving mean with
+    the raw values' range over the same window shaded."""
+    fig, axes = plt.subplots(4, 2, figsize=(13, 9), sharex=True)
     for uav in range(2):
-        for k, log in enumerate(logs):
-            axes[0, uav].plot(
-                log.t_s, log.inputs[:, 4 * uav], _style(k), lw=1.1, label=log.controller
-            )
-            for j, name in enumerate(("τx", "τy", "τz")):
-                axes[1, uav].plot(
+        for row, (name, index, unit) in enumerate(INPUT_ROWS):
+            ax = axes[row, uav]
+            for k, log in enumerate(logs):
+                window = _window(log)
+                mean, low, high = _filtered(log.inputs[:, 4 * uav + index], window)
+                ax.fill_between(
                     log.t_s,
-                    log.inputs[:, 4 * uav + 1 + j],
-                    _style(k),
-                    lw=1.0,
-                    label=f"{name} {log.controller}",
+                    low,
+                    high,
+                    color=COLOURS[k],
+                    alpha=0.22,
+                    lw=0,
+                    label=f"{log.controller}: raw range",
                 )
-        axes[0, uav].set_ylabel(f"F{uav + 1} [N]")
-        axes[1, uav].set_ylabel(f"τ{uav + 1} [N m]")
-        axes[1, uav].set_xlabel("t [s]")
-        for ax in axes[:, uav]:
+                ax.plot(
+                    log.t_s,
+                    mean,
+                    _style(k),
+                    color=COLOURS[k],
+                    lw=1.1,
+                    label=f"{log.controller}: {FILTER_S:g} s mean",
+                )
+            ax.set_title(f"UAV {uav + 1} {name}{uav + 1 if index == 0 else ''}", fontsize=9)
+            ax.set_ylabel(unit)
             ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
-    axes[1, 0].legend(fontsize=7, ncol=2)
-    fig.suptitle("Inputs: thrust and body torque per UAV")
-    fig.tight_layout()
-    path = out / "inputs.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+            _legend(ax, ncol=2)
+        axes[-1, uav].set_xlabel("t [s]")
+    fig.suptitle(f"Inputs: {FILTER_S:g} s moving mean, raw range shaded")
+    return fig
 
 
-def _errors(logs: list[FlightLog], out: Path) -> Path:
-    fig, axes = plt.subplots(2, 3, figsize=(14, 6), sharex=True)
-    for k, log in enumerate(logs):
-        style, label = _style(k), log.controller
-        uav_pos = np.linalg.norm(log.state[:, 12:15] - log.state_ref[:, 12:15], axis=1)
-        uav_att = np.degrees(
-            np.linalg.norm(_wrap(log.state[:, 18:21] - log.state_ref[:, 18:21]), axis=1)
-        )
-        axes[0, 0].plot(log.t_s, uav_pos, style, label=label)
-        axes[1, 0].plot(log.t_s, uav_att, style, label=label)
-        thrust = log.inputs[:, [0, 4]]
-        torque = np.linalg.norm(log.inputs[:, [1, 2, 3, 5, 6, 7]].reshape(-1, 2, 3), axis=2)
-        axes[0, 1].plot(log.t_s, thrust, style, label=label)
-        axes[1, 1].plot(log.t_s, torque, style, label=label)
-        bar_err = np.abs(log.state[:, 0:3] - log.state_ref[:, 0:3])
-        axes[0, 2].plot(log.t_s, bar_err, style, label=label)
-        axes[1, 2].plot(
-            log.t_s, np.degrees(_wrap(log.state[:, 8] - log.state_ref[:, 8])), style, label=label
-        )
-    titles = (
-        ("UAV 1 position error [m]", "thrust F1, F2 [N]", "bar |error| x, y, z [m]"),
-        ("UAV 1 attitude error [°]", "torque norm ‖τ1‖, ‖τ2‖ [N m]", "bar yaw error [°]"),
+ERROR_ROWS = (
+    ("bar position error", 0, AXES, "[m]"),
+    ("bar yaw error", 8, ("yaw",), "[°]"),
+    ("UAV 1 position error", 12, AXES, "[m]"),
+    ("UAV 1 attitude error", 18, ANGLES, "[°]"),
+    ("UAV 2 position error", 24, AXES, "[m]"),
+    ("UAV 2 attitude error", 30, ANGLES, "[°]"),
+)
+ERROR_COLOURS = ("tab:red", "tab:green", "tab:blue")
+
+
+def _errors(logs: list[FlightLog]) -> Any:
+    """Fig. 8: tracking errors of the bar and both UAVs, one column per log (the same
+    scale along a row), angles wrapped to ±180°."""
+    fig, axes = plt.subplots(
+        len(ERROR_ROWS),
+        len(logs),
+        figsize=(7 * len(logs), 13),
+        sharex=True,
+        sharey="row",
+        squeeze=False,
     )
-    for row in range(2):
-        for col in range(3):
-            axes[row, col].set_title(titles[row][col], fontsize=10)
-            axes[row, col].grid(alpha=0.3)
-    for col in range(3):
-        axes[1, col].set_xlabel("t [s]")
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Errors and input magnitudes" + (" (dashed: second log)" if len(logs) > 1 else ""))
-    fig.tight_layout()
-    path = out / "errors.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    for col, log in enumerate(logs):
+        for row, (name, offset, components, unit) in enumerate(ERROR_ROWS):
+            ax = axes[row, col]
+            error = (
+                log.state[:, offset : offset + len(components)]
+                - log.state_ref[:, offset : offset + len(components)]
+            )
+            if unit == "[°]":
+                error = np.degrees(_wrap(error))
+            for j, component in enumerate(components):
+                ax.plot(log.t_s, error[:, j], color=ERROR_COLOURS[j], lw=0.9, label=component)
+            ax.set_title(f"{name} — {log.controller}", fontsize=9)
+            ax.set_ylabel(unit)
+            ax.grid(alpha=0.3)
+            _legend(ax, ncol=len(components))
+        axes[-1, col].set_xlabel("t [s]")
+    fig.suptitle("Tracking errors (state − reference)")
+    return fig
 
 
 SUMMARY_COLUMNS = (
@@ -231,15 +352,25 @@ def _markdown(summaries: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def figures(logs: list[FlightLog]) -> dict[str, Any]:
+    """The four figures of one or two logs, by file stem (matplotlib Figures, open)."""
+    return {
+        "positions": _positions(logs),
+        "orientations": _orientations(logs),
+        "inputs": _inputs(logs),
+        "errors": _errors(logs),
+    }
+
+
 def write_report(logs: list[FlightLog], out: Path) -> list[Path]:
     """Write the figures and the summary for one or two logs; returns the files written."""
     out.mkdir(parents=True, exist_ok=True)
-    files = [
-        _positions(logs, out),
-        _orientations(logs, out),
-        _inputs(logs, out),
-        _errors(logs, out),
-    ]
+    files = []
+    for stem, fig in figures(logs).items():
+        fig.tight_layout()
+        fig.savefig(out / f"{stem}.png", dpi=110)
+        plt.close(fig)
+        files.append(out / f"{stem}.png")
     summaries = [summarize(log) for log in logs]
     (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
     (out / "summary.md").write_text(_markdown(summaries))

@@ -42,7 +42,7 @@ from supervisor.flight.telemetry import MocapView, build_telemetry
 from supervisor.ipc.channel import Channel, ChannelClosedError, ChannelServer
 from supervisor.ipc.messages import ReplyMessage, TelemetryMessage
 from supervisor.ipc.server import HELLO_TIMEOUT_S, Admission, admit, refusal, serve_requests
-from supervisor.logs.flight_log import FlightLogWriter
+from supervisor.logs.flight_log import LogFormat, open_flight_log
 from supervisor.runtime.phase_lock import MocapPhaseLock
 from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
 from supervisor.runtime.tick_driver import TickDriver
@@ -78,6 +78,7 @@ class FlightSettings:
     phase_lock: bool
     setup_name: str
     forward_mocap: bool = True
+    log_format: LogFormat = "jsonl"
     # PX4 parameters every vehicle must hold before it may arm (its offboard-loss failsafe:
     # COM_OF_LOSS_T, COM_OBL_RC_ACT), read back from each vehicle at every arm.
     failsafe_parameters: Mapping[str, float] = field(default_factory=dict)
@@ -463,8 +464,12 @@ class FlightProcess:
         reply = handle_request(self.core, request, self.clock())
         if reply.ok and self.log_folder is not None:
             self._close_log()
-            header = {"setup": self.settings.setup_name, "controller": self.core.controller}
-            self.driver.log = FlightLogWriter(self.log_folder, header)
+            header = {
+                "setup": self.settings.setup_name,
+                "controller": self.core.controller,
+                "arms_m": list(self.core.params.arms_m),
+            }
+            self.driver.log = open_flight_log(self.log_folder, header, self.settings.log_format)
         return reply
 
     def _close_log(self) -> None:

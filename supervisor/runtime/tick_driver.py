@@ -2,9 +2,9 @@
 
 ``decide``: the fused rigid bodies at ``now_s`` → ``estimate_state`` → ``FlightCore.tick``;
 the caller then sends the commands (MAVLink) or applies them (the plant); ``finish``: the
-tick's record goes to the flight log, and the MPC prepares the next tick's model while no
-frame waits. Which clock ``now_s`` comes from is the caller's: the wall clock in the flight
-process, simulated time in ``supervisor.simulate``.
+tick's record goes to the flight log and the live Foxglove view, and the MPC prepares the
+next tick's model while no frame waits. Which clock ``now_s`` comes from is the caller's:
+the wall clock in the flight process, simulated time in ``supervisor.simulate``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from typing import Any
 from mocap.fusion import MocapFusion
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import BodyNames, Estimate, estimate_state
-from supervisor.logs.flight_log import FlightLogWriter
+from supervisor.logs.flight_log import FlightLogSink
+from supervisor.logs.foxglove_live import FoxgloveLiveView
 
 
 class TickDriver:
@@ -24,7 +25,8 @@ class TickDriver:
         self.core = core
         self.fusion = fusion
         self.names = names
-        self.log: FlightLogWriter | None = None
+        self.log: FlightLogSink | None = None
+        self.live: FoxgloveLiveView | None = None
         self.estimate: Estimate | None = None
 
     def estimate_at(self, now_s: float) -> Estimate:
@@ -46,8 +48,13 @@ class TickDriver:
         return result
 
     def finish(self, result: TickResult, **extra: Any) -> None:
-        """Log the tick (with the caller's ``extra`` figures) and prepare the next one."""
-        if self.log is not None:
+        """Log the tick (with the caller's ``extra`` figures), stream it to the live view,
+        and prepare the next one."""
+        notices = tuple(str(notice) for notice in result.notices)
+        if self.log is not None or self.live is not None:
             result.record.extra.update(extra)
-            self.log.append(result.record)
+        if self.log is not None:
+            self.log.append(result.record, notices)
+        if self.live is not None:
+            self.live.append(result.record, notices)
         self.core.prepare_next()

@@ -39,7 +39,7 @@ from supervisor.app.config import Config
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
-from supervisor.logs.flight_log import FlightLogWriter
+from supervisor.logs.flight_log import FlightLogSink, open_flight_log
 from supervisor.runtime.tick_driver import TickDriver
 from supervisor.simulate.scenarios import Scenario, Step
 
@@ -241,8 +241,13 @@ def run_scenario(
     loop.place(scenario)
     script = ScenarioScript(scenario)
     truth = TruthStats(loop.resting_heights()[0])
-    header = {"setup": config.name, "scenario": scenario.name, "controller": controller}
-    log = FlightLogWriter(log_path, header) if log_path is not None else None
+    header = {
+        "setup": config.name,
+        "scenario": scenario.name,
+        "controller": controller,
+        "arms_m": list(loop.core.params.arms_m),
+    }
+    log: FlightLogSink | None = open_flight_log(log_path, header) if log_path else None
     loop.driver.log = log
     started = time.perf_counter()
     # Let the filters converge on a still system before anyone acts.

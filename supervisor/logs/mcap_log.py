@@ -1,0 +1,291 @@
+"""The flight log as MCAP: Foxglove's and our own channels (``flight_messages``), crash-safe.
+
+Every tick's messages go into the current chunk; the chunk is finished and handed to the
+OS at least once a second of the log's time (``FLUSH_INTERVAL_S``), and a thread fsyncs the
+file after each (an fsync can take tens of ms on a busy disk: never on the tick's path). A
+writer killed at any moment leaves a file without a summary whose complete chunks
+``read_mcap_flight_log`` recovers, losing at most the last second.
+
+Two libraries can write it, with the same channels, schemas and messages: ``foxglove`` (the
+SDK's own writer, in Rust: the default) and ``mcap`` (the ``mcap`` package's writer in
+Python, messages encoded by ``foxglove-sdk``). ``python -m benchmarks.flight_log`` measures
+what each costs a tick: the SDK's costs less, the flush most of all. Chunks are LZ4: zstd
+packs them about a third smaller but doubles the flush's cost.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from collections import defaultdict
+from collections.abc import Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any, Literal, Protocol
+
+import foxglove
+import foxglove.channels
+import foxglove.messages as fg
+import pydantic_core
+from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+from mcap.exceptions import McapError
+from mcap.records import Channel as McapChannel
+from mcap.records import Message, Metadata
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from supervisor.flight.tick_record import TickRecord
+from supervisor.logs.background_sync import BackgroundSync
+from supervisor.logs.flight_messages import (
+    JSON_SCHEMAS,
+    PER_TICK_TOPICS,
+    WELL_KNOWN,
+    SceneStyle,
+    json_messages,
+    record_from_messages,
+    well_known_messages,
+)
+
+FLUSH_INTERVAL_S = 1.0
+# Larger than a second of ticks (about 150 kB), so that only the flush finishes a chunk.
+CHUNK_BYTES = 8 * 1024 * 1024
+HEADER_METADATA = "uavbar.header"
+McapLibrary = Literal["mcap", "foxglove"]
+
+
+class _Sink(Protocol):
+    def write(self, topic: str, log_time_ns: int, message: bytes | Any) -> None: ...
+    def flush(self) -> None: ...
+    def close(self) -> None: ...
+
+
+def _json_schema_bytes(schema: dict[str, Any]) -> bytes:
+    return json.dumps(schema).encode()
+
+
+class _McapPackageSink:
+    """The ``mcap`` package's writer; Foxglove's messages encoded by the SDK."""
+
+    def __init__(self, path: Path, metadata: dict[str, str]) -> None:
+        self._file: IO[bytes] = path.open("wb")
+        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.LZ4)
+        self._writer.start(profile="", library="uavbar-supervisor (mcap)")
+        self._channels: dict[str, int] = {}
+        for topic, (name, schema) in JSON_SCHEMAS.items():
+            schema_id = self._writer.register_schema(name, "jsonschema", _json_schema_bytes(schema))
+            self._channels[topic] = self._writer.register_channel(topic, "json", schema_id)
+        for topic, kind in WELL_KNOWN.items():
+            fox = kind.get_schema()
+            schema_id = self._writer.register_schema(fox.name, fox.encoding, fox.data)
+            self._channels[topic] = self._writer.register_channel(topic, "protobuf", schema_id)
+        self._writer.add_metadata(HEADER_METADATA, metadata)
+        self._writer.flush()  # type: ignore[no-untyped-call]
+
+    def write(self, topic: str, log_time_ns: int, message: bytes | Any) -> None:
+        data = message if isinstance(message, bytes) else message.encode()
+        self._writer.add_message(self._channels[topic], log_time_ns, data, log_time_ns)
+
+    def flush(self) -> None:
+        self._writer.flush()  # type: ignore[no-untyped-call]
+
+    def close(self) -> None:
+        self._writer.finish()  # type: ignore[no-untyped-call]
+        self._file.close()
+
+
+class FoxgloveChannels:
+    """Every channel of the flight log (``JSON_SCHEMAS``, ``WELL_KNOWN``) on a
+    ``foxglove.Context``: what is written to them reaches every sink of the context (an
+    MCAP file, a WebSocket server)."""
+
+    def __init__(self, context: foxglove.Context) -> None:
+        self._channels: dict[str, Any] = {}
+        for topic, (name, schema) in JSON_SCHEMAS.items():
+            self._channels[topic] = foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(
+                    name=name, encoding="jsonschema", data=_json_schema_bytes(schema)
+                ),
+                message_encoding="json",
+                context=context,
+            )
+        for topic, kind in WELL_KNOWN.items():
+            channel_type = getattr(foxglove.channels, f"{kind.__name__}Channel")
+            self._channels[topic] = channel_type(topic, context=context)
+
+    def write(self, topic: str, log_time_ns: int, message: bytes | Any) -> None:
+        self._channels[topic].log(message, log_time=log_time_ns)
+
+    def has_sinks(self) -> bool:
+        """Whether anything (a file, a subscribed WebSocket client) takes any channel."""
+        return any(channel.has_sinks() for channel in self._channels.values())
+
+    def close(self) -> None:
+        for channel in self._channels.values():
+            channel.close()
+
+
+class _FoxgloveSdkSink:
+    """``foxglove-sdk``'s writer, on a context of its own (no other sink sees it)."""
+
+    def __init__(self, path: Path, metadata: dict[str, str]) -> None:
+        self._context = foxglove.Context()
+        options = MCAPWriteOptions(
+            compression=MCAPCompression.Lz4, chunk_size=CHUNK_BYTES, compression_threads=0
+        )
+        self._writer = foxglove.open_mcap(
+            path, allow_overwrite=True, context=self._context, writer_options=options
+        )
+        self._channels = FoxgloveChannels(self._context)
+        self._writer.write_metadata(HEADER_METADATA, metadata)
+        self._writer.flush()
+
+    def write(self, topic: str, log_time_ns: int, message: bytes | Any) -> None:
+        self._channels.write(topic, log_time_ns, message)
+
+    def flush(self) -> None:
+        self._writer.flush()
+
+    def close(self) -> None:
+        self._writer.close()
+
+
+def tick_messages(
+    record: TickRecord, notices: tuple[str, ...], log_time_ns: int, style: SceneStyle | None
+) -> Iterator[tuple[str, bytes | Any]]:
+    """Every message of one tick, by topic: our JSON (encoded) and, with a ``style`` to
+    draw with, Foxglove's (to be encoded by the sink)."""
+    for topic, payload in json_messages(record):
+        yield topic, pydantic_core.to_json(payload, inf_nan_mode="null")
+    for text in notices:
+        notice = {"t_s": record.t_s, "text": text}
+        yield "/uavbar/notices", pydantic_core.to_json(notice, inf_nan_mode="null")
+    if style is not None:
+        stamp = fg.Timestamp(log_time_ns // 1_000_000_000, log_time_ns % 1_000_000_000)
+        yield from well_known_messages(record, stamp, style)
+
+
+def scene_style(header: dict[str, Any]) -> SceneStyle | None:
+    """How to draw the scene, from a header's ``arms_m`` (None without: no scene)."""
+    arms = header.get("arms_m")
+    return SceneStyle((float(arms[0]), float(arms[1]))) if arms else None
+
+
+class McapFlightLogWriter:
+    """Appends tick records to an MCAP file (created or replaced); a context manager.
+
+    ``header`` is kept as the metadata record ``uavbar.header`` (each value JSON); its
+    ``arms_m`` (d_1, d_2), when given, lets ``/scene`` draw the bar and the cables.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        header: dict[str, Any],
+        started: datetime | None = None,
+        library: McapLibrary = "foxglove",
+    ) -> None:
+        started = started or datetime.now(UTC)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        full_header = {"started": started.isoformat(), **header}
+        metadata = {key: json.dumps(value) for key, value in full_header.items()}
+        sink_type = _McapPackageSink if library == "mcap" else _FoxgloveSdkSink
+        self._sink: _Sink = sink_type(path, metadata)
+        self._sync = BackgroundSync(path)
+        self._sync.request()
+        self._start_ns = int(started.timestamp() * 1e9)
+        self._first_t_s: float | None = None
+        self._last_flush_s = 0.0
+        self._style = scene_style(header)
+        self._closed = False
+
+    def append(self, record: TickRecord, notices: tuple[str, ...] = ()) -> None:
+        """Write one tick's messages; finish the chunk when the last is a second old."""
+        if self._first_t_s is None:
+            self._first_t_s = self._last_flush_s = record.t_s
+        log_time_ns = self._start_ns + round((record.t_s - self._first_t_s) * 1e9)
+        for topic, payload in json_messages(record):
+            self._sink.write(
+                topic, log_time_ns, pydantic_core.to_json(payload, inf_nan_mode="null")
+            )
+        for text in notices:
+            notice = pydantic_core.to_json({"t_s": record.t_s, "text": text}, inf_nan_mode="null")
+            self._sink.write("/uavbar/notices", log_time_ns, notice)
+        if self._style is not None:
+            stamp = fg.Timestamp(log_time_ns // 1_000_000_000, log_time_ns % 1_000_000_000)
+            for topic, message in well_known_messages(record, stamp, self._style):
+                self._sink.write(topic, log_time_ns, message)
+        if record.t_s - self._last_flush_s >= FLUSH_INTERVAL_S:
+            self._sink.flush()
+            self._sync.request()
+            self._last_flush_s = record.t_s
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._sink.close()
+            self._sync.close()
+
+    def __enter__(self) -> McapFlightLogWriter:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+
+class RecoveredMcap:
+    """What a (possibly torn) MCAP flight log holds: its header, every tick record in order,
+    the notices (t_s, text), and whether the file ended cleanly with its summary."""
+
+    def __init__(self) -> None:
+        self.header: dict[str, Any] | None = None
+        self.records: list[TickRecord] = []
+        self.notices: list[tuple[float, str]] = []
+        self.complete = False
+
+
+def _decoded_messages(path: Path, recovered: RecoveredMcap) -> Iterator[tuple[str, Any]]:
+    """(topic, decoded JSON) of our own channels in file order; the header into
+    ``recovered``. A torn tail (a killed writer) ends the iteration: everything before the
+    chunk it tore comes through."""
+    topics: dict[int, str] = {}
+    with path.open("rb") as handle:
+        records = StreamReader(handle, validate_crcs=True).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                recovered.complete = True
+                return
+            except (McapError, struct.error, ValueError, EOFError):
+                return
+            if isinstance(record, McapChannel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Metadata) and record.name == HEADER_METADATA:
+                recovered.header = {key: json.loads(v) for key, v in record.metadata.items()}
+            elif isinstance(record, Message):
+                topic = topics.get(record.channel_id, "")
+                if topic in JSON_SCHEMAS:
+                    yield topic, json.loads(record.data)
+
+
+def read_mcap_records(path: Path) -> RecoveredMcap:
+    """Read back every complete tick of an MCAP flight log. Raises ``ValueError`` for a
+    file that is not one (no MCAP magic, or no ``uavbar.header``)."""
+    with path.open("rb") as handle:
+        if handle.read(8) != b"\x89MCAP0\r\n":
+            raise ValueError(f"{path}: not an MCAP file")
+    recovered = RecoveredMcap()
+    pending: dict[str, list[Any]] = defaultdict(list)
+    for topic, message in _decoded_messages(path, recovered):
+        if topic == "/uavbar/notices":
+            recovered.notices.append((float(message["t_s"]), str(message["text"])))
+            continue
+        pending[topic].append(message)
+        if all(pending[t] for t in PER_TICK_TOPICS):
+            tick = {t: pending[t].pop(0) for t in PER_TICK_TOPICS}
+            recovered.records.append(record_from_messages(tick))
+    if recovered.header is None:
+        raise ValueError(f"{path}: no {HEADER_METADATA} metadata: not a flight log")
+    return recovered
