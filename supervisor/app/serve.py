@@ -145,6 +145,12 @@ def _bind_http(config: Config) -> socket.socket:
         ) from None
 
 
+def _certificate_path(config: Config) -> str | None:
+    """The API's certificate as an absolute path, for the terminal client to trust."""
+    cert_file = config.api.tls_cert_file
+    return os.path.abspath(cert_file) if cert_file else None
+
+
 def _dashboard_address(host: str, port: int, token: str) -> str:
     """The address to open: the dashboard reads its token from the fragment, which the
     browser never sends to the server."""
@@ -397,11 +403,7 @@ async def serve(setup: Setup) -> int:
                 "url": url,
                 "pid": os.getpid(),
                 "operator_socket": str(service.rendezvous.flight),
-                "cert_file": (
-                    str(Path(config.api.tls_cert_file).resolve())
-                    if config.api.tls_cert_file
-                    else None
-                ),
+                "cert_file": _certificate_path(config),
             },
         )
         log.info(
