@@ -35,6 +35,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
+from supervisor.app.config import listens_beyond_loopback
+
 Scope = MutableMapping[str, Any]
 Message = MutableMapping[str, Any]
 Receive = Callable[[], Awaitable[Message]]
@@ -93,16 +95,6 @@ class HttpPolicy:
         return scheme.lower() == "bearer" and secrets.compare_digest(
             presented.encode(), self.token.encode()
         )
-
-
-def listens_beyond_loopback(host: str) -> bool:
-    """``host`` (the API's bind address) is reachable from other machines."""
-    if host.lower() == "localhost":
-        return False
-    try:
-        return not ipaddress.ip_address(host.strip("[]")).is_loopback
-    except ValueError:
-        return True  # a host name: whatever it resolves to, assume the network
 
 
 def http_policy(

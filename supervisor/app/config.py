@@ -57,6 +57,16 @@ def host_port(address: str) -> tuple[str, int]:
     return host, int(port)
 
 
+def listens_beyond_loopback(host: str) -> bool:
+    """``host`` (a bind address) is reachable from other machines."""
+    if host.lower() == "localhost":
+        return False
+    try:
+        return not ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return True  # a host name: whatever it resolves to, assume the network
+
+
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -450,6 +460,16 @@ class FoxgloveSection(_Section):
     enabled: bool = True
     port: Annotated[int, Field(ge=0, le=65535)] = 8765
     """0: a free port, logged at start."""
+    host: str | None = None
+    """The interface to listen on. None: the API's host while that is loopback, else
+    loopback all the same — the protocol has no token, so anyone who reaches the port reads
+    the arena; name an interface here to open it to a network on purpose."""
+
+    def bind_host(self, api_host: str) -> str:
+        """Where the view listens, given the API's host."""
+        if self.host is not None:
+            return self.host
+        return "127.0.0.1" if listens_beyond_loopback(api_host) else api_host
 
 
 class Config(_Section):

@@ -115,11 +115,11 @@ async def fly(
 
 
 def _live_view(config: Config) -> FoxgloveLiveView | None:
-    """The Foxglove WebSocket view on the API's host, unless off or its port is taken (a
-    view is never worth a flight: the flight process goes on without it)."""
+    """The Foxglove WebSocket view (``FoxgloveSection.bind_host``), unless off or its port
+    is taken (a view is never worth a flight: the flight process goes on without it)."""
     if not config.foxglove.enabled:
         return None
-    host, port = config.api.host, config.foxglove.port
+    host, port = config.foxglove.bind_host(config.api.host), config.foxglove.port
     try:
         view = FoxgloveLiveView(host, port, config.system.to_params().arms_m)
     except RuntimeError as error:

@@ -12,8 +12,9 @@ import time
 import pytest
 import websockets
 
-from api.guard import HttpPolicy, LoadMeter, http_policy, listens_beyond_loopback
+from api.guard import HttpPolicy, LoadMeter, http_policy
 from api.server import TlsFiles
+from supervisor.app.config import listens_beyond_loopback
 from supervisor.flight.modes import Mode
 from supervisor.flight.operator_requests import MAX_SETPOINTS_PER_REQUEST
 from supervisor.flight.setpoints import SetpointQueue

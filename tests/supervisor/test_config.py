@@ -139,3 +139,14 @@ def test_cli_equilibria_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert len(result["thrust"]) == 2 and len(result["tension"]) == 2
     (x1, y1, z1), (x2, y2, z2) = result["uav_positions"]
     assert x1 < 0 < x2 and y1 == y2 == 0 and z1 == pytest.approx(z2)
+
+
+def test_the_foxglove_view_stays_on_loopback_unless_an_interface_is_named() -> None:
+    """The Foxglove protocol has no token: an API open to the lab network does not open
+    the live view to it as well."""
+    section = load_config(CONFIGS / "sim.toml").foxglove
+    assert section.bind_host("127.0.0.1") == "127.0.0.1"
+    assert section.bind_host("0.0.0.0") == "127.0.0.1"
+    assert section.bind_host("192.168.1.4") == "127.0.0.1"
+    named = load_config(CONFIGS / "sim.toml", ['foxglove.host="192.168.1.4"']).foxglove
+    assert named.bind_host("0.0.0.0") == "192.168.1.4"
