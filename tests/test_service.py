@@ -38,7 +38,8 @@ def reached(setpoint: dict[str, Any]) -> Callable[[dict[str, Any]], bool]:
 
 
 def flight_logs(folder: Path) -> list[Path]:
-    return sorted(folder.glob("flight-*.jsonl"))
+    """The flight logs serve wrote (MCAP by default)."""
+    return sorted(folder.glob("flight-*.mcap"))
 
 
 async def ready(service: RunningService, http: httpx.AsyncClient) -> None:

@@ -448,7 +448,7 @@ class LogSection(_Section):
     """Flight logs: one file per flight, named by its start time."""
 
     folder: str = "flight-logs"
-    format: Literal["jsonl", "mcap"] = "jsonl"
+    format: Literal["jsonl", "mcap"] = "mcap"
     """``jsonl`` (JSON Lines, one line per tick) or ``mcap`` (Foxglove's and our own
     channels: docs/flight-logs.md)."""
 
