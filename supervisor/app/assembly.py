@@ -26,7 +26,7 @@ from sim.plant_params import (
 )
 from sim.px4 import Px4Params
 from supervisor.app.config import Config, host_port
-from supervisor.flight.core import CONTROLLERS, FlightCore
+from supervisor.flight.core import CONTROLLERS, CoreSettings, FlightCore
 from supervisor.flight.estimation import BodyNames
 from supervisor.flight.safety import SafetyLimits
 from supervisor.flight.setpoints import Arena
@@ -41,9 +41,15 @@ def arena_from_config(config: Config) -> Arena:
 def safety_limits_from_config(config: Config) -> SafetyLimits:
     """The monitors' thresholds for this setup (the ones it does not set at their defaults)."""
     return SafetyLimits(
+        max_tilt_rad=math.radians(config.safety.max_tilt_deg),
         max_bar_yaw_error_rad=math.radians(config.safety.max_bar_yaw_error_deg),
         max_refused_poses=config.safety.max_refused_poses,
     )
+
+
+def core_settings_from_config(config: Config) -> CoreSettings:
+    """The tick core's flight-phase settings of this setup (``control``)."""
+    return CoreSettings(feasibility=config.control.feasibility())
 
 
 def flight_core_from_config(
@@ -55,6 +61,7 @@ def flight_core_from_config(
         {name: config.mpc.settings(name) for name in CONTROLLERS},
         arena_from_config(config),
         controller,
+        settings=core_settings_from_config(config),
         safety=safety_limits_from_config(config),
         clock=clock,
     )

@@ -38,6 +38,7 @@ from controllers.params import (
 )
 from controllers.qp.registry import BACKEND_NAMES
 from supervisor.app.config_files import CONFIG_DIR, TOKEN_ENV, ConfigError, read_setup
+from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -425,6 +426,9 @@ class ApiSection(_Section):
 class SafetySection(_Section):
     """Thresholds of the safety monitors that a setup may want to tune (docs/safety.md)."""
 
+    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=90.0)] = 45.0
+    """A UAV tilted further than this in flight: abort. Setpoints whose equilibrium tilts
+    a UAV beyond it, less ``control.tilt_margin_deg``, are refused."""
     max_bar_yaw_error_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 20.0
     """The bar's yaw this far from its reference while hovering or tracking under the
     decentralized MPC: the centralized MPC takes over. 0 turns the hand-over off."""
@@ -432,6 +436,26 @@ class SafetySection(_Section):
     """A body's poses refused this many times in a row in flight (the mocap's innovation
     gate, or a frozen stream): blind, each PX4 lands on its own. 10 = 0.1 s at 100 Hz, the
     coast limit."""
+
+
+class ControlSection(_Section):
+    """How the supervisor flies: which setpoints it takes (``supervisor.flight.feasibility``)."""
+
+    max_theta_l_deg: Annotated[float, Field(ge=0.0, lt=90.0)] = 75.0
+    """The largest cable angle θ_l a setpoint may ask for."""
+    thrust_margin: Annotated[float, Field(ge=0.0, lt=0.5)] = 0.10
+    """A setpoint's equilibrium thrust must stay this fraction of ``mpc.thrust_max_n``
+    inside the range ``mpc.thrust_min_n``..``mpc.thrust_max_n``, at both ends."""
+    tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=90.0)] = 10.0
+    """A setpoint's equilibrium tilt must stay this far below ``safety.max_tilt_deg``."""
+
+    def feasibility(self) -> FeasibilitySettings:
+        """The plain settings of the setpoint check."""
+        return FeasibilitySettings(
+            max_theta_l_rad=math.radians(self.max_theta_l_deg),
+            thrust_margin=self.thrust_margin,
+            tilt_margin_rad=math.radians(self.tilt_margin_deg),
+        )
 
 
 class LogSection(_Section):
@@ -452,6 +476,7 @@ class Config(_Section):
     api: ApiSection = ApiSection()
     log: LogSection = LogSection()
     safety: SafetySection = SafetySection()
+    control: ControlSection = ControlSection()
     sim: SimSection = SimSection()
 
     @model_validator(mode="after")
@@ -459,11 +484,26 @@ class Config(_Section):
         v = self.vehicles
         if self.sim.embedded and v.bind_host and not ipaddress.ip_address(v.bind_host).is_loopback:
             raise ValueError("vehicles.bind_host: the embedded world is on loopback (127.0.0.1)")
+        if self.control.tilt_margin_deg >= self.safety.max_tilt_deg:
+            raise ValueError(
+                "control.tilt_margin_deg must be below safety.max_tilt_deg (no setpoint would"
+                " be flyable)"
+            )
         if self.sim.embedded and self.sim.vehicles == "px4_sitl" and v.signing:
             raise ValueError(
                 "vehicles.signing: PX4 v1.15.4 SITL cannot sign (MAVLink signing came with v1.17)"
             )
         return self
+
+    def setpoint_bounds(self) -> SetpointBounds:
+        """What a setpoint's equilibrium must respect in this setup: the MPC's thrust range,
+        the abort tilt and the ``control`` section's margins and θ_l maximum."""
+        return SetpointBounds(
+            self.mpc.thrust_min_n,
+            self.mpc.thrust_max_n,
+            math.radians(self.safety.max_tilt_deg),
+            self.control.feasibility(),
+        )
 
     def link_bind_host(self) -> str:
         """The address the vehicle links bind (loopback for the embedded world); raises

@@ -6,7 +6,10 @@ a bar setpoint (``bar_position`` [m], ``bar_yaw_deg``, ``uav_yaw_deg`` [ψ1, ψ2
 the bar yaw), ``theta_l_deg``, ``hold_s``, and ``timeout_s``, after which the queue moves
 on even if the setpoint was not reached) or an operator action (``action = "takeoff"`` —
 arm and take off, done when hovering; ``"hover"`` — wait ``hold_s``; ``"land"`` — done
-when landed and disarmed; ``"abort"`` — done when landed and disarmed).
+when landed and disarmed; ``"abort"`` — done when landed and disarmed). Before a scenario
+flies, ``check_setpoints`` refuses it when a setpoint step cannot be flown in the setup
+(the arena, and the feasibility bounds of ``supervisor.flight.feasibility``), naming the
+step and the bound.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from supervisor.app.config import (
+    Config,
     ConfigError,
     FiniteFloat,
     NonNegativeFloat,
@@ -26,7 +30,7 @@ from supervisor.app.config import (
     Vec3,
 )
 from supervisor.app.config_files import SCENARIO_DIR, shipped_scenarios
-from supervisor.flight.setpoints import Setpoint
+from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 
 
 class _Strict(BaseModel):
@@ -116,6 +120,24 @@ def load_scenario(name: str) -> Scenario:
             for item in error.errors()
         ]
         raise ConfigError(f"invalid scenario {path.name}:\n  " + "\n  ".join(problems)) from None
+
+
+def check_setpoints(scenario: Scenario, config: Config) -> None:
+    """Raise ``ConfigError`` naming the first setpoint step that ``config`` cannot fly
+    (outside its arena, or an equilibrium beyond its bounds), before anything flies."""
+    params = config.system.to_params()
+    arena = Arena.between(config.arena.min_m, config.arena.max_m)
+    bounds = config.setpoint_bounds()
+    for number, step in enumerate(scenario.step, start=1):
+        if step.action is not None:
+            continue
+        try:
+            validate_setpoint(step.setpoint(), params, arena, bounds)
+        except SetpointError as error:
+            raise ConfigError(
+                f"scenario {scenario.name}, step {number}: cannot be flown in setup "
+                f"{config.name}: {error}"
+            ) from None
 
 
 def scenario_duration_s(scenario: Scenario, transit_s: float = 6.0) -> float:

@@ -70,7 +70,12 @@ async def sim_api() -> AsyncIterator[SimApi]:
     commands, urgent = [await Channel.open(a) for a, _ in pairs]
     flight = FlightClient(commands, urgent)
     app = create_app(
-        flight, config.system.to_params(), arena_from_config(config), HttpPolicy(TOKEN), client
+        flight,
+        config.system.to_params(),
+        arena_from_config(config),
+        config.setpoint_bounds(),
+        HttpPolicy(TOKEN),
+        client,
     )
     server = HttpServer(app, bind("127.0.0.1", 0))
     async with asyncio.TaskGroup() as group:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -72,6 +73,11 @@ def test_overrides_are_toml_literals() -> None:
         ("sim.uav_mass_scale=[1.0]", "sim.uav_mass_scale", "at least 2"),
         ("mocap.bodies=['bar', 'bar', 'uav2']", "mocap", "distinct"),
         ("mocap.port=70000", "mocap.port", "less than or equal"),
+        ("control.max_theta_l_deg=90", "control.max_theta_l_deg", "less than 90"),
+        ("control.thrust_margin=0.5", "control.thrust_margin", "less than 0.5"),
+        ("control.max_thetal_deg=80", "control.max_thetal_deg", "unknown key"),
+        ("control.tilt_margin_deg=50", "(top level)", "below safety.max_tilt_deg"),
+        ("safety.max_tilt_deg=0", "safety.max_tilt_deg", "greater than 0"),
     ],
 )
 def test_bad_values_name_their_key(override: str, key: str, reason: str) -> None:
@@ -139,3 +145,19 @@ def test_cli_equilibria_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert len(result["thrust"]) == 2 and len(result["tension"]) == 2
     (x1, y1, z1), (x2, y2, z2) = result["uav_positions"]
     assert x1 < 0 < x2 and y1 == y2 == 0 and z1 == pytest.approx(z2)
+
+
+def test_the_tick_core_checks_setpoints_against_the_setup_s_bounds() -> None:
+    """The API checks with ``Config.setpoint_bounds``, the tick core with what it was built
+    from: the same bounds, set keys included."""
+    from supervisor.app.assembly import flight_core_from_config
+
+    overrides = ["control.max_theta_l_deg=60", "safety.max_tilt_deg=40", "mpc.thrust_max_n=24"]
+    config = load_config(KTH, overrides)
+    core = flight_core_from_config(config, clock=lambda: 0.0)
+    assert core.setpoint_bounds == config.setpoint_bounds()
+    assert core.safety.limits.max_tilt_rad == pytest.approx(math.radians(40.0))
+    bounds = config.setpoint_bounds()
+    assert bounds.settings.max_theta_l_rad == pytest.approx(math.radians(60.0))
+    assert bounds.thrust_band_n == pytest.approx((0.5 + 2.4, 24.0 - 2.4))
+    assert bounds.tilt_allowed_rad == pytest.approx(math.radians(30.0))

@@ -7,9 +7,12 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.config import ConfigError
+from supervisor.app.config import ConfigError, load_config
+from supervisor.app.config_files import CONFIG_DIR as CONFIGS
 from supervisor.app.config_files import shipped_scenarios
-from supervisor.simulate.scenarios import load_scenario
+from supervisor.cli.main import main
+from supervisor.simulate.closed_loop import run_scenario
+from supervisor.simulate.scenarios import check_setpoints, load_scenario
 
 
 def test_shipped_scenarios_load() -> None:
@@ -47,3 +50,36 @@ def test_bad_scenarios_are_refused_naming_the_problem(
     path.write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_scenario(str(path))
+
+
+def test_the_shipped_scenarios_fit_the_shipped_setups() -> None:
+    for setup in ("sim", "kth_sml"):
+        config = load_config(CONFIGS / f"{setup}.toml")
+        for name in shipped_scenarios():
+            check_setpoints(load_scenario(name), config)
+
+
+STEEP = 'name = "steep"\nstart = "hover"\n[[step]]\nbar_position = [0, 0, 1.5]\ntheta_l_deg = 86\n'
+
+
+def test_a_scenario_with_a_setpoint_no_vehicle_can_hold_is_refused_before_it_flies(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "steep.toml"
+    path.write_text(STEEP)
+    config = load_config(CONFIGS / "sim.toml")
+    refusal = r"step 1: .*θ_l 86\.0° exceeds the maximum 75\.0° by 11\.0°"
+    with pytest.raises(ConfigError, match=refusal):
+        run_scenario(config, load_scenario(str(path)))
+
+
+def test_simulate_refuses_a_scenario_beyond_the_setup_s_thrust_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The paper's sequence on vehicles whose thrust limit leaves no room to hover: exit 2,
+    the step and the bound named, nothing flown."""
+    status = main(["simulate", "--scenario", "paper", "--set", "mpc.thrust_max_n=14"])
+    assert status == 2
+    err = capsys.readouterr().err
+    assert "scenario paper, step 1" in err
+    assert "equilibrium thrust 13.3 N is above the 14.0 N limit less its 10 % margin" in err
