@@ -42,7 +42,7 @@ from supervisor.flight.modes import Event, Mode
 from supervisor.flight.setpoints import SetpointError
 from supervisor.logs.flight_log import FlightLogWriter
 from supervisor.runtime.tick_driver import TickDriver
-from supervisor.simulate.scenarios import Scenario, Step, check_setpoints
+from supervisor.simulate.scenarios import Scenario, Step, check_setpoints, scenario_config
 
 TICK_S = 0.02
 STEP_TIMEOUT_S = 60.0
@@ -241,7 +241,9 @@ def run_scenario(
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
     """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second.
-    Raises ``ConfigError`` before anything flies when a setpoint step cannot be flown."""
+    The scenario's ``[control]`` keys apply over the setup's. Raises ``ConfigError`` before
+    anything flies when they do not validate or a setpoint step cannot be flown."""
+    config = scenario_config(config, scenario)
     check_setpoints(scenario, config)
     loop = ClosedLoop(config, controller, seed)
     loop.place(scenario)

@@ -6,7 +6,9 @@ a bar setpoint (``bar_position`` [m], ``bar_yaw_deg``, ``uav_yaw_deg`` [ψ1, ψ2
 the bar yaw), ``theta_l_deg``, ``hold_s``, and ``timeout_s``, after which the queue moves
 on even if the setpoint was not reached) or an operator action (``action = "takeoff"`` —
 arm and take off, done when hovering; ``"hover"`` — wait ``hold_s``; ``"land"`` — done
-when landed and disarmed; ``"abort"`` — done when landed and disarmed). Before a scenario
+when landed and disarmed; ``"abort"`` — done when landed and disarmed). A ``[control]``
+table sets keys of the setup's ``control`` section for this scenario alone (the reference's
+rates, take-off height, ..., key by key over the setup's; ``scenario_config``). Before a scenario
 flies, ``check_setpoints`` refuses it when a setpoint step cannot be flown in the setup
 (the arena, and the feasibility bounds of ``supervisor.flight.feasibility``), naming the
 step and the bound.
@@ -17,13 +19,14 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from supervisor.app.config import (
     Config,
     ConfigError,
+    ControlSection,
     FiniteFloat,
     NonNegativeFloat,
     PositiveFloat,
@@ -82,6 +85,8 @@ class Scenario(_Strict):
     start: Literal["hover", "ground"]
     start_bar_position: Vec3 = [0.0, 0.0, 1.0]
     start_bar_yaw_deg: FiniteFloat = 0.0
+    control: ControlSection | None = None
+    """Keys of the setup's ``control`` section set for this scenario (the others stay)."""
     step: Annotated[list[Step], Field(min_length=1)]
 
     @model_validator(mode="after")
@@ -120,6 +125,30 @@ def load_scenario(name: str) -> Scenario:
             for item in error.errors()
         ]
         raise ConfigError(f"invalid scenario {path.name}:\n  " + "\n  ".join(problems)) from None
+
+
+def _merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in over.items():
+        below = merged.get(key)
+        both_tables = isinstance(value, dict) and isinstance(below, dict)
+        merged[key] = _merged(below, value) if both_tables else value  # type: ignore[arg-type]
+    return merged
+
+
+def scenario_config(config: Config, scenario: Scenario) -> Config:
+    """``config`` with the scenario's ``[control]`` keys set over its own, validated as a
+    whole again (raises ``ConfigError`` naming the key)."""
+    if scenario.control is None:
+        return config
+    control = _merged(config.control.model_dump(), scenario.control.model_dump(exclude_unset=True))
+    try:
+        return Config.model_validate({**config.model_dump(), "control": control})
+    except ValidationError as error:
+        problems = [f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in error.errors()]
+        raise ConfigError(
+            f"scenario {scenario.name} in setup {config.name}:\n  " + "\n  ".join(problems)
+        ) from None
 
 
 def check_setpoints(scenario: Scenario, config: Config) -> None:

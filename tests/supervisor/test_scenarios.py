@@ -12,7 +12,7 @@ from supervisor.app.config_files import CONFIG_DIR as CONFIGS
 from supervisor.app.config_files import shipped_scenarios
 from supervisor.cli.main import main
 from supervisor.simulate.closed_loop import run_scenario
-from supervisor.simulate.scenarios import check_setpoints, load_scenario
+from supervisor.simulate.scenarios import check_setpoints, load_scenario, scenario_config
 
 
 def test_shipped_scenarios_load() -> None:
@@ -83,3 +83,31 @@ def test_simulate_refuses_a_scenario_beyond_the_setup_s_thrust_naming_it(
     err = capsys.readouterr().err
     assert "scenario paper, step 1" in err
     assert "equilibrium thrust 13.3 N is above the 14.0 N limit less its 10 % margin" in err
+
+
+def test_a_scenario_s_control_table_is_set_over_the_setup_s(tmp_path: Path) -> None:
+    path = tmp_path / "slow.toml"
+    path.write_text(
+        'name = "slow"\nstart = "hover"\n[control.flight_rates]\nposition_mps = 0.1\n'
+        "[[step]]\nbar_position = [0.2, 0, 1]\n"
+    )
+    config = load_config(CONFIGS / "sim.toml", ["control.flight_rates.yaw_deg_s=15"])
+    flown = scenario_config(config, load_scenario(str(path)))
+    assert flown.control.flight_rates.position_mps == 0.1  # the scenario's
+    assert flown.control.flight_rates.yaw_deg_s == 15.0  # the setup's, kept
+    assert flown.control.takeoff_rates == config.control.takeoff_rates
+    assert flown.mpc == config.mpc and flown.system == config.system
+
+
+def test_a_scenario_s_control_keys_are_validated(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(
+        'name = "x"\nstart = "hover"\n[control]\nrate_lookahed = 2\n[[step]]\naction = "land"\n'
+    )
+    with pytest.raises(ConfigError, match=r"control\.rate_lookahed: Extra inputs"):
+        load_scenario(str(path))
+    path.write_text(
+        'name = "x"\nstart = "hover"\n[control]\ntilt_margin_deg = 50\n[[step]]\naction = "land"\n'
+    )
+    with pytest.raises(ConfigError, match=r"below safety\.max_tilt_deg"):
+        scenario_config(load_config(CONFIGS / "sim.toml"), load_scenario(str(path)))
