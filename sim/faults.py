@@ -1,6 +1,7 @@
 """Faults injected into the simulated world at run time (docs/faults.md): the kinds, their
 validation, when each ends on the world's clock, and what each does to a mocap frame or a
-datagram. Pure: no I/O, no clock; time is an argument, randomness one seeded generator.
+datagram, and which external loads it puts on the plant's bodies (``loads``: the ``push``
+kind). Pure: no I/O, no clock; time is an argument, randomness one seeded generator.
 
 The world (``sim.world.SimulatedWorld``) holds one ``FaultSet`` and asks it, for every
 frame it publishes, which poses the frame carries (``frame``), and, for every datagram,
@@ -21,12 +22,13 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import MISSING, dataclass, fields, replace
 from typing import Any, ClassVar, Final, TypeVar
 
 import numpy as np
 
 from mocap.qtm_protocol import BodyPose
+from sim.loads import ExternalLoad
 
 REBOOT_S: Final = 3.0
 """How long a simulated PX4 stays silent when it reboots, unless the fault says otherwise:
@@ -181,7 +183,37 @@ class UdpLoss:
         _check_duration(self.duration_s)
 
 
-Fault = MocapSilent | MocapBodyLost | MocapFreeze | MocapJump | LinkLost | Px4Reboot | UdpLoss
+def _check_vector(name: str, value: object, unit: str) -> None:
+    if not (
+        isinstance(value, tuple)
+        and len(value) == 3
+        and all(_number(v) and math.isfinite(v) for v in value)
+    ):
+        raise FaultError(name, f"three finite numbers [x, y, z] ({unit}), got {value!r}")
+
+
+@dataclass(frozen=True)
+class Push:
+    """A force ``force_n`` [N] at ``body``'s centre of mass and a torque ``torque_nm``
+    [N m], both in the arena frame, act on the plant (a hand, a tether, a steady gust);
+    the measurement and the vehicles are untouched."""
+
+    kind: ClassVar[str] = "push"
+    body: str
+    force_n: tuple[float, float, float]
+    torque_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    duration_s: float | None = None
+
+    def __post_init__(self) -> None:
+        _check_body(self.body)
+        _check_vector("force_n", self.force_n, "newtons")
+        _check_vector("torque_nm", self.torque_nm, "newton metres")
+        _check_duration(self.duration_s)
+
+
+Fault = (
+    MocapSilent | MocapBodyLost | MocapFreeze | MocapJump | LinkLost | Px4Reboot | UdpLoss | Push
+)
 FAULT_TYPES: Final[tuple[type[Fault], ...]] = (
     MocapSilent,
     MocapBodyLost,
@@ -190,6 +222,7 @@ FAULT_TYPES: Final[tuple[type[Fault], ...]] = (
     LinkLost,
     Px4Reboot,
     UdpLoss,
+    Push,
 )
 F = TypeVar("F", bound=Fault)
 KINDS: Final[Mapping[str, type[Fault]]] = {t.kind: t for t in FAULT_TYPES}
@@ -225,11 +258,13 @@ def parse_fault(request: Mapping[str, object], body_names: Sequence[str]) -> Fau
     for name in given:
         if name not in allowed:
             raise FaultError(name, f"not a field of {kind.kind} (its fields: {sorted(allowed)})")
-    for name in parameter_names(kind):
-        if name not in given:
-            raise FaultError(name, f"required for {kind.kind}")
-    if isinstance(given.get("offset_m"), list):
-        given["offset_m"] = tuple(given["offset_m"])  # type: ignore[arg-type]
+    for field in fields(kind):
+        required = field.default is MISSING and field.default_factory is MISSING
+        if required and field.name not in given:
+            raise FaultError(field.name, f"required for {kind.kind}")
+    for name in ("offset_m", "force_n", "torque_nm"):
+        if isinstance(given.get(name), list):
+            given[name] = tuple(given[name])  # type: ignore[arg-type]
     try:
         fault: Fault = kind(**given)  # type: ignore[arg-type]
     except TypeError as error:  # not reachable with the checks above; a clear error anyway
@@ -374,6 +409,21 @@ class FaultSet:
             if isinstance(fault.fault, LinkLost | Px4Reboot) and fault.fault.vehicle == vehicle:
                 return False
         return not self._lost_at_random()
+
+    def loads(self, plant_body: Mapping[str, str]) -> list[ExternalLoad]:
+        """The external loads the pushes in effect put on the plant (``plant_body``: the
+        plant's body of each rigid body QTM streams), each over its own time."""
+        return [
+            ExternalLoad(
+                plant_body[a.fault.body],
+                a.fault.force_n,
+                a.fault.torque_nm,
+                a.started_s,
+                a.fault.duration_s,
+            )
+            for a in self._active
+            if isinstance(a.fault, Push)
+        ]
 
     def powered(self, vehicle: int) -> bool:
         """Whether simulated PX4 ``vehicle`` is up (not rebooting)."""

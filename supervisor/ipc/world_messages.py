@@ -93,6 +93,16 @@ class UdpLossFault(_Fault):
     fraction: Annotated[float, Field(ge=0.0, le=1.0, strict=True)]
 
 
+class PushFault(_Fault):
+    """A force ``force_n`` [N] at ``body``'s centre of mass and a torque ``torque_nm``
+    [N m] (arena frame) act on the plant."""
+
+    kind: Literal["push"]
+    body: Body
+    force_n: tuple[Coordinate, Coordinate, Coordinate]
+    torque_nm: tuple[Coordinate, Coordinate, Coordinate] = (0.0, 0.0, 0.0)
+
+
 FaultSpec = Annotated[
     MocapSilentFault
     | MocapBodyLostFault
@@ -100,7 +110,8 @@ FaultSpec = Annotated[
     | MocapJumpFault
     | LinkLostFault
     | Px4RebootFault
-    | UdpLossFault,
+    | UdpLossFault
+    | PushFault,
     Field(discriminator="kind"),
 ]
 """A fault to inject, as the REST body and the channel carry it."""

@@ -247,6 +247,8 @@ def run_scenario(
     check_setpoints(scenario, config)
     loop = ClosedLoop(config, controller, seed)
     loop.place(scenario)
+    for load in scenario.load:
+        loop.plant.add_load(load.external_load())
     script = ScenarioScript(scenario)
     truth = TruthStats(loop.resting_heights()[0])
     header = {"setup": config.name, "scenario": scenario.name, "controller": controller}

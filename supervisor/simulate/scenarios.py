@@ -8,7 +8,11 @@ on even if the setpoint was not reached) or an operator action (``action = "take
 arm and take off, done when hovering; ``"hover"`` — wait ``hold_s``; ``"land"`` — done
 when landed and disarmed; ``"abort"`` — done when landed and disarmed). A ``[control]``
 table sets keys of the setup's ``control`` section for this scenario alone (the reference's
-rates, take-off height, ..., key by key over the setup's; ``scenario_config``). Before a scenario
+rates, take-off height, ..., key by key over the setup's; ``scenario_config``). Each
+``[[load]]`` acts on a body of the plant (``body`` "bar", "uav1" or "uav2"; ``force_n`` and
+``torque_nm`` [x, y, z] in the arena frame; ``start_s`` after the scenario starts, on the
+plant's clock; ``duration_s``, none: to the end; ``profile`` "steady" or "gust",
+``sim/loads.py``): a push or a gust. Before a scenario
 flies, ``check_setpoints`` refuses it when a setpoint step cannot be flown in the setup
 (the arena, and the feasibility bounds of ``supervisor.flight.feasibility``), naming the
 step and the bound.
@@ -23,6 +27,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from sim.loads import ExternalLoad
 from supervisor.app.config import (
     Config,
     ConfigError,
@@ -78,6 +83,35 @@ class Step(_Strict):
         )
 
 
+class Load(_Strict):
+    """An external force and torque on one body of the plant (``sim.loads.ExternalLoad``)."""
+
+    body: Literal["bar", "uav1", "uav2"]
+    force_n: Vec3
+    torque_nm: Vec3 = [0.0, 0.0, 0.0]
+    start_s: NonNegativeFloat = 0.0
+    duration_s: PositiveFloat | None = None
+    profile: Literal["steady", "gust"] = "steady"
+
+    @model_validator(mode="after")
+    def _gust_ends(self) -> Load:
+        if self.profile == "gust" and self.duration_s is None:
+            raise ValueError("a gust needs a duration_s")
+        return self
+
+    def external_load(self) -> ExternalLoad:
+        """This load for the plant."""
+        f, t = self.force_n, self.torque_nm
+        return ExternalLoad(
+            self.body,
+            (f[0], f[1], f[2]),
+            (t[0], t[1], t[2]),
+            self.start_s,
+            self.duration_s,
+            self.profile,
+        )
+
+
 class Scenario(_Strict):
     """A scripted flight."""
 
@@ -87,6 +121,8 @@ class Scenario(_Strict):
     start_bar_yaw_deg: FiniteFloat = 0.0
     control: ControlSection | None = None
     """Keys of the setup's ``control`` section set for this scenario (the others stay)."""
+    load: list[Load] = []
+    """External loads on the plant's bodies (pushes, gusts)."""
     step: Annotated[list[Step], Field(min_length=1)]
 
     @model_validator(mode="after")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from sim.loads import ExternalLoad
 from supervisor.app.config import ConfigError, load_config
 from supervisor.app.config_files import CONFIG_DIR as CONFIGS
 from supervisor.app.config_files import shipped_scenarios
@@ -111,3 +112,35 @@ def test_a_scenario_s_control_keys_are_validated(tmp_path: Path) -> None:
     )
     with pytest.raises(ConfigError, match=r"below safety\.max_tilt_deg"):
         scenario_config(load_config(CONFIGS / "sim.toml"), load_scenario(str(path)))
+
+
+def test_a_scenario_s_loads_are_external_loads_on_the_plant(tmp_path: Path) -> None:
+    path = tmp_path / "gusty.toml"
+    path.write_text(
+        'name = "gusty"\nstart = "hover"\n'
+        '[[load]]\nbody = "bar"\nforce_n = [1, 0, 0]\nstart_s = 2\n'
+        '[[load]]\nbody = "uav2"\nforce_n = [0, 3, 0]\ntorque_nm = [0, 0, 0.1]\nstart_s = 1\n'
+        'duration_s = 0.5\nprofile = "gust"\n'
+        '[[step]]\naction = "hover"\nhold_s = 3\n'
+    )
+    loads = [load.external_load() for load in load_scenario(str(path)).load]
+    assert loads == [
+        ExternalLoad("bar", (1.0, 0.0, 0.0), (0.0, 0.0, 0.0), 2.0, None, "steady"),
+        ExternalLoad("uav2", (0.0, 3.0, 0.0), (0.0, 0.0, 0.1), 1.0, 0.5, "gust"),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("load", "message"),
+    [
+        ('body = "uav3"\nforce_n = [1, 0, 0]', "load.0.body"),
+        ('body = "bar"\nforce_n = [1, 0]', "load.0.force_n"),
+        ('body = "bar"\nforce_n = [1, 0, 0]\nprofile = "gust"', "a gust needs a duration_s"),
+        ('body = "bar"\nforce_n = [1, 0, 0]\nduration_s = 0', "load.0.duration_s"),
+    ],
+)
+def test_bad_loads_are_refused_naming_the_key(tmp_path: Path, load: str, message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(f'name = "x"\nstart = "hover"\n[[load]]\n{load}\n[[step]]\naction = "land"\n')
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(str(path))

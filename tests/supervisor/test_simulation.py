@@ -112,6 +112,24 @@ def test_a_scenario_s_reference_rates_are_flown(sim_config: Config, tmp_path: Pa
     assert np.linalg.norm(log.state[-1, 0:3] - [0.2, 0.0, 1.1]) < 0.05
 
 
+def test_a_scenario_s_steady_push_moves_the_formation(sim_config: Config, tmp_path: Path) -> None:
+    """A 1 N push along x on the bar from 0.5 s: the hovering formation gives way along x
+    (the MPC has no integral action), and not without it."""
+    text = 'name = "push"\nstart = "hover"\n[[step]]\naction = "hover"\nhold_s = 4\n'
+    pushed = text + '[[load]]\nbody = "bar"\nforce_n = [1.0, 0.0, 0.0]\nstart_s = 0.5\n'
+    drift = []
+    for name, scenario in (("calm", text), ("pushed", pushed)):
+        path = tmp_path / f"{name}.toml"
+        path.write_text(scenario)
+        result = run_scenario(sim_config, load_scenario(str(path)), log_path=tmp_path / "f.jsonl")
+        assert result.completed and result.log_path is not None, result.messages
+        log = read_flight_log(result.log_path)
+        drift.append(log.state[-1, 0:3] - log.state[0, 0:3])
+    calm, pushed_drift = drift
+    assert np.linalg.norm(calm) < 0.02
+    assert pushed_drift[0] > 0.1 and abs(pushed_drift[1]) < 0.05
+
+
 def test_paper_scenario_centralized_tracks_the_bar_better(
     sim_config: Config, tmp_path: Path
 ) -> None:
