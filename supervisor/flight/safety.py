@@ -181,8 +181,9 @@ class SafetyMonitor:
             self._forget_slack()
             return
         lim = self.limits
-        # The slack time a tick adds is the time since the previous check, capped so that a
-        # stalled loop does not count its stall as slack.
+        # A slack tick adds the time since the previous check (a slack seen on n ticks
+        # lasted n ticks, give or take one), capped so that a stalled loop does not count
+        # its stall as slack.
         since = 0.0 if self._last_slack_check_s is None else now_s - self._last_slack_check_s
         self._last_slack_check_s = now_s
         ends = bar_ends(x, self.params.arms_m)

@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.params import RECOMMENDED_LEAD
+from controllers.params import RECOMMENDED_LEAD, BarSystemParams
+from geometry.state import bar_ends, uav_position
 from supervisor.app.config import Config, load_config
 from supervisor.cli.main import main
-from supervisor.logs.flight_log import read_flight_log
+from supervisor.logs.flight_log import FlightLog, read_flight_log
 from supervisor.logs.report import summarize
 from supervisor.simulate.closed_loop import run_scenario
 from supervisor.simulate.scenarios import load_scenario
@@ -128,6 +129,65 @@ def test_a_scenario_s_steady_push_moves_the_formation(sim_config: Config, tmp_pa
     calm, pushed_drift = drift
     assert np.linalg.norm(calm) < 0.02
     assert pushed_drift[0] > 0.1 and abs(pushed_drift[1]) < 0.05
+
+
+def pushes_down_on_uav1(count: int) -> str:
+    """A hover with UAV 1 pushed down by 25 N for 0.25 s every 2 s from 1 s: each push
+    slackens its cable for a moment (two episodes of 0.04–0.1 s as the mocap sees them),
+    well within what the mocap's gate accepts."""
+    text = (
+        f'name = "pushes"\nstart = "hover"\n[[step]]\naction = "hover"\nhold_s = {2 * count + 2}\n'
+    )
+    for k in range(count):
+        text += (
+            '[[load]]\nbody = "uav1"\nforce_n = [0, 0, -25]\n'
+            f"start_s = {1 + 2 * k}\nduration_s = 0.25\n"
+        )
+    return text
+
+
+def slack_episodes_s(log: FlightLog, params: BarSystemParams) -> list[float]:
+    """How long each episode lasted in which the estimate had a cable 5 cm short (the slack
+    monitor's test) [s]."""
+    slack = [
+        any(
+            np.linalg.norm(uav_position(x, i) - bar_ends(x, params.arms_m)[i - 1])
+            < params.cable_lengths_m[i - 1] - 0.05
+            for i in (1, 2)
+        )
+        for x in log.state
+    ]
+    episodes, since = [], None
+    for t, is_slack in zip(log.t_s, slack, strict=True):
+        if is_slack and since is None:
+            since = t
+        elif not is_slack and since is not None:
+            episodes.append(t - since)
+            since = None
+    return episodes
+
+
+@pytest.mark.slow
+def test_short_slack_episodes_repeated_abort_a_flight_in_closed_loop(
+    sim_config: Config, tmp_path: Path
+) -> None:
+    """Slack episodes far shorter than the 0.5 s one episode may last, every 2 s: the
+    slack monitor adds them up and aborts within its 10 s window; with the window off
+    (``safety.slack_in_window_s`` = the window itself) the same flight is never aborted."""
+    path = tmp_path / "pushes.toml"
+    path.write_text(pushes_down_on_uav1(6))
+    params = sim_config.system.to_params()
+    without = load_config(CONFIGS / "sim.toml", ["safety.slack_in_window_s=10.0"])
+    outcomes = {}
+    for name, config in (("window", sim_config), ("no window", without)):
+        result = run_scenario(config, load_scenario(str(path)), log_path=tmp_path / f"{name}.jsonl")
+        assert result.log_path is not None
+        episodes = slack_episodes_s(read_flight_log(result.log_path), params)
+        assert len(episodes) >= 6 and max(episodes) < 0.2, episodes
+        outcomes[name] = result.messages
+    [abort] = outcomes["window"]
+    assert abort.startswith("abort: cables slack 0.5") and "within the last 10 s" in abort
+    assert outcomes["no window"] == []
 
 
 def test_paper_scenario_centralized_tracks_the_bar_better(
