@@ -4,7 +4,9 @@ A load is a force at a body's centre of mass and a torque, both in the ENU world
 effect from ``start_s`` for ``duration_s`` (None: until removed) on the plant's clock.
 ``steady`` holds them; ``gust`` scales them by (1 − cos 2π s)/2 over the duration (s the
 elapsed fraction): zero at both ends, the full force and torque at the middle, a smooth
-shape whose impulse is half the steady one's.
+shape whose impulse is half the steady one's. Mind a torque about the bar's own axis: its
+axial inertia is tiny (a thin tube, m r²), so even 0.1 N m spins it up to rates the 1 kHz
+integrator does not follow within seconds once it is off the ground.
 """
 
 from __future__ import annotations

@@ -95,7 +95,6 @@ FAULT_OPTIONS = (
     ("vehicle", "vehicle"),
     ("fraction", "fraction"),
     ("force_n", "force_n"),
-    ("torque_nm", "torque_nm"),
 )
 
 
@@ -386,14 +385,7 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
         type=finite_float,
         nargs=3,
         metavar=("X", "Y", "Z"),
-        help="push: newtons at the body's centre of mass, arena frame",
-    )
-    fault.add_argument(
-        "--torque-nm",
-        type=finite_float,
-        nargs=3,
-        metavar=("X", "Y", "Z"),
-        help="push: newton metres, arena frame (default: none)",
+        help="push: newtons at the body's centre of mass, arena frame (each within ±50)",
     )
     fault.add_argument("--clear", action="store_true", help="end every fault")
     reset = command("reset", "put the embedded simulated world back in its resting pose (disarmed)")

@@ -93,14 +93,17 @@ class UdpLossFault(_Fault):
     fraction: Annotated[float, Field(ge=0.0, le=1.0, strict=True)]
 
 
+PushComponent = Annotated[
+    float, Field(ge=-50.0, le=50.0, strict=True, description="newtons, within ±50")
+]
+
+
 class PushFault(_Fault):
-    """A force ``force_n`` [N] at ``body``'s centre of mass and a torque ``torque_nm``
-    [N m] (arena frame) act on the plant."""
+    """A force ``force_n`` [N] (arena frame) at ``body``'s centre of mass acts on the plant."""
 
     kind: Literal["push"]
     body: Body
-    force_n: tuple[Coordinate, Coordinate, Coordinate]
-    torque_nm: tuple[Coordinate, Coordinate, Coordinate] = (0.0, 0.0, 0.0)
+    force_n: tuple[PushComponent, PushComponent, PushComponent]
 
 
 FaultSpec = Annotated[

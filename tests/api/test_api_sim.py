@@ -147,11 +147,7 @@ async def test_a_push_through_the_api_lifts_the_bar_on_the_worlds_plant(
     push = {"kind": "push", "body": "bar", "force_n": [0, 0, lift], "duration_s": 0.5}
     response = await sim_api.fault(push)
     assert response.status_code == 200, response.text
-    assert response.json()["fault"]["params"] == {
-        "body": "bar",
-        "force_n": [0.0, 0.0, lift],
-        "torque_nm": [0.0, 0.0, 0.0],
-    }
+    assert response.json()["fault"]["params"] == {"body": "bar", "force_n": [0.0, 0.0, lift]}
     [load] = world.plant.loads
     assert (load.body, load.force_n, load.duration_s) == ("bar", (0.0, 0.0, lift), 0.5)
     apex = rest_z
@@ -161,26 +157,17 @@ async def test_a_push_through_the_api_lifts_the_bar_on_the_worlds_plant(
     assert apex - rest_z == pytest.approx(0.30, abs=0.03)
     assert world.plant.loads == () and world.fault_views() == []
     assert float(world.plant.body("bar").position_m[2]) < rest_z + 0.05  # back down
-    # The command line takes the same kind.
-    torque = ["--torque-nm", "0", "0", "0.05"]
-    assert (
-        await cli(
-            sim_api.url, "fault", "push", "--body", "uav2", "--force-n", "0", "1", "0", *torque
-        )
-        == 0
-    )
-    assert (
-        "in effect: push body uav2 force_n [0.0, 1.0, 0.0] torque_nm [0.0, 0.0, 0.05]"
-        in capsys.readouterr().out
-    )
+    # The command line takes the same kind; the API refuses more than 50 N along an axis.
+    force = ["--force-n", "0", "1", "0"]
+    assert await cli(sim_api.url, "fault", "push", "--body", "uav2", *force) == 0
+    assert "in effect: push body uav2 force_n [0.0, 1.0, 0.0]" in capsys.readouterr().out
     [load] = list(world.plant.loads)
-    assert (load.body, load.force_n, load.torque_nm, load.duration_s) == (
-        "uav2",
-        (0, 1, 0),
-        (0, 0, 0.05),
-        None,
-    )
+    assert (load.body, load.force_n, load.duration_s) == ("uav2", (0, 1, 0), None)
     assert await cli(sim_api.url, "fault", "--clear") == 0
+    assert world.plant.loads == ()
+    too_hard = {"kind": "push", "body": "bar", "force_n": [0, 0, 60]}
+    response = await sim_api.fault(too_hard)
+    assert response.status_code == 422 and "force_n" in response.text
     assert world.plant.loads == ()
 
 

@@ -64,7 +64,11 @@ def faults(*started: Any, now_s: float = 0.0) -> FaultSet:
         ({"kind": "push", "force_n": [1, 0, 0]}, "body"),
         ({"kind": "push", "body": "bar", "force_n": [1, 0]}, "force_n"),
         ({"kind": "push", "body": "bar", "force_n": [1, math.inf, 0]}, "force_n"),
-        ({"kind": "push", "body": "bar", "force_n": [1, 0, 0], "torque_nm": [0, 0]}, "torque_nm"),
+        (
+            {"kind": "push", "body": "bar", "force_n": [1, 0, 0], "torque_nm": [0, 0, 1]},
+            "torque_nm",
+        ),
+        ({"kind": "push", "body": "bar", "force_n": [0, 0, 50.5]}, "force_n"),
         ({"kind": "push", "body": "ghost", "force_n": [1, 0, 0]}, "body"),
         ({"kind": "push", "body": "bar", "force_n": [1, 0, 0], "offset_m": [0, 0, 0]}, "offset_m"),
         ({"kind": "link_lost"}, "vehicle"),
@@ -244,16 +248,14 @@ def test_a_push_is_a_load_on_the_plant_body_for_its_time() -> None:
     push = parse_fault(
         {"kind": "push", "body": "uav1", "force_n": [1, 0, -2], "duration_s": 2}, BODIES
     )
-    assert push == Push("uav1", (1, 0, -2), (0.0, 0.0, 0.0), 2.0)
-    steady = parse_fault(
-        {"kind": "push", "body": "bar", "force_n": [0, 1, 0], "torque_nm": [0, 0, 0.1]}, BODIES
-    )
+    assert push == Push("uav1", (1, 0, -2), 2.0)
+    steady = parse_fault({"kind": "push", "body": "bar", "force_n": [0, -50, 50]}, BODIES)
     fault_set = faults(push, now_s=5.0)
     fault_set.start(steady, 6.0)
     plant_body = {"bar": "bar", "uav1": "uav2", "uav2": "uav1"}  # QTM's names → the plant's
     assert fault_set.loads(plant_body) == [
-        ExternalLoad("uav2", (1, 0, -2), (0.0, 0.0, 0.0), 5.0, 2.0),
-        ExternalLoad("bar", (0, 1, 0), (0, 0, 0.1), 6.0, None),
+        ExternalLoad("uav2", (1, 0, -2), start_s=5.0, duration_s=2.0),
+        ExternalLoad("bar", (0, -50, 50), start_s=6.0),
     ]
     fault_set.expire(7.0)
     assert [load.body for load in fault_set.loads(plant_body)] == ["bar"]
