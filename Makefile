@@ -42,8 +42,10 @@ browser:
 		apt-get update -qq && apt-get install -y -qq chromium >/dev/null; } || \
 		echo "chromium is not installed: the dashboard browser tests will be skipped"
 
+# One pytest worker per core; the tests on the wall clock (serve, real PX4, the browser)
+# run one at a time in one worker (tests/conftest.py), the rest beside them.
 test: lint browser
-	$(BIN)/pytest
+	$(BIN)/pytest -n auto --dist loadgroup
 
 # The quick loop while editing: lint, then the tests not marked slow (about 2 minutes).
 test-fast: lint

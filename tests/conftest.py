@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -47,3 +49,28 @@ def resting_estimate(params: BarSystemParams) -> Estimate:
     for i, end in enumerate(bar_ends(x, params.arms_m), start=1):
         x[uav_slices(i)[0]] = end + np.array([0.0, 0.0, 0.05])
     return Estimate(x, 0.005, ())
+
+
+# Tests on the wall clock (serve and its real-time processes, real PX4, a browser): one at a
+# time, in one xdist group, so that only the rest of the suite shares the machine with them
+# (`make test` runs pytest-xdist with --dist loadgroup). End-to-end modules are the ones at
+# the top of tests/.
+WALL_CLOCK_MODULES = {
+    "tests/api/test_openapi_contract.py",
+    "tests/sim/test_px4_mavsdk.py",
+    "tests/supervisor/test_mavlink_px4.py",
+}
+TESTS = Path(__file__).parent
+
+
+def _on_the_wall_clock(item: pytest.Item) -> bool:
+    path = Path(item.path)
+    module = f"tests/{path.relative_to(TESTS).as_posix()}"
+    real_px4 = item.get_closest_marker("px4") is not None
+    return path.parent == TESTS or module in WALL_CLOCK_MODULES or real_px4
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if _on_the_wall_clock(item):
+            item.add_marker(pytest.mark.xdist_group("wall_clock"))

@@ -37,6 +37,25 @@ Lifeline = multiprocessing.connection.Connection
 Starter = Callable[[str | None], tuple[BaseProcess, Lifeline]]
 
 
+def start_deaf_to_ctrl_c(process: BaseProcess) -> None:
+    """Start ``process`` with SIGINT blocked, as a spawned child inherits it across exec:
+    Ctrl-C reaches the whole process group, and a child still importing would die of it
+    before it could leave SIGINT to serve (``ignore_ctrl_c``). Blocked in the calling
+    thread only, so serve's own Ctrl-C waits, pending, until the child is started."""
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        process.start()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def ignore_ctrl_c() -> None:
+    """In a child started by ``start_deaf_to_ctrl_c``: SIGINT ignored, then unblocked (a
+    Ctrl-C that came meanwhile is dropped; serve had it too, and decides)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def exit_text(process: BaseProcess) -> str:
     """How a process ended, in words (``exitcode`` -N: killed by signal N)."""
     code = process.exitcode

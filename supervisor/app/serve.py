@@ -29,7 +29,14 @@ from typing import Any
 
 from api.server import bind
 from supervisor.app.api_process import GO, READY, ApiStart, api_tls
-from supervisor.app.children import SPAWN, Child, Lifeline, stop_child
+from supervisor.app.children import (
+    SPAWN,
+    Child,
+    Lifeline,
+    ignore_ctrl_c,
+    start_deaf_to_ctrl_c,
+    stop_child,
+)
 from supervisor.app.config import TOKEN_ENV, Config, ConfigError, load_config
 from supervisor.app.flight_main import FlightStart
 from supervisor.app.relay_main import relay_addresses
@@ -71,6 +78,7 @@ SigningKeys = dict[int, bytes] | None
 
 
 def _world_main(setup: Setup, ready: Lifeline, listener: socket.socket) -> None:
+    ignore_ctrl_c()
     from supervisor.app.world_process import run_world_process
 
     run_world_process(setup.load(), ready, listener)
@@ -79,6 +87,7 @@ def _world_main(setup: Setup, ready: Lifeline, listener: socket.socket) -> None:
 def _flight_main(
     setup: Setup, start: FlightStart, world: dict[str, Any] | None, parent: Lifeline
 ) -> None:
+    ignore_ctrl_c()
     from supervisor.app.flight_main import run_flight_process
 
     run_flight_process(setup.load(), start, world, parent)
@@ -91,12 +100,14 @@ def _relay_main(
     signing_keys: SigningKeys,
     parent: Lifeline,
 ) -> None:
+    ignore_ctrl_c()
     from supervisor.app.relay_main import run_relay_process
 
     run_relay_process(setup.load(), world, link_sockets, parent, signing_keys)
 
 
 def _api_main(setup: Setup, start: ApiStart, parent: Lifeline) -> None:
+    ignore_ctrl_c()
     from supervisor.app.api_process import run_api_process
 
     run_api_process(setup.load(), start, parent)
@@ -146,7 +157,7 @@ def _spawn(name: str, target: Any, *args: Any) -> tuple[BaseProcess, Lifeline]:
     """Start ``target(*args, lifeline)`` as process ``name``; serve keeps the other end."""
     parent, child = SPAWN.Pipe()
     process = SPAWN.Process(target=target, args=(*args, child), name=name)
-    process.start()
+    start_deaf_to_ctrl_c(process)
     child.close()
     return process, parent
 
@@ -157,7 +168,7 @@ def _start_world(
     """The world process, its lifeline (which also brings its addresses)."""
     parent, child = SPAWN.Pipe()
     process = SPAWN.Process(target=_world_main, args=(setup, child, listener), name="uavbar-world")
-    process.start()
+    start_deaf_to_ctrl_c(process)
     child.close()
     if not parent.poll(WORLD_START_TIMEOUT_S):
         process.kill()
@@ -360,9 +371,20 @@ async def serve(setup: Setup) -> int:
     token, generated = resolve_token(config)
     service = Service(setup, config, token)
     stop = asyncio.Event()
+
+    def on_signal() -> None:
+        # Kept until every process has stopped: a second Ctrl-C (or a signal to the whole
+        # process group) must not interrupt the landing half-way and leave children behind.
+        if stop.is_set():
+            log.warning(
+                "already stopping: landing first, then every process stops "
+                "(uavbar-supervisor kill stops the motors now)"
+            )
+        stop.set()
+
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
+        loop.add_signal_handler(sig, on_signal)
     discovery: Path | None = None
     try:
         await service.start()
@@ -387,9 +409,9 @@ async def serve(setup: Setup) -> int:
         await stop.wait()
         log.info("stopping: landing whatever is airborne, then stopping every process")
     finally:
+        await service.stop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
-        await service.stop()
         if discovery is not None:
             discovery.unlink(missing_ok=True)
     log.info("stopped")

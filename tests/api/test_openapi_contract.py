@@ -24,7 +24,10 @@ async def schemathesis(url: str, token: str | None, workdir: Path) -> tuple[int,
     """``schemathesis run`` over ``url``'s /openapi.json with every check; its exit status
     and output."""
     arguments = ["-m", "schemathesis.cli", "run", f"{url}/openapi.json", "--checks", "all"]
-    arguments += ["--max-examples", "25", "--seed", "18", "--no-color", "--request-timeout", "10"]
+    # Without the token the gate answers before any body is read: a few examples say it.
+    examples = "25" if token is not None else "5"
+    arguments += ["--max-examples", examples, "--seed", "18", "--no-color"]
+    arguments += ["--request-timeout", "10"]
     if token is not None:
         arguments += ["-H", f"Authorization: Bearer {token}"]
     process = await asyncio.create_subprocess_exec(
