@@ -18,7 +18,8 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter
 
 from supervisor.flight.operator_requests import Reply
 
-# The bounds of sim.faults (MAX_DURATION_S, MAX_OFFSET_M), which this module may not import.
+# The bounds of sim.faults (MAX_DURATION_S, MAX_OFFSET_M, PUSH_MAX_N), which this module
+# may not import.
 Seconds = Annotated[
     float, Field(gt=0.0, le=3600.0, strict=True, description="seconds, > 0, at most 3600")
 ]
@@ -100,7 +101,7 @@ class UdpLossFault(_Fault):
 
 PushComponent = Annotated[
     float, Field(ge=-50.0, le=50.0, strict=True, description="newtons, within ±50")
-]
+]  # PUSH_MAX_N
 
 
 class PushFault(_Fault):

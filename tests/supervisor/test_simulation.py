@@ -113,22 +113,23 @@ def test_a_scenario_s_reference_rates_are_flown(sim_config: Config, tmp_path: Pa
     assert np.linalg.norm(log.state[-1, 0:3] - [0.2, 0.0, 1.1]) < 0.05
 
 
-def test_a_scenario_s_steady_push_moves_the_formation(sim_config: Config, tmp_path: Path) -> None:
-    """A 1 N push along x on the bar from 0.5 s: the hovering formation gives way along x
-    (the MPC has no integral action), and not without it."""
-    text = 'name = "push"\nstart = "hover"\n[[step]]\naction = "hover"\nhold_s = 4\n'
+def test_a_scenario_s_steady_push_moves_the_bar(sim_config: Config, tmp_path: Path) -> None:
+    """A 1 N push along x on the hovering bar from 0.5 s: within the next second it swings
+    out along x (a 0.39 kg pendulum the controller cannot hold still at once); calm, the
+    bar stays put."""
+    text = 'name = "push"\nstart = "hover"\n[[step]]\naction = "hover"\nhold_s = 1.5\n'
     pushed = text + '[[load]]\nbody = "bar"\nforce_n = [1.0, 0.0, 0.0]\nstart_s = 0.5\n'
-    drift = []
+    moved = []
     for name, scenario in (("calm", text), ("pushed", pushed)):
         path = tmp_path / f"{name}.toml"
         path.write_text(scenario)
         result = run_scenario(sim_config, load_scenario(str(path)), log_path=tmp_path / "f.jsonl")
         assert result.completed and result.log_path is not None, result.messages
         log = read_flight_log(result.log_path)
-        drift.append(log.state[-1, 0:3] - log.state[0, 0:3])
-    calm, pushed_drift = drift
+        moved.append(log.state[-1, 0:3] - log.state[0, 0:3])
+    calm, pushed_moved = moved
     assert np.linalg.norm(calm) < 0.02
-    assert pushed_drift[0] > 0.1 and abs(pushed_drift[1]) < 0.05
+    assert pushed_moved[0] > 0.05 and abs(pushed_moved[1]) < 0.02
 
 
 def pushes_down_on_uav1(count: int) -> str:
