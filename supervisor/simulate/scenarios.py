@@ -12,10 +12,9 @@ rates, take-off height, ..., key by key over the setup's; ``scenario_config``). 
 ``[[load]]`` acts on a body of the plant (``body`` "bar", "uav1" or "uav2"; ``force_n`` and
 ``torque_nm`` [x, y, z] in the arena frame; ``start_s`` after the scenario starts, on the
 plant's clock; ``duration_s``, none: to the end; ``profile`` "steady" or "gust",
-``sim/loads.py``): a push or a gust. Before a scenario
-flies, ``check_setpoints`` refuses it when a setpoint step cannot be flown in the setup
-(the arena, and the feasibility bounds of ``supervisor.flight.feasibility``), naming the
-step and the bound.
+``sim/loads.py``): a push or a gust. Before a scenario flies, ``check_setpoints`` refuses
+it when a setpoint step cannot be flown in the setup (the arena, and the feasibility
+bounds of ``supervisor.flight.feasibility``), naming the step and the bound.
 """
 
 from __future__ import annotations
