@@ -202,7 +202,7 @@ def create_app(
             _json_text({"detail": problems}), status_code=422, media_type="application/json"
         )
 
-    app.include_router(_status_routes(flight, params, bounds, processes, policy))
+    app.include_router(_status_routes(flight, params, bounds, processes, policy, world))
     app.include_router(_operator_routes(flight, policy))
     app.include_router(_setpoint_routes(flight, params, arena, bounds, policy))
     app.include_router(_telemetry_route(flight, policy))
@@ -260,18 +260,22 @@ def _status_routes(
     bounds: SetpointBounds,
     processes: Callable[[], dict[str, Any]] | None,
     policy: HttpPolicy,
+    world: WorldClient | None,
 ) -> APIRouter:
     router = APIRouter()
 
     @router.get("/api/status", **_operation(Access.READ, policy, 503))
     async def status() -> JSONResponse:
-        """Mode, controller, vehicles, bar, mocap health, setpoints and tick timing."""
+        """Mode, controller, vehicles, bar, mocap health, setpoints and tick timing; with
+        an embedded simulated world, ``world``: its faults and its own stalls (moments a
+        busy computer did not run it, when its mocap and vehicles paused too)."""
         if flight.latest is None:
             return JSONResponse({"detail": "no telemetry from the flight process yet"}, 503)
         body = dict(flight.latest)
         body["stale"] = flight.telemetry_age_s > TELEMETRY_STALE_S or not flight.connected
         if processes is not None:
             body["processes"] = processes()
+        body["world"] = world.view() if world is not None else {"embedded": False}
         return JSONResponse(body)
 
     @router.get("/api/equilibria", **_operation(Access.READ, policy, 422))

@@ -131,6 +131,7 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
         links = [group.create_task(flight.stay_connected(start.rendezvous.flight, start.token))]
         if world is not None:
             links.append(group.create_task(world.run()))
+            links.append(group.create_task(world.keep_watch()))
         start.processes.send(READY)
         await stop.wait()
         flight.end_subscriptions()  # the WebSockets close now, not cancelled after a timeout

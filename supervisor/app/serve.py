@@ -393,7 +393,16 @@ async def serve(setup: Setup) -> int:
         url = f"{scheme}://{host}:{service.port}"
         discovery = write_discovery(
             service.port,
-            {"url": url, "pid": os.getpid(), "operator_socket": str(service.rendezvous.flight)},
+            {
+                "url": url,
+                "pid": os.getpid(),
+                "operator_socket": str(service.rendezvous.flight),
+                "cert_file": (
+                    str(Path(config.api.tls_cert_file).resolve())
+                    if config.api.tls_cert_file
+                    else None
+                ),
+            },
         )
         log.info(
             "uavbar-supervisor serving %s/ (setup %s; API docs %s/docs; Ctrl-C stops)",

@@ -23,7 +23,7 @@ from typing import Any
 
 from supervisor.app.config_files import TOKEN_ENV
 from supervisor.cli import awaiting
-from supervisor.cli.address import URL_ENV, ServiceAddress, service_address
+from supervisor.cli.address import CA_FILE_ENV, URL_ENV, ServiceAddress, service_address
 from supervisor.cli.direct import DirectPathError, direct_request
 from supervisor.cli.output import (
     format_answer,
@@ -216,7 +216,7 @@ def run_client(args: argparse.Namespace) -> int:
     urgent = args.command in URGENT_COMMANDS
     timeout_s = URGENT_HTTP_TIMEOUT_S if urgent else HTTP_TIMEOUT_S
     try:
-        client = JsonClient(address.url, _headers(args), timeout_s)
+        client = JsonClient(address.url, _headers(args), timeout_s, address.cafile)
     except ValueError as error:
         raise UsageError(f"{error} (from {address.found_by})") from None
     with client:
@@ -252,6 +252,12 @@ def _add_client_options(parser: argparse.ArgumentParser) -> None:
         "else http://127.0.0.1:8000 from the setup)",
     )
     parser.add_argument("--token", metavar="TOKEN", help=f"API token (default: ${TOKEN_ENV})")
+    parser.add_argument(
+        "--cafile",
+        metavar="PEM",
+        help=f"over HTTPS, the certificate to trust (default: ${CA_FILE_ENV}, else the one "
+        "the service found uses, else the system's)",
+    )
     parser.add_argument("--json", action="store_true", help="print the raw JSON answer")
 
 

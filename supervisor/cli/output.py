@@ -63,11 +63,30 @@ def format_status(status: dict[str, Any]) -> str:
         f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
         f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
     )
+    world = _world_line(status.get("world") or {})
+    if world:
+        lines.append(world)
     lines += [
         f"notice ({notice['age_s']:.0f} s ago): {notice['message']}"
         for notice in status.get("notices", [])[-3:]
     ]
     return "\n".join(lines)
+
+
+def _world_line(world: dict[str, Any]) -> str:
+    """The embedded simulated world's faults and stalls, when there is something to say."""
+    if not world.get("embedded"):
+        return ""
+    if not world.get("reachable", True):
+        return "simulated world: NOT REACHABLE"
+    parts = [_format_fault(fault) for fault in world.get("faults", [])]
+    stalls = world.get("stalls") or {}
+    if stalls.get("count"):
+        parts.append(
+            f"stalled {stalls['count']} times by this computer (worst {stalls['worst_ms']:.0f} "
+            f"ms, last {stalls['last_ms']:.0f} ms {stalls['last_age_s']:.0f} s ago)"
+        )
+    return "simulated world: " + "; ".join(parts) if parts else ""
 
 
 def _setpoint_row(label: str, setpoint: dict[str, Any]) -> list[str]:

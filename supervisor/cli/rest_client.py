@@ -28,7 +28,15 @@ class Response:
 class JsonClient:
     """Requests to one service (``base_url``: ``http[s]://host[:port]``)."""
 
-    def __init__(self, base_url: str, headers: dict[str, str], timeout_s: float) -> None:
+    def __init__(
+        self,
+        base_url: str,
+        headers: dict[str, str],
+        timeout_s: float,
+        cafile: str | None = None,
+    ) -> None:
+        """Over HTTPS the server's certificate is checked against ``cafile`` (a PEM file;
+        None: the system's CAs)."""
         parts = urlsplit(base_url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
             raise ValueError(f"{base_url!r} is not an http:// or https:// address")
@@ -38,14 +46,27 @@ class JsonClient:
         self._prefix = parts.path.rstrip("/")
         self._headers = {"Accept": "application/json", **headers}
         self._timeout_s = timeout_s
+        self._cafile = cafile
         self._connection: http.client.HTTPConnection | None = None
 
     def _connect(self) -> http.client.HTTPConnection:
         if self._connection is None:
-            connection_class = (
-                http.client.HTTPSConnection if self._https else http.client.HTTPConnection
-            )
-            self._connection = connection_class(self._host, self._port, timeout=self._timeout_s)
+            if self._https:
+                import ssl  # only over HTTPS: it adds to every command's start otherwise
+
+                try:
+                    context = ssl.create_default_context(cafile=self._cafile)
+                except OSError as error:
+                    raise UnreachableError(
+                        f"cannot read the certificate {self._cafile}: {error.strerror or error}"
+                    ) from None
+                self._connection = http.client.HTTPSConnection(
+                    self._host, self._port, timeout=self._timeout_s, context=context
+                )
+            else:
+                self._connection = http.client.HTTPConnection(
+                    self._host, self._port, timeout=self._timeout_s
+                )
         return self._connection
 
     def close(self) -> None:
@@ -76,7 +97,13 @@ class JsonClient:
                 raise UnreachableError(f"no answer within {self._timeout_s:g} s") from None
             except (OSError, http.client.HTTPException) as error:
                 self.close()
-                raise UnreachableError(str(error) or type(error).__name__) from None
+                text = str(error) or type(error).__name__
+                if "CERTIFICATE_VERIFY_FAILED" in text:
+                    text += (
+                        " (--cafile or $UAVBAR_CA_FILE names the certificate to trust: a "
+                        "self-signed one is its own)"
+                    )
+                raise UnreachableError(text) from None
         text = data.decode(errors="replace")
         try:
             parsed: Any = json.loads(text)

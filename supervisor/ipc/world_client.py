@@ -7,12 +7,19 @@ import asyncio
 import contextlib
 import itertools
 from collections.abc import Callable
+from typing import Any
 
 from supervisor.flight.operator_requests import Outcome, Reply
 from supervisor.ipc.channel import ChannelClosedError, WorldChannel
-from supervisor.ipc.world_messages import WorldReplyMessage, WorldRequest, WorldRequestMessage
+from supervisor.ipc.world_messages import (
+    ListFaults,
+    WorldReplyMessage,
+    WorldRequest,
+    WorldRequestMessage,
+)
 
 WORLD_GONE = "the simulated world's process is not running"
+WATCH_PERIOD_S = 0.5
 
 
 class WorldClient:
@@ -26,6 +33,7 @@ class WorldClient:
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future[Reply]] = {}
         self.connected = channel is not None
+        self.watched: dict[str, Any] = {}
 
     async def run(self) -> None:
         """Receive replies until the world process goes away."""
@@ -64,6 +72,23 @@ class WorldClient:
             return Reply(outcome=Outcome.UNAVAILABLE, reason=WORLD_GONE)
         finally:
             self._pending.pop(request_id, None)
+
+    async def keep_watch(self, period_s: float = WATCH_PERIOD_S) -> None:
+        """Ask the world for its faults and its stalls every ``period_s``, for the status
+        (``view``): a mocap gap while this computer stalled the world is not the lab's."""
+        while self.connected:
+            reply = await self.request(ListFaults())
+            if reply.ok:
+                self.watched = {
+                    "time_s": reply.data["world_time_s"],
+                    "faults": reply.data["faults"],
+                    "stalls": reply.data["stalls"],
+                }
+            await asyncio.sleep(period_s)
+
+    def view(self) -> dict[str, Any]:
+        """The world as the status shows it: reachable, and what ``keep_watch`` last saw."""
+        return {"embedded": True, "reachable": self.connected, **self.watched}
 
     async def close(self) -> None:
         if self._channel is not None:

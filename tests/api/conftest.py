@@ -6,11 +6,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import shutil
 import socket
 import ssl
+import subprocess
 import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -104,3 +107,21 @@ async def serve_api(
 async def api() -> AsyncIterator[ApiUnderTest]:
     async with serve_api() as running:
         yield running
+
+
+@pytest.fixture
+def certificate(tmp_path: Path) -> TlsFiles:
+    """A self-signed certificate for 127.0.0.1 and its key."""
+    if shutil.which("openssl") is None:
+        pytest.skip("needs the openssl command")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(
+        [
+            *("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1"),
+            *("-keyout", str(key), "-out", str(cert), "-subj", "/CN=127.0.0.1"),
+            *("-addext", "subjectAltName=IP:127.0.0.1"),
+        ],
+        check=True,
+        capture_output=True,
+    )
+    return TlsFiles(cert, key)

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import socket
+import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +28,7 @@ from supervisor.app.assembly import arena_from_config
 from supervisor.app.config import load_config
 from supervisor.app.world_process import build_world, handle_world_request
 from supervisor.cli.main import main
+from supervisor.cli.output import format_status
 from supervisor.ipc.channel import Channel, WorldChannel
 from supervisor.ipc.client import FlightClient
 from supervisor.ipc.world_client import WorldClient, serve_world_requests
@@ -45,6 +48,7 @@ class SimApi:
     url: str
     world: SimulatedWorld
     http: httpx.AsyncClient
+    client: WorldClient
 
     async def fault(self, body: Any, token: str | None = TOKEN) -> httpx.Response:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
@@ -90,7 +94,7 @@ async def sim_api() -> AsyncIterator[SimApi]:
         url = f"http://127.0.0.1:{server.port}"
         # Generous: on a busy machine the world's first steps share this event loop.
         async with httpx.AsyncClient(base_url=url, timeout=30.0) as http:
-            yield SimApi(url, world, http)
+            yield SimApi(url, world, http, client)
         server.stop()
         for task in tasks[:-1]:
             task.cancel()
@@ -253,6 +257,26 @@ async def test_reset_is_refused_while_armed_then_puts_the_world_back(sim_api: Si
     position = world.plant.body("uav2").position_m
     np.testing.assert_allclose(position, resting[body_slice("uav2")][:3], atol=0.02)
     assert px4.model.intended == BOOT_MODE and not px4.armed
+
+
+async def test_the_worlds_stalls_and_faults_are_watched_for_the_status(sim_api: SimApi) -> None:
+    """What ``GET /api/status`` shows as ``world`` and ``status`` prints: a stall of the
+    world's own process (here, this event loop blocked) and the faults in effect."""
+    watch = asyncio.create_task(sim_api.client.keep_watch(period_s=0.05))
+    assert (await sim_api.fault({"kind": "mocap_freeze", "duration_s": 60.0})).status_code == 200
+    time.sleep(0.15)  # noqa: ASYNC251 -- on purpose: the world, in this event loop, stalls
+    for _ in range(100):
+        await asyncio.sleep(0.05)
+        view = sim_api.client.view()
+        if view.get("stalls", {}).get("count"):
+            break
+    watch.cancel()
+    assert view["embedded"] and view["reachable"]
+    assert view["stalls"]["count"] >= 1 and view["stalls"]["worst_ms"] >= 100.0, view
+    assert [fault["kind"] for fault in view["faults"]] == ["mocap_freeze"]
+    shown = format_status({"mode": "hover", "world": view})
+    assert "simulated world: mocap_freeze (" in shown
+    assert re.search(r"stalled \d+ times by this computer \(worst \d+ ms", shown), shown
 
 
 async def test_the_routes_are_in_the_openapi_schema(sim_api: SimApi) -> None:

@@ -7,10 +7,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import shutil
-import subprocess
 import time
-from pathlib import Path
 
 import pytest
 import websockets
@@ -338,24 +335,6 @@ async def test_the_dashboard_is_served_and_cannot_be_framed(api: ApiUnderTest) -
     assert page.status_code == 200 and "ABORT" in page.text
     assert page.headers["x-frame-options"] == "DENY"
     assert (await api.http.get("/static/app.js")).status_code == 200
-
-
-@pytest.fixture
-def certificate(tmp_path: Path) -> TlsFiles:
-    """A self-signed certificate for 127.0.0.1 and its key."""
-    if shutil.which("openssl") is None:
-        pytest.skip("needs the openssl command")
-    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
-    subprocess.run(
-        [
-            *("openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1"),
-            *("-keyout", str(key), "-out", str(cert), "-subj", "/CN=127.0.0.1"),
-            *("-addext", "subjectAltName=IP:127.0.0.1"),
-        ],
-        check=True,
-        capture_output=True,
-    )
-    return TlsFiles(cert, key)
 
 
 async def test_tls_when_configured_with_a_certificate(certificate: TlsFiles) -> None:

@@ -8,10 +8,11 @@ import json
 
 import pytest
 
+from api.server import TlsFiles
 from supervisor.cli.main import main
 from supervisor.cli.output import format_status
 from supervisor.flight.modes import Mode
-from tests.api.conftest import TOKEN, ApiUnderTest
+from tests.api.conftest import TOKEN, ApiUnderTest, serve_api
 
 
 async def cli(api: ApiUnderTest, *args: str, token: str | None = TOKEN) -> int:
@@ -77,3 +78,20 @@ def test_status_shows_the_latest_safety_notices() -> None:
         "notice (66 s ago): swing: 4",
     ]
     assert not [line for line in format_status({"mode": "hover"}).splitlines() if "notice" in line]
+
+
+async def test_status_over_https_trusts_the_certificate_it_is_given(
+    certificate: TlsFiles, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A lab's self-signed certificate: trusted when named (``--cafile``, or
+    ``UAVBAR_CA_FILE``), else refused in one line that says how to name it."""
+    monkeypatch.delenv("UAVBAR_CA_FILE", raising=False)
+    async with serve_api(tls=certificate) as api:
+        named = await cli(api, "status", "--cafile", str(certificate.cert_file))
+        assert named == 0 and capsys.readouterr().out.startswith("mode disarmed")
+        assert await cli(api, "status") == 3
+        err = capsys.readouterr().err
+        assert "certificate verify failed" in err and "--cafile" in err, err
+        assert "Traceback" not in err
+        monkeypatch.setenv("UAVBAR_CA_FILE", str(certificate.cert_file))
+        assert await cli(api, "arm") == 0

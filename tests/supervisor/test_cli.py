@@ -109,6 +109,25 @@ def test_version_and_help_name_units_defaults_and_examples() -> None:
     assert "(default: 60)" in " ".join(cli("takeoff", "--help").stdout.split())  # --timeout
 
 
+def test_over_https_the_client_trusts_the_certificate_the_service_found_uses(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    monkeypatch.delenv("UAVBAR_URL", raising=False)
+    monkeypatch.delenv("UAVBAR_CA_FILE", raising=False)
+    served = {"url": "https://127.0.0.1:8000", "pid": os.getpid(), "cert_file": "/lab/api.pem"}
+    write_discovery(8000, served)
+    found = service_address(build_parser().parse_args(["status"]))
+    assert (found.url, found.cafile) == ("https://127.0.0.1:8000", "/lab/api.pem")
+    named = build_parser().parse_args(["status", "--cafile", "/lab/ca.pem"])
+    assert service_address(named).cafile == "/lab/ca.pem"  # --cafile first
+    configured = build_parser().parse_args(
+        ["status", "--set", "api.port=8443", "--set", 'api.tls_cert_file="/lab/own.pem"']
+    )
+    found = service_address(configured)  # --set names the address: the setup's, over HTTPS
+    assert (found.url, found.cafile) == ("https://127.0.0.1:8443", "/lab/own.pem")
+
+
 def test_no_option_is_taken_by_its_abbreviation() -> None:
     """``--yaw 0.4`` (radians, before) must never be read as ``--yaw-deg 0.4``."""
     parser = build_parser()
