@@ -50,6 +50,7 @@ from api.world_reset import settle_after_reset
 from controllers.equilibria import EquilibriumError
 from controllers.params import BarSystemParams
 from supervisor.flight.equilibrium_summary import equilibrium_summary
+from supervisor.flight.feasibility import SetpointBounds
 from supervisor.flight.operator_requests import (
     THETA_L_LIMIT_RAD,
     ClearSetpointsRequest,
@@ -173,12 +174,14 @@ def create_app(
     flight: FlightClient,
     params: BarSystemParams,
     arena: Arena,
+    bounds: SetpointBounds,
     policy: HttpPolicy,
     world: WorldClient | None = None,
     processes: Callable[[], dict[str, Any]] | None = None,
 ) -> FastAPI:
-    """The FastAPI application serving ``flight`` (``params`` and ``arena``: the system and
-    its flight volume, for the equilibria it reports and the setpoints it checks) behind the
+    """The FastAPI application serving ``flight`` (``params``, ``arena`` and ``bounds``: the
+    system, its flight volume and what the vehicles can hold, for the equilibria it reports
+    and the setpoints it checks) behind the
     gate ``policy`` describes, and, when ``serve`` runs the simulated world itself,
     ``world``; ``processes``: serve's process table for the status."""
     app = FastAPI(
@@ -199,9 +202,9 @@ def create_app(
             _json_text({"detail": problems}), status_code=422, media_type="application/json"
         )
 
-    app.include_router(_status_routes(flight, params, processes, policy, world))
+    app.include_router(_status_routes(flight, params, bounds, processes, policy, world))
     app.include_router(_operator_routes(flight, policy))
-    app.include_router(_setpoint_routes(flight, params, arena, policy))
+    app.include_router(_setpoint_routes(flight, params, arena, bounds, policy))
     app.include_router(_telemetry_route(flight, policy))
     app.include_router(_sim_routes(world, flight, policy))
     if STATIC_DIR.is_dir():
@@ -254,6 +257,7 @@ def _access_table(app: FastAPI) -> dict[tuple[str, str], Access]:
 def _status_routes(
     flight: FlightClient,
     params: BarSystemParams,
+    bounds: SetpointBounds,
     processes: Callable[[], dict[str, Any]] | None,
     policy: HttpPolicy,
     world: WorldClient | None,
@@ -286,9 +290,10 @@ def _status_routes(
             ),
         ],
     ) -> dict[str, Any]:
-        """The equilibrium a cable angle implies (Proposition 1 and the general one)."""
+        """The equilibrium a cable angle implies (Proposition 1 and the general one), and
+        ``refusals``: why a setpoint at it would be refused (empty: it would be taken)."""
         try:
-            return equilibrium_summary(params, theta_l)
+            return equilibrium_summary(params, theta_l, bounds)
         except EquilibriumError as error:
             raise _invalid(["query", "theta_l"], str(error), "equilibrium") from None
 
@@ -356,7 +361,11 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
 
 
 def _setpoint_routes(
-    flight: FlightClient, params: BarSystemParams, arena: Arena, policy: HttpPolicy
+    flight: FlightClient,
+    params: BarSystemParams,
+    arena: Arena,
+    bounds: SetpointBounds,
+    policy: HttpPolicy,
 ) -> APIRouter:
     """Reading the queue is ``read``; changing it needs the token."""
     router = APIRouter()
@@ -370,13 +379,15 @@ def _setpoint_routes(
     async def post_setpoints(body: SetpointsBody) -> JSONResponse:
         """Queue one setpoint or a list of at most 32 (the queue's capacity), all or none.
         A longer list is refused by its length before any entry is read (422). Each is then
-        checked against the arena and equilibrium feasibility (409 with the reason when it
-        cannot be flown here, or when the queue is full). Checked here first, so that a flood
+        checked against the arena and equilibrium feasibility — θ_l, and each UAV's thrust and
+        tilt at the equilibrium, within the setup's bounds with their margins (409 with the
+        reason, naming the bound and the excess, when it cannot be flown here, or when the
+        queue is full). Checked here first, so that a flood
         of setpoints no vehicle can fly never reaches the flight process; the tick core
         checks again as the authority for every way in (the simulator's scripts too)."""
         entries = body if isinstance(body, list) else [body]
         try:
-            validate_setpoints([e.to_setpoint() for e in entries], params, arena)
+            validate_setpoints([e.to_setpoint() for e in entries], params, arena, bounds)
         except SetpointError as error:
             # Well-formed (the schema holds) but not flyable here: 409, as the queue's
             # refusals; 422 is kept for what the schema itself refuses.

@@ -1,6 +1,7 @@
 """Faults injected into the simulated world at run time (docs/faults.md): the kinds, their
 validation, when each ends on the world's clock, and what each does to a mocap frame or a
-datagram. Pure: no I/O, no clock; time is an argument, randomness one seeded generator.
+datagram, and which external loads it puts on the plant's bodies (``loads``: the ``push``
+kind). Pure: no I/O, no clock; time is an argument, randomness one seeded generator.
 
 The world (``sim.world.SimulatedWorld``) holds one ``FaultSet`` and asks it, for every
 frame it publishes, which poses the frame carries (``frame``), and, for every datagram,
@@ -27,6 +28,7 @@ from typing import Any, ClassVar, Final, TypeVar
 import numpy as np
 
 from mocap.qtm_protocol import BodyPose
+from sim.loads import ExternalLoad
 
 REBOOT_S: Final = 3.0
 """How long a simulated PX4 stays silent when it reboots, unless the fault says otherwise:
@@ -193,7 +195,38 @@ class UdpLoss:
         _check_duration(self.duration_s)
 
 
-Fault = MocapSilent | MocapBodyLost | MocapFreeze | MocapJump | LinkLost | Px4Reboot | UdpLoss
+PUSH_MAX_N: Final = 50.0
+"""The largest push along each axis [N]: about twice what a UAV's rotors give (the plant
+is checked stable with it on every body for seconds on end)."""
+
+
+@dataclass(frozen=True)
+class Push:
+    """A force ``force_n`` [N] (arena frame) at ``body``'s centre of mass acts on the plant
+    (a hand, a tether, a steady gust); the measurement and the vehicles are untouched."""
+
+    kind: ClassVar[str] = "push"
+    body: str
+    force_n: tuple[float, float, float]
+    duration_s: float | None = None
+
+    def __post_init__(self) -> None:
+        _check_body(self.body)
+        force = self.force_n
+        if not (
+            isinstance(force, tuple)
+            and len(force) == 3
+            and all(_number(v) and math.isfinite(v) and abs(v) <= PUSH_MAX_N for v in force)
+        ):
+            raise FaultError(
+                "force_n", f"three numbers [x, y, z] within ±{PUSH_MAX_N:g} N, got {force!r}"
+            )
+        _check_duration(self.duration_s)
+
+
+Fault = (
+    MocapSilent | MocapBodyLost | MocapFreeze | MocapJump | LinkLost | Px4Reboot | UdpLoss | Push
+)
 FAULT_TYPES: Final[tuple[type[Fault], ...]] = (
     MocapSilent,
     MocapBodyLost,
@@ -202,6 +235,7 @@ FAULT_TYPES: Final[tuple[type[Fault], ...]] = (
     LinkLost,
     Px4Reboot,
     UdpLoss,
+    Push,
 )
 F = TypeVar("F", bound=Fault)
 KINDS: Final[Mapping[str, type[Fault]]] = {t.kind: t for t in FAULT_TYPES}
@@ -240,8 +274,9 @@ def parse_fault(request: Mapping[str, object], body_names: Sequence[str]) -> Fau
     for name in parameter_names(kind):
         if name not in given:
             raise FaultError(name, f"required for {kind.kind}")
-    if isinstance(given.get("offset_m"), list):
-        given["offset_m"] = tuple(given["offset_m"])  # type: ignore[arg-type]
+    for name in ("offset_m", "force_n"):
+        if isinstance(given.get(name), list):
+            given[name] = tuple(given[name])  # type: ignore[arg-type]
     try:
         fault: Fault = kind(**given)  # type: ignore[arg-type]
     except TypeError as error:  # not reachable with the checks above; a clear error anyway
@@ -386,6 +421,20 @@ class FaultSet:
             if isinstance(fault.fault, LinkLost | Px4Reboot) and fault.fault.vehicle == vehicle:
                 return False
         return not self._lost_at_random()
+
+    def loads(self, plant_body: Mapping[str, str]) -> list[ExternalLoad]:
+        """The external loads the pushes in effect put on the plant (``plant_body``: the
+        plant's body of each rigid body QTM streams), each over its own time."""
+        return [
+            ExternalLoad(
+                plant_body[a.fault.body],
+                a.fault.force_n,
+                start_s=a.started_s,
+                duration_s=a.fault.duration_s,
+            )
+            for a in self._active
+            if isinstance(a.fault, Push)
+        ]
 
     def powered(self, vehicle: int) -> bool:
         """Whether simulated PX4 ``vehicle`` is up (not rebooting)."""

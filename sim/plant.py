@@ -14,7 +14,8 @@ motors lag and saturate, and everything can rest on the ground.
 * Ground at z = 0: UAVs stand on their feet (or lie on their rotor tips), the bar on its
   ends; penalty contact with friction and rolling resistance so resting is stable. The
   bodies do not collide with each other.
-* Optional drag, wind and parameter mismatch (``sim/plant_params.py``).
+* Optional drag, wind and parameter mismatch (``sim/plant_params.py``), and external
+  loads on any body — a steady push or a gust (``sim/loads.py``, ``add_load``).
 
 Integration is fixed-step RK4 (1 kHz default) in numba kernels (``sim/plant_kernels.py``,
 where the state-vector layout is documented). Frames: ENU arena (z up), FLU UAV bodies.
@@ -38,6 +39,7 @@ from geometry.frames import (
     rotation_from_quaternion,
 )
 from sim import plant_kernels as pk
+from sim.loads import ExternalLoad
 from sim.plant_params import ContactParams, PlantParams
 from sim.ports import AirframeState
 
@@ -453,6 +455,8 @@ class Plant:
         self._anchored = list(anchored)
         self._x = np.zeros(STATE_SIZE)
         self._cmd = np.zeros(2 * ACT_SIZE)
+        self._ext = np.zeros(pk.N_BODIES * pk.EXT_SIZE)
+        self._loads: list[ExternalLoad] = []
         self._t0_s = time_s
         self._steps = 0
         self._diag = np.zeros(pk.DIAG_SIZE)
@@ -482,13 +486,72 @@ class Plant:
         if the state stops being finite."""
         if n_steps < 0:
             raise ValueError("n_steps must be ≥ 0")
-        if n_steps == 0:
-            return
-        pk.advance(self._x, self._P, self._cmd, self.time_s, self._params.step_s, n_steps)
-        self._steps += n_steps
+        h = self._params.step_s
+        while n_steps > 0:
+            chunk = self._load_chunk(n_steps)
+            pk.advance(self._x, self._P, self._cmd, self._ext, self.time_s, h, chunk)
+            self._steps += chunk
+            n_steps -= chunk
         self._diag_fresh = False
         if not np.all(np.isfinite(self._x)):
             raise FloatingPointError(f"plant state is not finite at t = {self.time_s:.3f} s")
+
+    def _load_chunk(self, n_steps: int) -> int:
+        """Set the external loads for the next steps and say for how many of them (at most
+        ``n_steps``) they hold: up to the next start or end of a steady load, one step at a
+        time while a gust acts (its value at the step's middle)."""
+        self._ext[:] = 0.0
+        if not self._loads:
+            return n_steps
+        h = self._params.step_s
+        now = self.time_s
+        chunk = n_steps
+        for load in self._loads:
+            for edge in (load.start_s, load.ends_s):
+                if edge > now + 1e-9 * h and math.isfinite(edge):
+                    chunk = min(chunk, max(1, math.ceil((edge - now) / h - 1e-6)))
+            scale = load.scale(now + 0.5 * h)
+            if scale == 0.0:
+                continue
+            if load.profile == "gust":
+                chunk = 1
+            e = BODY_INDEX[load.body] * pk.EXT_SIZE
+            self._ext[e : e + 3] += scale * np.asarray(load.force_n)
+            self._ext[e + 3 : e + 6] += scale * np.asarray(load.torque_nm)
+        return chunk
+
+    # -- external loads --
+
+    @property
+    def loads(self) -> tuple[ExternalLoad, ...]:
+        """The external loads in effect or to come, oldest first."""
+        return tuple(self._loads)
+
+    def add_load(self, load: ExternalLoad) -> None:
+        """Act with ``load`` from its ``start_s`` (plant time) on; loads add up."""
+        self._loads.append(load)
+
+    def remove_load(self, load: ExternalLoad) -> None:
+        """Stop ``load`` now (ValueError if it is not one of ``loads``)."""
+        self._loads.remove(load)
+
+    def clear_loads(self) -> None:
+        """No external load any more."""
+        self._loads.clear()
+
+    def external_load(
+        self, name: str, time_s: float | None = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """The external force [N] and torque [N m] (world frame) on body ``name`` at
+        ``time_s`` (default now), all loads added up."""
+        t = self.time_s if time_s is None else time_s
+        force, torque = np.zeros(3), np.zeros(3)
+        for load in self._loads:
+            if load.body == name:
+                scale = load.scale(t)
+                force += scale * np.asarray(load.force_n)
+                torque += scale * np.asarray(load.torque_nm)
+        return force, torque
 
     def advance(self, duration_s: float) -> int:
         """Advance by ``duration_s`` rounded to a whole number of steps; returns the number

@@ -12,6 +12,10 @@ State vector x, shape (STATE_SIZE,) = (47,):
 * UAV i ∈ {0, 1} actuators, offset 39 + 4 i: thrust after the lag [N] (1), body torque
   after the lag [N m] (3).
 
+External loads ``ext``, shape (N_BODIES × EXT_SIZE,): per body b at offset EXT_SIZE b, a
+force at its CoM [N] (3) and a torque [N m] (3), both in the ENU world frame (a push, a
+gust), held over a call like the commands.
+
 Frames: ENU arena (z up); UAV bodies FLU with thrust along +z; the bar's body frame has
 its origin at the CoM and x along the bar from end 1 to end 2.
 """
@@ -42,6 +46,7 @@ POS, VEL, QUAT, RATES = 0, 3, 6, 10
 ACT_OFFSET = N_BODIES * BODY_SIZE  # 39
 ACT_SIZE = 4
 STATE_SIZE = ACT_OFFSET + 2 * ACT_SIZE  # 47
+EXT_SIZE = 6  # per body: world force (3), world torque (3)
 
 # --- Parameter layout (pack_parameters in sim/plant.py writes it) -----------------------
 MAX_CONTACTS = 8
@@ -205,14 +210,16 @@ def derivative(
     x: FloatArray,
     P: FloatArray,
     cmd: FloatArray,
+    ext: FloatArray,
     R: FloatArray,
     Fw: FloatArray,
     Tb: FloatArray,
     out: FloatArray,
 ) -> None:
     """ẋ at time t [s] into ``out`` (shape (STATE_SIZE,)). ``cmd`` (8,) holds the
-    saturated commands [F1, τ1 (3), F2, τ2 (3)]; R (3, 3, 3), Fw (3, 3), Tb (3, 3) are
-    scratch space (rotations, world forces, body torques)."""
+    saturated commands [F1, τ1 (3), F2, τ2 (3)], ``ext`` the external loads (world force
+    and torque per body); R (3, 3, 3), Fw (3, 3), Tb (3, 3) are scratch space (rotations,
+    world forces, body torques)."""
     g = P[OFF_GLOBAL + G_GRAV]
     _rotations(x, R)
 
@@ -239,9 +246,15 @@ def derivative(
         Fw[b, 0] = -cd * rx
         Fw[b, 1] = -cd * ry
         Fw[b, 2] = -cd * rz - m * g
-        Tb[b, 0] = 0.0
-        Tb[b, 1] = 0.0
-        Tb[b, 2] = 0.0
+        # External load: the force as is, the world torque into the body frame (Rᵀ τ).
+        e = b * EXT_SIZE
+        Fw[b, 0] += ext[e]
+        Fw[b, 1] += ext[e + 1]
+        Fw[b, 2] += ext[e + 2]
+        tx, ty, tz = ext[e + 3], ext[e + 4], ext[e + 5]
+        Tb[b, 0] = R[b, 0, 0] * tx + R[b, 1, 0] * ty + R[b, 2, 0] * tz
+        Tb[b, 1] = R[b, 0, 1] * tx + R[b, 1, 1] * ty + R[b, 2, 1] * tz
+        Tb[b, 2] = R[b, 0, 2] * tx + R[b, 1, 2] * ty + R[b, 2, 2] * tz
 
     # Rotor thrust along body +z (1b) and body torque, after the motor lag.
     for i in range(2):
@@ -357,9 +370,12 @@ def derivative(
 
 
 @_jit
-def advance(x: FloatArray, P: FloatArray, cmd: FloatArray, t0: float, h: float, n: int) -> None:
+def advance(
+    x: FloatArray, P: FloatArray, cmd: FloatArray, ext: FloatArray, t0: float, h: float, n: int
+) -> None:
     """Integrate x (in place) over n fixed RK4 steps of h [s] from t0 [s], holding the
-    commands ``cmd`` (8,); quaternions are renormalized after every step."""
+    commands ``cmd`` (8,) and the external loads ``ext``; quaternions are renormalized
+    after every step."""
     R = np.empty((N_BODIES, 3, 3))
     Fw = np.empty((N_BODIES, 3))
     Tb = np.empty((N_BODIES, 3))
@@ -380,16 +396,16 @@ def advance(x: FloatArray, P: FloatArray, cmd: FloatArray, t0: float, h: float, 
     for step in range(n):
         # Time from the step index, not by accumulation, so it never drifts.
         t = t0 + step * h
-        derivative(t, x, P, cmd, R, Fw, Tb, k1)
+        derivative(t, x, P, cmd, ext, R, Fw, Tb, k1)
         for k in range(STATE_SIZE):
             xt[k] = x[k] + half * k1[k]
-        derivative(t + half, xt, P, cmd, R, Fw, Tb, k2)
+        derivative(t + half, xt, P, cmd, ext, R, Fw, Tb, k2)
         for k in range(STATE_SIZE):
             xt[k] = x[k] + half * k2[k]
-        derivative(t + half, xt, P, cmd, R, Fw, Tb, k3)
+        derivative(t + half, xt, P, cmd, ext, R, Fw, Tb, k3)
         for k in range(STATE_SIZE):
             xt[k] = x[k] + h * k3[k]
-        derivative(t + h, xt, P, cmd, R, Fw, Tb, k4)
+        derivative(t + h, xt, P, cmd, ext, R, Fw, Tb, k4)
         sixth = h / 6.0
         for k in range(STATE_SIZE):
             x[k] += sixth * (k1[k] + 2.0 * k2[k] + 2.0 * k3[k] + k4[k])

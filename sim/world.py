@@ -148,6 +148,7 @@ class SimulatedWorld:
         self.vehicles = [vehicles(self.plant, i) for i in (1, 2)]
         self.qtm = QtmServer(list(body_names), host=qtm_host, port=qtm_port, rate_hz=None)
         self._qtm_names = dict(zip(PLANT_BODIES, body_names, strict=True))
+        self._plant_bodies = dict(zip(body_names, PLANT_BODIES, strict=True))
         self.faults = FaultSet(body_names, fault_seed)
         """The faults in effect (``inject``, ``clear_faults``)."""
         self.qtm.packet_filter = self.faults.keep_mocap_packet
@@ -247,6 +248,7 @@ class SimulatedWorld:
             self._ended([replaced], "replaced", now_s)
         log.info("fault started at %.3f s: %s", now_s, started.describe())
         self._power_vehicles()
+        self._load_plant()
         return started
 
     def clear_faults(self) -> list[ActiveFault]:
@@ -264,6 +266,14 @@ class SimulatedWorld:
         for fault in ended:
             log.info("fault ended at %.3f s (%s): %s", now_s, why, fault.describe())
         self._power_vehicles()
+        self._load_plant()
+
+    def _load_plant(self) -> None:
+        """The plant's external loads: the pushes in effect (each ends on its own time,
+        within the plant's steps, even between two world steps)."""
+        self.plant.clear_loads()
+        for load in self.faults.loads(self._plant_bodies):
+            self.plant.add_load(load)
 
     def _power_vehicles(self) -> None:
         """Power each simulated PX4 off or on as the reboot faults say."""

@@ -120,6 +120,7 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
         flight,
         config.system.to_params(),
         Arena.between(config.arena.min_m, config.arena.max_m),  # not assembly: no plant
+        config.setpoint_bounds(),
         api_policy(config, start.token),
         world,
         processes=table.current,

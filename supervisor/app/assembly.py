@@ -26,7 +26,7 @@ from sim.plant_params import (
 )
 from sim.px4 import Px4Params
 from supervisor.app.config import Config, host_port
-from supervisor.flight.core import CONTROLLERS, FlightCore
+from supervisor.flight.core import CONTROLLERS, CoreSettings, FlightCore
 from supervisor.flight.estimation import BodyNames
 from supervisor.flight.safety import SafetyLimits
 from supervisor.flight.setpoints import Arena
@@ -41,8 +41,32 @@ def arena_from_config(config: Config) -> Arena:
 def safety_limits_from_config(config: Config) -> SafetyLimits:
     """The monitors' thresholds for this setup (the ones it does not set at their defaults)."""
     return SafetyLimits(
+        max_tilt_rad=math.radians(config.safety.max_tilt_deg),
+        slack_time_s=config.safety.slack_time_s,
+        slack_window_s=config.safety.slack_window_s,
+        slack_in_window_s=config.safety.slack_in_window_s,
         max_bar_yaw_error_rad=math.radians(config.safety.max_bar_yaw_error_deg),
         max_refused_poses=config.safety.max_refused_poses,
+    )
+
+
+def core_settings_from_config(config: Config) -> CoreSettings:
+    """The tick core's flight-phase settings of this setup (``control``)."""
+    c = config.control
+    return CoreSettings(
+        takeoff_height_m=c.takeoff_height_m,
+        reached_position_m=c.reached_position_m,
+        reached_yaw_rad=math.radians(c.reached_yaw_deg),
+        flight_rates=c.flight_rates.to_limits(),
+        takeoff_rates=c.takeoff_rates.to_limits(),
+        abort_rates=c.abort_rates.to_limits(),
+        descend_speed_mps=c.descend_speed_mps,
+        settle_on_ground_s=c.settle_on_ground_s,
+        landing_clearance_m=c.landing_clearance_m,
+        bumpless_ticks=c.bumpless_ticks,
+        rate_lookahead_steps=c.rate_lookahead_steps,
+        pd_gains=c.pd.to_gains(),
+        feasibility=c.feasibility(),
     )
 
 
@@ -55,6 +79,7 @@ def flight_core_from_config(
         {name: config.mpc.settings(name) for name in CONTROLLERS},
         arena_from_config(config),
         controller,
+        settings=core_settings_from_config(config),
         safety=safety_limits_from_config(config),
         clock=clock,
     )

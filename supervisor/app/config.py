@@ -37,7 +37,10 @@ from controllers.params import (
     UavParams,
 )
 from controllers.qp.registry import BACKEND_NAMES
+from controllers.uav_pd import UavPdGains
 from supervisor.app.config_files import CONFIG_DIR, TOKEN_ENV, ConfigError, read_setup
+from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
+from supervisor.flight.reference_shaping import RateLimits
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
@@ -435,13 +438,121 @@ class ApiSection(_Section):
 class SafetySection(_Section):
     """Thresholds of the safety monitors that a setup may want to tune (docs/safety.md)."""
 
+    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=90.0)] = 45.0
+    """A UAV tilted further than this in flight: abort. Setpoints whose equilibrium tilts
+    a UAV beyond it, less ``control.tilt_margin_deg``, are refused."""
     max_bar_yaw_error_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 20.0
     """The bar's yaw this far from its reference while hovering or tracking under the
     decentralized MPC: the centralized MPC takes over. 0 turns the hand-over off."""
+    slack_time_s: PositiveFloat = 0.5
+    """A cable slack (shorter than its length by 5 cm) this long without a break, while
+    hovering or tracking: abort."""
+    slack_window_s: PositiveFloat = 10.0
+    slack_in_window_s: PositiveFloat = 0.5
+    """Slack episodes adding up to this much within the last ``slack_window_s``: abort
+    (short episodes, repeated, never reach ``slack_time_s``)."""
     max_refused_poses: Annotated[int, Field(ge=1)] = 10
     """A body's poses refused this many times in a row in flight (the mocap's innovation
     gate, or a frozen stream): blind, each PX4 lands on its own. 10 = 0.1 s at 100 Hz, the
     coast limit."""
+
+    @model_validator(mode="after")
+    def _window_holds_its_slack(self) -> SafetySection:
+        if self.slack_in_window_s > self.slack_window_s:
+            raise ValueError("slack_in_window_s must not exceed slack_window_s")
+        return self
+
+
+class RatesSection(_Section):
+    """How fast the reference may move (``supervisor.flight.reference_shaping``): the bar's
+    speed and acceleration, yaws and θ_l."""
+
+    position_mps: PositiveFloat = 0.3
+    acceleration_mps2: PositiveFloat = 0.3
+    yaw_deg_s: PositiveFloat = 20.0
+    theta_l_deg_s: PositiveFloat = 10.0
+
+    def to_limits(self) -> RateLimits:
+        """The reference shaper's plain limits."""
+        return RateLimits(
+            position_mps=self.position_mps,
+            acceleration_mps2=self.acceleration_mps2,
+            yaw_radps=math.radians(self.yaw_deg_s),
+            theta_l_radps=math.radians(self.theta_l_deg_s),
+        )
+
+
+class TakeoffRatesSection(RatesSection):
+    """The reference's rates while the bar is lifted: slower, gentler."""
+
+    position_mps: PositiveFloat = 0.25
+    acceleration_mps2: PositiveFloat = 0.15
+
+
+class AbortRatesSection(RatesSection):
+    """The reference's rates in an abort: the bar is lowered a little faster."""
+
+    position_mps: PositiveFloat = 0.4
+
+
+class PdSection(_Section):
+    """The UAVs' own PD controller (``controllers.uav_pd``), flown while the cables are
+    slack by design (the climb before the lift, the descent after the bar is down)."""
+
+    kp: PositiveFloat = 4.0
+    """position gain [1/s²]"""
+    kv: PositiveFloat = 3.0
+    """velocity gain [1/s]"""
+    kr: PositiveFloat = 60.0
+    """attitude gain [1/s²]"""
+    kw: PositiveFloat = 12.0
+    """rate gain [1/s]"""
+    max_tilt_deg: Annotated[float, Field(gt=0.0, lt=90.0)] = 25.0
+
+    def to_gains(self) -> UavPdGains:
+        """The PD controller's plain gains."""
+        return UavPdGains(self.kp, self.kv, self.kr, self.kw, math.radians(self.max_tilt_deg))
+
+
+class ControlSection(_Section):
+    """How the supervisor flies: which setpoints it takes (``supervisor.flight.feasibility``),
+    its flight phases and the reference's rates (``supervisor.flight.core.CoreSettings``)."""
+
+    max_theta_l_deg: Annotated[float, Field(ge=0.0, lt=90.0)] = 75.0
+    """The largest cable angle θ_l a setpoint may ask for."""
+    thrust_margin: Annotated[float, Field(ge=0.0, lt=0.5)] = 0.10
+    """A setpoint's equilibrium thrust must stay this fraction of ``mpc.thrust_max_n``
+    inside the range ``mpc.thrust_min_n``..``mpc.thrust_max_n``, at both ends."""
+    tilt_margin_deg: Annotated[float, Field(ge=0.0, lt=90.0)] = 10.0
+    """A setpoint's equilibrium tilt must stay this far below ``safety.max_tilt_deg``."""
+
+    takeoff_height_m: PositiveFloat = 1.0
+    """How high the take-off lifts the bar above where it rested."""
+    reached_position_m: PositiveFloat = 0.05
+    reached_yaw_deg: PositiveFloat = 3.0
+    """A setpoint is reached (its hold starts) with the bar this close to it."""
+    descend_speed_mps: PositiveFloat = 0.3
+    """The UAVs' descent once the bar is down."""
+    settle_on_ground_s: NonNegativeFloat = 1.0
+    """How long both UAVs stay at their ground height before the landing is over."""
+    landing_clearance_m: NonNegativeFloat = 0.3
+    """How far outward along the bar each UAV moves before descending beside its end."""
+    bumpless_ticks: Annotated[int, Field(ge=1, le=500)] = 15
+    """Ticks over which a controller switch blends the inputs."""
+    rate_lookahead_steps: Annotated[int, Field(ge=0)] = 3
+    """Which step of the MPC's predicted rates a rate-controlled PX4 is sent."""
+    flight_rates: RatesSection = RatesSection()
+    takeoff_rates: TakeoffRatesSection = TakeoffRatesSection()
+    abort_rates: AbortRatesSection = AbortRatesSection()
+    pd: PdSection = PdSection()
+
+    def feasibility(self) -> FeasibilitySettings:
+        """The plain settings of the setpoint check."""
+        return FeasibilitySettings(
+            max_theta_l_rad=math.radians(self.max_theta_l_deg),
+            thrust_margin=self.thrust_margin,
+            tilt_margin_rad=math.radians(self.tilt_margin_deg),
+        )
 
 
 class LogSection(_Section):
@@ -485,6 +596,7 @@ class Config(_Section):
     log: LogSection = LogSection()
     foxglove: FoxgloveSection = FoxgloveSection()
     safety: SafetySection = SafetySection()
+    control: ControlSection = ControlSection()
     sim: SimSection = SimSection()
 
     @model_validator(mode="after")
@@ -492,11 +604,28 @@ class Config(_Section):
         v = self.vehicles
         if self.sim.embedded and v.bind_host and not ipaddress.ip_address(v.bind_host).is_loopback:
             raise ValueError("vehicles.bind_host: the embedded world is on loopback (127.0.0.1)")
+        if self.control.rate_lookahead_steps > self.mpc.horizon:
+            raise ValueError("control.rate_lookahead_steps must not exceed mpc.horizon")
+        if self.control.tilt_margin_deg >= self.safety.max_tilt_deg:
+            raise ValueError(
+                "control.tilt_margin_deg must be below safety.max_tilt_deg (no setpoint would"
+                " be flyable)"
+            )
         if self.sim.embedded and self.sim.vehicles == "px4_sitl" and v.signing:
             raise ValueError(
                 "vehicles.signing: PX4 v1.15.4 SITL cannot sign (MAVLink signing came with v1.17)"
             )
         return self
+
+    def setpoint_bounds(self) -> SetpointBounds:
+        """What a setpoint's equilibrium must respect in this setup: the MPC's thrust range,
+        the abort tilt and the ``control`` section's margins and θ_l maximum."""
+        return SetpointBounds(
+            self.mpc.thrust_min_n,
+            self.mpc.thrust_max_n,
+            math.radians(self.safety.max_tilt_deg),
+            self.control.feasibility(),
+        )
 
     def link_bind_host(self) -> str:
         """The address the vehicle links bind (loopback for the embedded world); raises

@@ -94,6 +94,7 @@ FAULT_OPTIONS = (
     ("offset_m", "offset_m"),
     ("vehicle", "vehicle"),
     ("fraction", "fraction"),
+    ("force_n", "force_n"),
 )
 
 
@@ -293,6 +294,7 @@ EXAMPLES = {
     "fault": (
         "  uavbar-supervisor fault mocap_silent --duration-s 1\n"
         "  uavbar-supervisor fault link_lost --vehicle 2\n"
+        "  uavbar-supervisor fault push --body uav1 --force-n 1 0 0 --duration-s 5\n"
         "  uavbar-supervisor fault --clear"
     ),
     "reset": "  uavbar-supervisor reset",
@@ -369,7 +371,7 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
         nargs="?",
         metavar="KIND",
         help="mocap_silent, mocap_body_lost, mocap_freeze, mocap_jump, link_lost, "
-        "px4_reboot or udp_loss (docs/faults.md)",
+        "px4_reboot, udp_loss or push (docs/faults.md)",
     )
     fault.add_argument(
         "--duration-s",
@@ -384,6 +386,13 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
     )
     fault.add_argument("--vehicle", type=int, metavar="N", help="1 or 2")
     fault.add_argument("--fraction", type=finite_float, metavar="F", help="in [0, 1]")
+    fault.add_argument(
+        "--force-n",
+        type=finite_float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        help="push: newtons at the body's centre of mass, arena frame (each within ±50)",
+    )
     fault.add_argument("--clear", action="store_true", help="end every fault")
     reset = command("reset", "put the embedded simulated world back in its resting pose (disarmed)")
     parsers += [kill, mode, setpoint, fault, reset]

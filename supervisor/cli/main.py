@@ -101,7 +101,7 @@ def _equilibria(args: argparse.Namespace) -> int:
         raise UsageError(f"--theta-l-deg {theta_l_deg}: must lie in [0, 90) degrees")
     params = config.system.to_params()
     try:
-        result = equilibrium_summary(params, math.radians(theta_l_deg))
+        result = equilibrium_summary(params, math.radians(theta_l_deg), config.setpoint_bounds())
     except EquilibriumError as error:
         raise UsageError(str(error)) from error
     eq = bar_equilibrium(params, Reference((0.0, 0.0, 0.0), 0.0, (0.0, 0.0), result["theta_l"]))
@@ -121,6 +121,8 @@ def _equilibria(args: argparse.Namespace) -> int:
         )
     if not params.is_symmetric:
         print("  (asymmetric setup: per-cable angles from the general static equilibrium)")
+    for refusal in result["refusals"]:
+        print(f"  refused as a setpoint: {refusal}")
     return 0
 
 

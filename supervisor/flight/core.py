@@ -42,6 +42,7 @@ from geometry.state import (
     uav_yaws,
 )
 from supervisor.flight.estimation import Estimate
+from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 from supervisor.flight.modes import Event, FlightModes, Mode, Transition
 from supervisor.flight.phases import Phase, next_phase
 from supervisor.flight.preflight import resting_pose_problems
@@ -85,6 +86,7 @@ class CoreSettings:
     bumpless_ticks: int = 15
     rate_lookahead_steps: int = 3
     pd_gains: UavPdGains = field(default_factory=UavPdGains)
+    feasibility: FeasibilitySettings = field(default_factory=FeasibilitySettings)
 
 
 class NoticeKind(StrEnum):
@@ -154,6 +156,14 @@ class FlightCore:
         self.modes = FlightModes()
         self.queue = SetpointQueue()
         self.safety = SafetyMonitor(params, arena, safety or SafetyLimits())
+        limits = mpc_settings["centralized"].limits
+        self.setpoint_bounds = SetpointBounds(
+            limits.thrust_min_n,
+            limits.thrust_max_n,
+            self.safety.limits.max_tilt_rad,
+            self.settings.feasibility,
+        )
+        """What every queued setpoint's equilibrium must respect (``feasibility``)."""
         self.notices: deque[tuple[float, Notice]] = deque(maxlen=NOTICES_KEPT)
         """The latest decisions the safety monitors forced (time, what and why), oldest
         first: what an operator must be told even if no screen was watching."""
@@ -259,13 +269,13 @@ class FlightCore:
         """Queue setpoints, all or none: only in a mode that flies them (``TAKES_SETPOINTS``,
         else raises ``SetpointRefusedError``), they must fit the queue (raises
         ``SetpointQueueFullError``) and each is validated against the arena and equilibrium
-        feasibility (raises ``SetpointError`` naming which one)."""
+        feasibility, ``setpoint_bounds`` (raises ``SetpointError`` naming which one)."""
         mode = self.modes.mode
         if mode not in TAKES_SETPOINTS:
             hint = "arm first" if mode is Mode.DISARMED else "nothing is flown until armed again"
             raise SetpointRefusedError(f"setpoints are not taken in mode '{mode.value}': {hint}")
         self.queue.check_room(len(setpoints))
-        validate_setpoints(setpoints, self.params, self.arena)
+        validate_setpoints(setpoints, self.params, self.arena, self.setpoint_bounds)
         self.queue.extend(setpoints)
 
     def clear_setpoints(self) -> None:

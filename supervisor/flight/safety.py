@@ -8,6 +8,7 @@ both UAVs; the monitors never disarm in the air (kill is the operator's decision
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from enum import Enum
 
@@ -59,7 +60,9 @@ class SafetyLimits:
     max_tilt_rad: float = math.radians(45.0)
     max_consecutive_fallbacks: int = 10
     slack_margin_m: float = 0.05
-    slack_time_s: float = 0.5
+    slack_time_s: float = 0.5  # one slack episode this long: abort
+    slack_window_s: float = 10.0  # ... or this much slack, added up, within this window
+    slack_in_window_s: float = 0.5
     max_bar_yaw_error_rad: float = math.radians(20.0)  # 0: no hand-over
     max_refused_poses: int = 10  # a body's poses refused in a row: blind (10 = 0.1 s at 100 Hz)
 
@@ -80,6 +83,9 @@ class SafetyMonitor:
         self.limits = limits
         self._fallbacks = 0
         self._slack_since_s: float | None = None
+        self._slack_ticks: deque[tuple[float, float]] = deque()  # (time, slack time) in window
+        self._slack_in_window_s = 0.0
+        self._last_slack_check_s: float | None = None
 
     def check(
         self,
@@ -94,7 +100,7 @@ class SafetyMonitor:
         checked against ``bar_yaw_reference_rad`` when the tick had a reference."""
         if not mode.airborne:
             self._fallbacks = 0
-            self._slack_since_s = None
+            self._forget_slack()
             return []
         faults: list[Fault] = []
         lim = self.limits
@@ -161,23 +167,61 @@ class SafetyMonitor:
                     Fault("tilt", f"UAV {i} tilted {math.degrees(tilt):.0f}°", Response.ABORT)
                 )
 
+    def _forget_slack(self) -> None:
+        self._slack_since_s = None
+        self._slack_ticks.clear()
+        self._slack_in_window_s = 0.0
+        self._last_slack_check_s = None
+
     def _slack(self, now_s: float, x: np.ndarray, mode: Mode, faults: list[Fault]) -> None:
-        """A cable much shorter than its length for a while means the bar is not hanging."""
+        """A cable much shorter than its length means the bar is not hanging: abort after
+        one episode of ``slack_time_s``, or when episodes add up to ``slack_in_window_s``
+        within the last ``slack_window_s`` (short ones, repeated, never reach the first)."""
         if mode not in (Mode.HOVER, Mode.TRACKING):
-            self._slack_since_s = None
+            self._forget_slack()
             return
+        lim = self.limits
+        # A slack tick adds the time since the previous check (a slack seen on n ticks
+        # lasted n ticks, give or take one), capped so that a stalled loop does not count
+        # its stall as slack.
+        since = 0.0 if self._last_slack_check_s is None else now_s - self._last_slack_check_s
+        self._last_slack_check_s = now_s
         ends = bar_ends(x, self.params.arms_m)
         slack = [
-            np.linalg.norm(uav_position(x, i) - ends[i - 1])
-            < self.params.cable_lengths_m[i - 1] - self.limits.slack_margin_m
+            i
             for i in (1, 2)
+            if np.linalg.norm(uav_position(x, i) - ends[i - 1])
+            < self.params.cable_lengths_m[i - 1] - lim.slack_margin_m
         ]
-        if not any(slack):
+        while self._slack_ticks and self._slack_ticks[0][0] <= now_s - lim.slack_window_s:
+            self._slack_in_window_s -= self._slack_ticks.popleft()[1]
+        if not self._slack_ticks:
+            self._slack_in_window_s = 0.0  # no rounding left over from the running sum
+        if not slack:
             self._slack_since_s = None
             return
+        added = min(max(since, 0.0), 2.0 * lim.mocap_coast_s)
+        self._slack_ticks.append((now_s, added))
+        self._slack_in_window_s += added
+        cables = " and ".join(f"cable {i}" for i in slack)
         self._slack_since_s = now_s if self._slack_since_s is None else self._slack_since_s
-        if now_s - self._slack_since_s >= self.limits.slack_time_s:
-            faults.append(Fault("slack", "a cable has been slack for too long", Response.ABORT))
+        if now_s - self._slack_since_s >= lim.slack_time_s:
+            faults.append(
+                Fault(
+                    "slack",
+                    f"{cables} slack for {now_s - self._slack_since_s:.2f} s",
+                    Response.ABORT,
+                )
+            )
+        elif self._slack_in_window_s >= lim.slack_in_window_s - 1e-9:
+            faults.append(
+                Fault(
+                    "slack",
+                    f"cables slack {self._slack_in_window_s:.2f} s in all within the last "
+                    f"{lim.slack_window_s:.0f} s ({cables} now)",
+                    Response.ABORT,
+                )
+            )
 
     def _swing(self, x: np.ndarray, mode: Mode, reference_rad: float, faults: list[Fault]) -> None:
         """The bar turned far from its reference while the MPC holds or tracks it: the

@@ -2,8 +2,10 @@
 
 A setpoint is checked against the arena geofence and equilibrium feasibility *before* it
 is queued: the bar, both bar ends and both UAVs of its equilibrium must lie inside the
-arena (with a margin). The queue starts the next setpoint when the current one has been
-reached and held for ``hold_s``. Between setpoints the reference moves at bounded rates
+arena (with a margin), and the vehicles must be able to hold that equilibrium (θ_l, thrust
+and tilt within ``SetpointBounds``, ``supervisor.flight.feasibility``). The queue starts
+the next setpoint when the current one has been reached and held for ``hold_s``. Between
+setpoints the reference moves at bounded rates
 (``supervisor.flight.reference_shaping``), never in steps.
 """
 
@@ -20,6 +22,7 @@ from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
 from controllers.params import BarSystemParams
 from geometry.state import bar_position
 from supervisor.errors import OperatorError
+from supervisor.flight.feasibility import SetpointBounds, equilibrium_problems, theta_l_problem
 
 
 class SetpointError(OperatorError, ValueError):
@@ -78,7 +81,9 @@ class Arena:
         )
 
 
-def validate_setpoint(setpoint: Setpoint, params: BarSystemParams, arena: Arena) -> None:
+def validate_setpoint(
+    setpoint: Setpoint, params: BarSystemParams, arena: Arena, bounds: SetpointBounds
+) -> None:
     """Raise ``SetpointError`` naming what is wrong; return quietly when it can be flown."""
     values = [*setpoint.bar_position_m, setpoint.bar_yaw_rad, setpoint.theta_l_rad, setpoint.hold_s]
     values += list(setpoint.uav_yaw_rad or ())
@@ -86,10 +91,15 @@ def validate_setpoint(setpoint: Setpoint, params: BarSystemParams, arena: Arena)
         raise SetpointError("setpoint values must be finite numbers")
     if setpoint.hold_s < 0.0:
         raise SetpointError("hold_s must be >= 0")
+    too_steep = theta_l_problem(setpoint.theta_l_rad, bounds)
+    problems = [too_steep] if too_steep is not None else []
     try:
         eq = bar_equilibrium(params, setpoint.reference())
     except EquilibriumError as error:
-        raise SetpointError(str(error)) from error
+        raise SetpointError("; ".join(problems) or str(error)) from error
+    problems += equilibrium_problems(eq, bounds)
+    if problems:
+        raise SetpointError("; ".join(problems))
     points = {
         "bar centre": bar_position(eq.x),
         "bar end 1": eq.bar_ends_m[0],
@@ -106,11 +116,13 @@ def validate_setpoint(setpoint: Setpoint, params: BarSystemParams, arena: Arena)
             )
 
 
-def validate_setpoints(setpoints: list[Setpoint], params: BarSystemParams, arena: Arena) -> None:
+def validate_setpoints(
+    setpoints: list[Setpoint], params: BarSystemParams, arena: Arena, bounds: SetpointBounds
+) -> None:
     """``validate_setpoint`` on each; the error names which one when there are several."""
     for index, setpoint in enumerate(setpoints):
         try:
-            validate_setpoint(setpoint, params, arena)
+            validate_setpoint(setpoint, params, arena, bounds)
         except SetpointError as error:
             if len(setpoints) == 1:
                 raise

@@ -18,7 +18,8 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter
 
 from supervisor.flight.operator_requests import Reply
 
-# The bounds of sim.faults (MAX_DURATION_S, MAX_OFFSET_M), which this module may not import.
+# The bounds of sim.faults (MAX_DURATION_S, MAX_OFFSET_M, PUSH_MAX_N), which this module
+# may not import.
 Seconds = Annotated[
     float, Field(gt=0.0, le=3600.0, strict=True, description="seconds, > 0, at most 3600")
 ]
@@ -98,6 +99,19 @@ class UdpLossFault(_Fault):
     fraction: Annotated[float, Field(ge=0.0, le=1.0, strict=True)]
 
 
+PushComponent = Annotated[
+    float, Field(ge=-50.0, le=50.0, strict=True, description="newtons, within ±50")
+]  # PUSH_MAX_N
+
+
+class PushFault(_Fault):
+    """A force ``force_n`` [N] (arena frame) at ``body``'s centre of mass acts on the plant."""
+
+    kind: Literal["push"]
+    body: Body
+    force_n: tuple[PushComponent, PushComponent, PushComponent]
+
+
 FaultSpec = Annotated[
     MocapSilentFault
     | MocapBodyLostFault
@@ -105,7 +119,8 @@ FaultSpec = Annotated[
     | MocapJumpFault
     | LinkLostFault
     | Px4RebootFault
-    | UdpLossFault,
+    | UdpLossFault
+    | PushFault,
     Field(discriminator="kind"),
 ]
 """A fault to inject, as the REST body and the channel carry it."""

@@ -39,9 +39,10 @@ from supervisor.app.config import Config
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
+from supervisor.flight.setpoints import SetpointError
 from supervisor.logs.flight_log import FlightLogSink, open_flight_log
 from supervisor.runtime.tick_driver import TickDriver
-from supervisor.simulate.scenarios import Scenario, Step
+from supervisor.simulate.scenarios import Scenario, Step, check_setpoints, scenario_config
 
 TICK_S = 0.02
 STEP_TIMEOUT_S = 60.0
@@ -131,7 +132,10 @@ class ScenarioScript:
             while self.index + 1 < len(self.steps) and self.steps[self.index + 1].action is None:
                 self.index += 1
                 setpoints.append(self.steps[self.index].setpoint())
-            core.queue_setpoints(setpoints)
+            try:
+                core.queue_setpoints(setpoints)
+            except SetpointError as error:
+                self._fail(f"step {self.index + 1}: setpoints refused: {error}")
         elif step.action == "takeoff":
             for request in (Event.ARM, Event.TAKEOFF):
                 result = core.request(request, now_s)
@@ -236,9 +240,15 @@ def run_scenario(
     log_path: Path | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> SimulationResult:
-    """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second."""
+    """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second.
+    The scenario's ``[control]`` keys apply over the setup's. Raises ``ConfigError`` before
+    anything flies when they do not validate or a setpoint step cannot be flown."""
+    config = scenario_config(config, scenario)
+    check_setpoints(scenario, config)
     loop = ClosedLoop(config, controller, seed)
     loop.place(scenario)
+    for load in scenario.load:
+        loop.plant.add_load(load.external_load())
     script = ScenarioScript(scenario)
     truth = TruthStats(loop.resting_heights()[0])
     header = {

@@ -6,7 +6,15 @@ a bar setpoint (``bar_position`` [m], ``bar_yaw_deg``, ``uav_yaw_deg`` [ψ1, ψ2
 the bar yaw), ``theta_l_deg``, ``hold_s``, and ``timeout_s``, after which the queue moves
 on even if the setpoint was not reached) or an operator action (``action = "takeoff"`` —
 arm and take off, done when hovering; ``"hover"`` — wait ``hold_s``; ``"land"`` — done
-when landed and disarmed; ``"abort"`` — done when landed and disarmed).
+when landed and disarmed; ``"abort"`` — done when landed and disarmed). A ``[control]``
+table sets keys of the setup's ``control`` section for this scenario alone (the reference's
+rates, take-off height, ..., key by key over the setup's; ``scenario_config``). Each
+``[[load]]`` acts on a body of the plant (``body`` "bar", "uav1" or "uav2"; ``force_n`` and
+``torque_nm`` [x, y, z] in the arena frame; ``start_s`` after the scenario starts, on the
+plant's clock; ``duration_s``, none: to the end; ``profile`` "steady" or "gust",
+``sim/loads.py``): a push or a gust. Before a scenario flies, ``check_setpoints`` refuses
+it when a setpoint step cannot be flown in the setup (the arena, and the feasibility
+bounds of ``supervisor.flight.feasibility``), naming the step and the bound.
 """
 
 from __future__ import annotations
@@ -14,19 +22,22 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from sim.loads import ExternalLoad
 from supervisor.app.config import (
+    Config,
     ConfigError,
+    ControlSection,
     FiniteFloat,
     NonNegativeFloat,
     PositiveFloat,
     Vec3,
 )
 from supervisor.app.config_files import SCENARIO_DIR, shipped_scenarios
-from supervisor.flight.setpoints import Setpoint
+from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 
 
 class _Strict(BaseModel):
@@ -71,6 +82,35 @@ class Step(_Strict):
         )
 
 
+class Load(_Strict):
+    """An external force and torque on one body of the plant (``sim.loads.ExternalLoad``)."""
+
+    body: Literal["bar", "uav1", "uav2"]
+    force_n: Vec3
+    torque_nm: Vec3 = [0.0, 0.0, 0.0]
+    start_s: NonNegativeFloat = 0.0
+    duration_s: PositiveFloat | None = None
+    profile: Literal["steady", "gust"] = "steady"
+
+    @model_validator(mode="after")
+    def _gust_ends(self) -> Load:
+        if self.profile == "gust" and self.duration_s is None:
+            raise ValueError("a gust needs a duration_s")
+        return self
+
+    def external_load(self) -> ExternalLoad:
+        """This load for the plant."""
+        f, t = self.force_n, self.torque_nm
+        return ExternalLoad(
+            self.body,
+            (f[0], f[1], f[2]),
+            (t[0], t[1], t[2]),
+            self.start_s,
+            self.duration_s,
+            self.profile,
+        )
+
+
 class Scenario(_Strict):
     """A scripted flight."""
 
@@ -78,6 +118,10 @@ class Scenario(_Strict):
     start: Literal["hover", "ground"]
     start_bar_position: Vec3 = [0.0, 0.0, 1.0]
     start_bar_yaw_deg: FiniteFloat = 0.0
+    control: ControlSection | None = None
+    """Keys of the setup's ``control`` section set for this scenario (the others stay)."""
+    load: list[Load] = []
+    """External loads on the plant's bodies (pushes, gusts)."""
     step: Annotated[list[Step], Field(min_length=1)]
 
     @model_validator(mode="after")
@@ -116,6 +160,48 @@ def load_scenario(name: str) -> Scenario:
             for item in error.errors()
         ]
         raise ConfigError(f"invalid scenario {path.name}:\n  " + "\n  ".join(problems)) from None
+
+
+def _merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in over.items():
+        below = merged.get(key)
+        both_tables = isinstance(value, dict) and isinstance(below, dict)
+        merged[key] = _merged(below, value) if both_tables else value  # type: ignore[arg-type]
+    return merged
+
+
+def scenario_config(config: Config, scenario: Scenario) -> Config:
+    """``config`` with the scenario's ``[control]`` keys set over its own, validated as a
+    whole again (raises ``ConfigError`` naming the key)."""
+    if scenario.control is None:
+        return config
+    control = _merged(config.control.model_dump(), scenario.control.model_dump(exclude_unset=True))
+    try:
+        return Config.model_validate({**config.model_dump(), "control": control})
+    except ValidationError as error:
+        problems = [f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in error.errors()]
+        raise ConfigError(
+            f"scenario {scenario.name} in setup {config.name}:\n  " + "\n  ".join(problems)
+        ) from None
+
+
+def check_setpoints(scenario: Scenario, config: Config) -> None:
+    """Raise ``ConfigError`` naming the first setpoint step that ``config`` cannot fly
+    (outside its arena, or an equilibrium beyond its bounds), before anything flies."""
+    params = config.system.to_params()
+    arena = Arena.between(config.arena.min_m, config.arena.max_m)
+    bounds = config.setpoint_bounds()
+    for number, step in enumerate(scenario.step, start=1):
+        if step.action is not None:
+            continue
+        try:
+            validate_setpoint(step.setpoint(), params, arena, bounds)
+        except SetpointError as error:
+            raise ConfigError(
+                f"scenario {scenario.name}, step {number}: cannot be flown in setup "
+                f"{config.name}: {error}"
+            ) from None
 
 
 def scenario_duration_s(scenario: Scenario, transit_s: float = 6.0) -> float:

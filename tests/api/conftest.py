@@ -79,7 +79,7 @@ async def serve_api(
     # The client shares this event loop, so its own work would read as the server's load:
     # shedding is off unless a test asks for it (test_http_guard's, and benchmarks.api_load).
     unshed = HttpPolicy(TOKEN, shed_lag_s=math.inf)
-    app = create_app(flight, params, arena, policy or unshed)
+    app = create_app(flight, params, arena, config.setpoint_bounds(), policy or unshed)
     server = HttpServer(app, bind("127.0.0.1", 0), tls)
     async with asyncio.TaskGroup() as group:
         tasks = [

@@ -10,6 +10,7 @@ import pytest
 import websockets
 
 from supervisor.flight.modes import Mode
+from supervisor.flight.setpoints import Setpoint, SetpointError
 from tests.api.conftest import TOKEN, ApiUnderTest
 
 MUTATING = [
@@ -129,6 +130,30 @@ async def test_a_setpoint_that_cannot_be_flown_here_is_409_and_queues_nothing(
     assert api.core.queue.queued == []
 
 
+@pytest.mark.parametrize(
+    ("theta_l_deg", "bound"),
+    [
+        (85.0, "θ_l 85.0° exceeds the maximum 75.0° by 10.0°"),
+        (80.0, "UAV 1's equilibrium tilt"),
+        (89.9, "equilibrium thrust"),
+    ],
+)
+async def test_a_setpoint_the_vehicles_cannot_hold_is_409_naming_the_bound(
+    api: ApiUnderTest, theta_l_deg: float, bound: str
+) -> None:
+    assert (await api.post("/api/arm")).status_code == 200
+    theta_l = math.radians(theta_l_deg)
+    response = await api.post(
+        "/api/setpoints", {"bar_position": [0.0, 0.0, 1.5], "theta_l": theta_l}
+    )
+    assert response.status_code == 409
+    assert bound in response.json()["detail"]
+    assert api.core.queue.queued == []
+    # The tick core itself, the authority behind the API, refuses it for the same reason.
+    with pytest.raises(SetpointError, match=bound):
+        api.core.queue_setpoints([Setpoint((0.0, 0.0, 1.5), theta_l_rad=theta_l)])
+
+
 async def test_non_finite_numbers_are_refused(api: ApiUnderTest) -> None:
     content = '{"bar_position": [NaN, 0.0, 1.0]}'
     response = await api.http.post(
@@ -175,6 +200,10 @@ async def test_equilibria(api: ApiUnderTest) -> None:
     assert body["theta_l"] == pytest.approx(math.pi / 4)
     assert 0.0 < body["theta_f"] < body["theta_l"]
     assert len(body["uav_positions"]) == 2
+    assert body["refusals"] == []
+    steep = (await api.http.get("/api/equilibria", params={"theta_l": math.radians(86)})).json()
+    assert any("exceeds the maximum 75.0° by 11.0°" in r for r in steep["refusals"])
+    assert any("equilibrium thrust" in r for r in steep["refusals"])
     for value in ("2.0", "-0.1", "nan", "x"):
         assert (await api.http.get(f"/api/equilibria?theta_l={value}")).status_code == 422
 

@@ -53,6 +53,11 @@ async def test_refusals_exit_1_with_the_reason(
     assert "not allowed in mode 'disarmed'" in capsys.readouterr().err
     assert await cli(api, "setpoint", "0", "0", "2.9") == 1
     assert "outside the arena" in capsys.readouterr().err
+    assert await cli(api, "setpoint", "0", "0", "1.5", "--theta-l-deg", "86") == 1
+    refused = capsys.readouterr().err
+    assert "θ_l 86.0° exceeds the maximum 75.0° by 11.0°" in refused
+    assert "UAV 1's equilibrium thrust 30.4 N is above the 26.0 N limit" in refused
+    assert "UAV 2's equilibrium tilt 64.4° is above the 45.0° abort tilt" in refused
     assert await cli(api, "arm", token=None) == 1
     assert "401" in capsys.readouterr().err
     assert api.core.modes.mode is Mode.DISARMED

@@ -20,10 +20,12 @@ from sim.faults import (
     MocapFreeze,
     MocapJump,
     MocapSilent,
+    Push,
     Px4Reboot,
     UdpLoss,
     parse_fault,
 )
+from sim.loads import ExternalLoad
 
 BODIES = ("bar", "uav1", "uav2")
 
@@ -58,6 +60,17 @@ def faults(*started: Any, now_s: float = 0.0) -> FaultSet:
         ({"kind": "mocap_jump", "body": "bar", "offset_m": [0.1, 0.0]}, "offset_m"),
         ({"kind": "mocap_jump", "body": "bar", "offset_m": [0.1, math.nan, 0]}, "offset_m"),
         ({"kind": "mocap_jump", "body": "bar", "offset_m": [True, 0, 0]}, "offset_m"),
+        ({"kind": "push", "body": "bar"}, "force_n"),
+        ({"kind": "push", "force_n": [1, 0, 0]}, "body"),
+        ({"kind": "push", "body": "bar", "force_n": [1, 0]}, "force_n"),
+        ({"kind": "push", "body": "bar", "force_n": [1, math.inf, 0]}, "force_n"),
+        (
+            {"kind": "push", "body": "bar", "force_n": [1, 0, 0], "torque_nm": [0, 0, 1]},
+            "torque_nm",
+        ),
+        ({"kind": "push", "body": "bar", "force_n": [0, 0, 50.5]}, "force_n"),
+        ({"kind": "push", "body": "ghost", "force_n": [1, 0, 0]}, "body"),
+        ({"kind": "push", "body": "bar", "force_n": [1, 0, 0], "offset_m": [0, 0, 0]}, "offset_m"),
         ({"kind": "link_lost"}, "vehicle"),
         ({"kind": "link_lost", "vehicle": 3}, "vehicle"),
         ({"kind": "link_lost", "vehicle": True}, "vehicle"),
@@ -231,3 +244,23 @@ def test_udp_loss_is_reproducible_from_the_seed() -> None:
 def test_faults_are_frozen_values() -> None:
     with pytest.raises(dataclasses.FrozenInstanceError):
         LinkLost(1).vehicle = 2  # type: ignore[misc]
+
+
+def test_a_push_is_a_load_on_the_plant_body_for_its_time() -> None:
+    push = parse_fault(
+        {"kind": "push", "body": "uav1", "force_n": [1, 0, -2], "duration_s": 2}, BODIES
+    )
+    assert push == Push("uav1", (1, 0, -2), 2.0)
+    steady = parse_fault({"kind": "push", "body": "bar", "force_n": [0, -50, 50]}, BODIES)
+    fault_set = faults(push, now_s=5.0)
+    fault_set.start(steady, 6.0)
+    plant_body = {"bar": "bar", "uav1": "uav2", "uav2": "uav1"}  # QTM's names → the plant's
+    assert fault_set.loads(plant_body) == [
+        ExternalLoad("uav2", (1, 0, -2), start_s=5.0, duration_s=2.0),
+        ExternalLoad("bar", (0, -50, 50), start_s=6.0),
+    ]
+    fault_set.expire(7.0)
+    assert [load.body for load in fault_set.loads(plant_body)] == ["bar"]
+    # A push on the same body replaces it (its force and its timer).
+    fault_set.start(Push("bar", (0.0, 0.0, 3.0)), 8.0)
+    assert fault_set.loads(plant_body) == [ExternalLoad("bar", (0.0, 0.0, 3.0), start_s=8.0)]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -72,6 +73,16 @@ def test_overrides_are_toml_literals() -> None:
         ("sim.uav_mass_scale=[1.0]", "sim.uav_mass_scale", "at least 2"),
         ("mocap.bodies=['bar', 'bar', 'uav2']", "mocap", "distinct"),
         ("mocap.port=70000", "mocap.port", "less than or equal"),
+        ("control.max_theta_l_deg=90", "control.max_theta_l_deg", "less than 90"),
+        ("control.thrust_margin=0.5", "control.thrust_margin", "less than 0.5"),
+        ("control.max_thetal_deg=80", "control.max_thetal_deg", "unknown key"),
+        ("control.tilt_margin_deg=50", "(top level)", "below safety.max_tilt_deg"),
+        ("safety.max_tilt_deg=0", "safety.max_tilt_deg", "greater than 0"),
+        ("safety.slack_in_window_s=20", "safety", "must not exceed slack_window_s"),
+        ("control.flight_rates.speed_mps=1", "control.flight_rates.speed_mps", "unknown key"),
+        ("control.abort_rates.yaw_deg_s=0", "control.abort_rates.yaw_deg_s", "greater than 0"),
+        ("control.rate_lookahead_steps=31", "(top level)", "must not exceed mpc.horizon"),
+        ("control.pd.kp=-1", "control.pd.kp", "greater than 0"),
     ],
 )
 def test_bad_values_name_their_key(override: str, key: str, reason: str) -> None:
@@ -150,3 +161,54 @@ def test_the_foxglove_view_stays_on_loopback_unless_an_interface_is_named() -> N
     assert section.bind_host("192.168.1.4") == "127.0.0.1"
     named = load_config(CONFIGS / "sim.toml", ['foxglove.host="192.168.1.4"']).foxglove
     assert named.bind_host("0.0.0.0") == "192.168.1.4"
+
+
+def test_the_tick_core_checks_setpoints_against_the_setup_s_bounds() -> None:
+    """The API checks with ``Config.setpoint_bounds``, the tick core with what it was built
+    from: the same bounds, set keys included."""
+    from supervisor.app.assembly import flight_core_from_config
+
+    overrides = ["control.max_theta_l_deg=60", "safety.max_tilt_deg=40", "mpc.thrust_max_n=24"]
+    config = load_config(KTH, overrides)
+    core = flight_core_from_config(config, clock=lambda: 0.0)
+    assert core.setpoint_bounds == config.setpoint_bounds()
+    assert core.safety.limits.max_tilt_rad == pytest.approx(math.radians(40.0))
+    bounds = config.setpoint_bounds()
+    assert bounds.settings.max_theta_l_rad == pytest.approx(math.radians(60.0))
+    assert bounds.thrust_band_n == pytest.approx((0.5 + 2.4, 24.0 - 2.4))
+    assert bounds.tilt_allowed_rad == pytest.approx(math.radians(30.0))
+
+
+def test_the_core_settings_come_from_the_control_section() -> None:
+    """Every key reaches the tick core, in SI units; a rates table given in part keeps its
+    own defaults for the rest (the take-off's gentler acceleration)."""
+    from supervisor.app.assembly import core_settings_from_config
+    from supervisor.flight.core import CoreSettings
+
+    assert core_settings_from_config(load_config(KTH)) == CoreSettings()  # same defaults
+    overrides = [
+        "control.takeoff_height_m=0.8",
+        "control.reached_yaw_deg=2",
+        "control.flight_rates.position_mps=0.5",
+        "control.flight_rates.theta_l_deg_s=5",
+        "control.takeoff_rates.position_mps=0.2",
+        "control.abort_rates.acceleration_mps2=0.6",
+        "control.bumpless_ticks=20",
+        "control.pd.max_tilt_deg=20",
+    ]
+    settings = core_settings_from_config(load_config(KTH, overrides))
+    assert settings.takeoff_height_m == 0.8
+    assert settings.reached_yaw_rad == pytest.approx(math.radians(2.0))
+    assert settings.flight_rates.position_mps == 0.5
+    assert settings.flight_rates.theta_l_radps == pytest.approx(math.radians(5.0))
+    assert settings.flight_rates.acceleration_mps2 == 0.3
+    assert (settings.takeoff_rates.position_mps, settings.takeoff_rates.acceleration_mps2) == (
+        0.2,
+        0.15,
+    )
+    assert (settings.abort_rates.position_mps, settings.abort_rates.acceleration_mps2) == (
+        0.4,
+        0.6,
+    )
+    assert settings.bumpless_ticks == 20
+    assert settings.pd_gains.max_tilt_rad == pytest.approx(math.radians(20.0))

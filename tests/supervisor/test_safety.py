@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from controllers.equilibria import Reference, bar_equilibrium
+from geometry.state import bar_ends, uav_slices
 from supervisor.app.assembly import (
     arena_from_config,
     flight_core_from_config,
@@ -158,3 +159,65 @@ def test_repeated_frames_are_refused_only_while_the_bodies_move() -> None:
     assert not core.bodies_in_motion  # disarmed
     core.start_in_hover(Estimate(hovering_state(0.0), 0.01, ()), 0.0, (0.05, 0.1, 0.1))
     assert core.bodies_in_motion
+
+
+def slack_state(shorter_m: float) -> np.ndarray:
+    """The hover equilibrium with UAV 1 moved ``shorter_m`` along its cable towards the bar."""
+    x = hovering_state(0.0)
+    end = bar_ends(x, PARAMS.arms_m)[0]
+    position = uav_slices(1)[0]
+    direction = x[position] - end
+    x[position] -= shorter_m * direction / np.linalg.norm(direction)
+    return x
+
+
+def first_slack_abort(episode_s: float, period_s: float, duration_s: float) -> float | None:
+    """Ticks at 50 Hz in hover with cable 1 slack (8 cm) for ``episode_s`` every
+    ``period_s``: when the slack monitor first aborts (None: never)."""
+    monitor = SafetyMonitor(PARAMS, arena_from_config(CONFIG), safety_limits_from_config(CONFIG))
+    taut, slack = hovering_state(0.0), slack_state(0.08)
+    for k in range(round(duration_s / 0.02)):
+        now_s = k * 0.02
+        x = slack if (now_s % period_s) < episode_s - 1e-9 else taut
+        faults = monitor.check(now_s, Estimate(x, 0.01, ()), Mode.HOVER, None, (True, True))
+        if any(f.monitor == "slack" and f.response is Response.ABORT for f in faults):
+            return now_s
+    return None
+
+
+def test_intermittent_slack_adds_up_to_an_abort() -> None:
+    """0.2 s episodes every 2 s never reach the 0.5 s of one episode; three of them add up
+    to 0.5 s within the 10 s window (the first abort during the third)."""
+    aborted_s = first_slack_abort(0.2, 2.0, 30.0)
+    assert aborted_s is not None and 4.0 < aborted_s < 4.2
+
+
+def test_rare_short_slack_and_a_single_episode_below_the_limit_do_not_abort() -> None:
+    assert first_slack_abort(0.1, 5.0, 60.0) is None  # 0.2 s in any 10 s
+    assert first_slack_abort(0.4, 1000.0, 20.0) is None  # one 0.4 s episode
+    assert first_slack_abort(0.0, 1.0, 20.0) is None  # taut throughout
+
+
+def test_one_long_slack_episode_aborts_naming_the_cable() -> None:
+    monitor = SafetyMonitor(PARAMS, arena_from_config(CONFIG), SafetyLimits())
+    estimate = Estimate(slack_state(0.08), 0.01, ())
+    messages = []
+    for k in range(30):
+        faults = monitor.check(k * 0.02, estimate, Mode.TRACKING, None, (True, True))
+        messages += [f.message for f in faults if f.monitor == "slack"]
+    assert messages[0] == "cable 1 slack for 0.50 s"  # tick 25: 0.5 s after the first
+    assert len(messages) == 5
+
+
+def test_a_stall_is_not_counted_as_slack() -> None:
+    """Two ticks 3 s apart, both slack: at most 0.2 s (twice the coast limit) is added."""
+    limits = SafetyLimits(slack_time_s=10.0)
+    monitor = SafetyMonitor(PARAMS, arena_from_config(CONFIG), limits)
+    estimate = Estimate(slack_state(0.08), 0.01, ())
+    for now_s in (0.0, 3.0, 3.2):
+        faults = monitor.check(now_s, estimate, Mode.HOVER, None, (True, True))
+    assert [f.message for f in faults if f.monitor == "slack"] == []
+    faults = monitor.check(3.4, estimate, Mode.HOVER, None, (True, True))
+    assert [f.message for f in faults] == [
+        "cables slack 0.60 s in all within the last 10 s (cable 1 now)"
+    ]

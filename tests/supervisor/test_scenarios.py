@@ -7,9 +7,13 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.app.config import ConfigError
+from sim.loads import ExternalLoad
+from supervisor.app.config import ConfigError, load_config
+from supervisor.app.config_files import CONFIG_DIR as CONFIGS
 from supervisor.app.config_files import shipped_scenarios
-from supervisor.simulate.scenarios import load_scenario
+from supervisor.cli.main import main
+from supervisor.simulate.closed_loop import run_scenario
+from supervisor.simulate.scenarios import check_setpoints, load_scenario, scenario_config
 
 
 def test_shipped_scenarios_load() -> None:
@@ -45,5 +49,98 @@ def test_bad_scenarios_are_refused_naming_the_problem(
 ) -> None:
     path = tmp_path / "bad.toml"
     path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(str(path))
+
+
+def test_the_shipped_scenarios_fit_the_shipped_setups() -> None:
+    for setup in ("sim", "kth_sml"):
+        config = load_config(CONFIGS / f"{setup}.toml")
+        for name in shipped_scenarios():
+            check_setpoints(load_scenario(name), config)
+
+
+STEEP = 'name = "steep"\nstart = "hover"\n[[step]]\nbar_position = [0, 0, 1.5]\ntheta_l_deg = 86\n'
+
+
+def test_a_scenario_with_a_setpoint_no_vehicle_can_hold_is_refused_before_it_flies(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "steep.toml"
+    path.write_text(STEEP)
+    config = load_config(CONFIGS / "sim.toml")
+    refusal = r"step 1: .*θ_l 86\.0° exceeds the maximum 75\.0° by 11\.0°"
+    with pytest.raises(ConfigError, match=refusal):
+        run_scenario(config, load_scenario(str(path)))
+
+
+def test_simulate_refuses_a_scenario_beyond_the_setup_s_thrust_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The paper's sequence on vehicles whose thrust limit leaves no room to hover: exit 2,
+    the step and the bound named, nothing flown."""
+    status = main(["simulate", "--scenario", "paper", "--set", "mpc.thrust_max_n=14"])
+    assert status == 2
+    err = capsys.readouterr().err
+    assert "scenario paper, step 1" in err
+    assert "equilibrium thrust 13.3 N is above the 14.0 N limit less its 10 % margin" in err
+
+
+def test_a_scenario_s_control_table_is_set_over_the_setup_s(tmp_path: Path) -> None:
+    path = tmp_path / "slow.toml"
+    path.write_text(
+        'name = "slow"\nstart = "hover"\n[control.flight_rates]\nposition_mps = 0.1\n'
+        "[[step]]\nbar_position = [0.2, 0, 1]\n"
+    )
+    config = load_config(CONFIGS / "sim.toml", ["control.flight_rates.yaw_deg_s=15"])
+    flown = scenario_config(config, load_scenario(str(path)))
+    assert flown.control.flight_rates.position_mps == 0.1  # the scenario's
+    assert flown.control.flight_rates.yaw_deg_s == 15.0  # the setup's, kept
+    assert flown.control.takeoff_rates == config.control.takeoff_rates
+    assert flown.mpc == config.mpc and flown.system == config.system
+
+
+def test_a_scenario_s_control_keys_are_validated(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(
+        'name = "x"\nstart = "hover"\n[control]\nrate_lookahed = 2\n[[step]]\naction = "land"\n'
+    )
+    with pytest.raises(ConfigError, match=r"control\.rate_lookahed: Extra inputs"):
+        load_scenario(str(path))
+    path.write_text(
+        'name = "x"\nstart = "hover"\n[control]\ntilt_margin_deg = 50\n[[step]]\naction = "land"\n'
+    )
+    with pytest.raises(ConfigError, match=r"below safety\.max_tilt_deg"):
+        scenario_config(load_config(CONFIGS / "sim.toml"), load_scenario(str(path)))
+
+
+def test_a_scenario_s_loads_are_external_loads_on_the_plant(tmp_path: Path) -> None:
+    path = tmp_path / "gusty.toml"
+    path.write_text(
+        'name = "gusty"\nstart = "hover"\n'
+        '[[load]]\nbody = "bar"\nforce_n = [1, 0, 0]\nstart_s = 2\n'
+        '[[load]]\nbody = "uav2"\nforce_n = [0, 3, 0]\ntorque_nm = [0, 0, 0.1]\nstart_s = 1\n'
+        'duration_s = 0.5\nprofile = "gust"\n'
+        '[[step]]\naction = "hover"\nhold_s = 3\n'
+    )
+    loads = [load.external_load() for load in load_scenario(str(path)).load]
+    assert loads == [
+        ExternalLoad("bar", (1.0, 0.0, 0.0), (0.0, 0.0, 0.0), 2.0, None, "steady"),
+        ExternalLoad("uav2", (0.0, 3.0, 0.0), (0.0, 0.0, 0.1), 1.0, 0.5, "gust"),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("load", "message"),
+    [
+        ('body = "uav3"\nforce_n = [1, 0, 0]', "load.0.body"),
+        ('body = "bar"\nforce_n = [1, 0]', "load.0.force_n"),
+        ('body = "bar"\nforce_n = [1, 0, 0]\nprofile = "gust"', "a gust needs a duration_s"),
+        ('body = "bar"\nforce_n = [1, 0, 0]\nduration_s = 0', "load.0.duration_s"),
+    ],
+)
+def test_bad_loads_are_refused_naming_the_key(tmp_path: Path, load: str, message: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(f'name = "x"\nstart = "hover"\n[[load]]\n{load}\n[[step]]\naction = "land"\n')
     with pytest.raises(ConfigError, match=message):
         load_scenario(str(path))

@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from controllers.equilibria import Reference
+from controllers.equilibria import Reference, bar_equilibrium
 from controllers.params import BarSystemParams
+from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
 from supervisor.flight.setpoints import (
     Arena,
@@ -19,12 +20,82 @@ from supervisor.flight.setpoints import (
 )
 
 ARENA = Arena((-3.0, -3.0, 0.0), (3.0, 3.0, 3.0))
+# configs/kth_sml.toml's thrust range and the safety monitor's abort tilt, default margins.
+BOUNDS = SetpointBounds(0.5, 26.0, math.radians(45.0))
 
 
 def test_a_good_setpoint_passes(lab_params: BarSystemParams) -> None:
     validate_setpoint(
-        Setpoint((0.0, 0.0, 1.0), 0.5, theta_l_rad=math.radians(45)), lab_params, ARENA
+        Setpoint((0.0, 0.0, 1.0), 0.5, theta_l_rad=math.radians(45)), lab_params, ARENA, BOUNDS
     )
+
+
+@pytest.mark.parametrize("theta_l_deg", [85.0, 86.0, 89.0, 89.99])
+def test_theta_l_above_the_maximum_is_refused_by_how_much(
+    lab_params: BarSystemParams, theta_l_deg: float
+) -> None:
+    setpoint = Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(theta_l_deg))
+    excess = theta_l_deg - 75.0
+    with pytest.raises(SetpointError, match=f"exceeds the maximum 75.0° by {excess:.1f}°"):
+        validate_setpoint(setpoint, lab_params, ARENA, BOUNDS)
+
+
+def test_an_equilibrium_tilted_beyond_the_abort_tilt_less_its_margin_is_refused(
+    lab_params: BarSystemParams,
+) -> None:
+    """θ_l allowed up to 89°: at 80° the UAVs tilt ~39.5°, above 45° − 10°."""
+    bounds = SetpointBounds(0.5, 26.0, math.radians(45.0), FeasibilitySettings(math.radians(89)))
+    setpoint = Setpoint((0.0, 0.0, 1.5), theta_l_rad=math.radians(80.0))
+    eq = bar_equilibrium(lab_params, setpoint.reference())
+    excess = math.degrees(eq.theta_f_rad[1]) - 35.0
+    assert 0.0 < excess < 10.0
+    with pytest.raises(SetpointError) as refused:
+        validate_setpoint(setpoint, lab_params, ARENA, bounds)
+    assert "thrust" not in str(refused.value)  # 17 N: well inside 26 N less 10 %
+    assert (
+        f"UAV 2's equilibrium tilt {math.degrees(eq.theta_f_rad[1]):.1f}° is above the 45.0°"
+        f" abort tilt less its 10.0° margin (35.0°) by {excess:.1f}°" in str(refused.value)
+    )
+    # Just below the bound it is taken: the check is the bound itself, not a table.
+    loose = SetpointBounds(0.5, 26.0, math.radians(45.0 + excess + 0.01), bounds.settings)
+    validate_setpoint(setpoint, lab_params, ARENA, loose)
+
+
+def test_an_equilibrium_thrust_beyond_the_range_less_its_margin_is_refused(
+    lab_params: BarSystemParams,
+) -> None:
+    """A 14 N thrust limit less 10 % is 12.6 N: hovering with the bar already needs 13.2 N."""
+    bounds = SetpointBounds(0.5, 14.0, math.radians(45.0))
+    setpoint = Setpoint((0.0, 0.0, 1.0))
+    eq = bar_equilibrium(lab_params, setpoint.reference())
+    with pytest.raises(SetpointError) as refused:
+        validate_setpoint(setpoint, lab_params, ARENA, bounds)
+    for k in (0, 1):
+        assert (
+            f"UAV {k + 1}'s equilibrium thrust {eq.thrusts_n[k]:.1f} N is above the 14.0 N limit"
+            f" less its 10 % margin (12.6 N) by {eq.thrusts_n[k] - 12.6:.1f} N"
+        ) in str(refused.value)
+    assert "tilt" not in str(refused.value)
+    roomy = SetpointBounds(0.5, max(eq.thrusts_n) / 0.9 + 1e-6, math.radians(45.0))
+    validate_setpoint(setpoint, lab_params, ARENA, roomy)
+
+
+def test_an_equilibrium_thrust_below_the_range_plus_its_margin_is_refused(
+    lab_params: BarSystemParams,
+) -> None:
+    bounds = SetpointBounds(14.0, 30.0, math.radians(45.0))  # band 17..27 N
+    with pytest.raises(SetpointError, match=r"below the 14.0 N minimum plus its 10 % margin"):
+        validate_setpoint(Setpoint((0.0, 0.0, 1.0)), lab_params, ARENA, bounds)
+
+
+def test_the_paper_s_setpoints_are_taken_under_the_default_bounds(
+    lab_params: BarSystemParams,
+) -> None:
+    """Section VII flies θ_l up to 45° (the paper's sequence: configs/scenarios/paper.toml);
+    the issue's large-θ_l flights ramp to 70°."""
+    for theta_l_deg in (0.0, 45.0, 70.0, 75.0):
+        setpoint = Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(theta_l_deg))
+        validate_setpoint(setpoint, lab_params, ARENA, BOUNDS)
 
 
 @pytest.mark.parametrize(
@@ -32,7 +103,8 @@ def test_a_good_setpoint_passes(lab_params: BarSystemParams) -> None:
     [
         (Setpoint((0.0, 0.0, 2.5)), "UAV 1"),  # UAVs 1 m above the bar hit the ceiling
         (Setpoint((2.6, 0.0, 1.0)), "bar end 2"),  # the bar sticks out of the arena
-        (Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(95)), "theta_l"),
+        (Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(95)), "θ_l 95.0° exceeds"),
+        (Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(-5)), "theta_l"),
         (Setpoint((math.nan, 0.0, 1.0)), "finite"),
         (Setpoint((0.0, 0.0, 1.0), hold_s=-1.0), "hold_s"),
     ],
@@ -41,7 +113,7 @@ def test_bad_setpoints_are_refused_with_the_reason(
     setpoint: Setpoint, message: str, lab_params: BarSystemParams
 ) -> None:
     with pytest.raises(SetpointError, match=message):
-        validate_setpoint(setpoint, lab_params, ARENA)
+        validate_setpoint(setpoint, lab_params, ARENA, BOUNDS)
 
 
 def test_queue_holds_each_setpoint_then_moves_on() -> None:

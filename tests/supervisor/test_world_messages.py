@@ -71,6 +71,8 @@ def test_a_fault_survives_the_channel_as_its_type() -> None:
             {"kind": "mocap_jump", "body": "bar", "offset_m": [0, 0, 1e9]},
             ("mocap_jump", "offset_m"),
         ),
+        ({"kind": "push", "body": "bar", "force_n": [0, 0, 51]}, ("push", "force_n", 2)),
+        ({"kind": "push", "body": "bar"}, ("push", "force_n")),
     ],
 )
 def test_malformed_faults_are_refused_at_the_parse_naming_the_field(
