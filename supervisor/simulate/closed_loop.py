@@ -235,8 +235,10 @@ def run_scenario(
     seed: int | None = None,
     log_path: Path | None = None,
     progress: Callable[[float], None] | None = None,
+    observe: Callable[[TickResult], None] | None = None,
 ) -> SimulationResult:
-    """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second."""
+    """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second,
+    ``observe`` every tick's result."""
     loop = ClosedLoop(config, controller, seed)
     loop.place(scenario)
     script = ScenarioScript(scenario)
@@ -254,6 +256,8 @@ def run_scenario(
         while True:
             result = loop.decide()
             loop.apply(result)
+            if observe is not None:
+                observe(result)
             script.messages.extend(str(notice) for notice in result.notices)
             script.advance(loop.core, loop.now_s)
             loop.driver.finish(result)  # as the service does after a tick
