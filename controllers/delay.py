@@ -45,18 +45,25 @@ def _rk4_step(model: BarSystemModel) -> ca.Function:
     return ca.Function("bar_system_rk4", [x, u, h], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
 
 
+# How long inputs are kept beyond the delay: what ``advance`` may integrate over behind
+# the delay window (the rate filter's step from one tick to the next, with slack for a
+# late tick; controllers/rate_filter.py).
+HISTORY_S = 0.1
+
+
 class DelayPredictor:
     """The 36-state ``delay_s`` [s] ahead of an estimate, with the inputs already sent.
 
     ``sent(t_s, u)`` records the input (8,) [N, N m] applied from ``t_s`` on; ``predict``
-    integrates across the delay. Inputs older than the delay are forgotten.
+    integrates across the delay, ``advance`` between any two times of the last
+    ``HISTORY_S`` + ``delay_s``. Older inputs are forgotten.
     """
 
     def __init__(self, params: BarSystemParams, delay_s: float) -> None:
         if not (math.isfinite(delay_s) and delay_s >= 0.0):
             raise ValueError(f"the delay to predict across must be finite and >= 0, got {delay_s}")
         self.delay_s = delay_s
-        self._step = NumericFunction(_rk4_step(BarSystemModel(params))) if delay_s > 0 else None
+        self._step = NumericFunction(_rk4_step(BarSystemModel(params)))
         self._sent: deque[tuple[float, FloatArray]] = deque()
 
     def reset(self) -> None:
@@ -65,13 +72,12 @@ class DelayPredictor:
 
     def sent(self, t_s: float, u: FloatArray) -> None:
         """The input ``u`` (8,) is in force from ``t_s`` [s] until the next one."""
-        if self._step is None:
-            return
         if self._sent and t_s < self._sent[-1][0]:
             self._sent.clear()  # time went backwards: a new flight, the old inputs are void
         self._sent.append((t_s, np.array(u, dtype=float)))
-        # Keep the last input older than the delay window: it is in force at its start.
-        while len(self._sent) > 1 and self._sent[1][0] <= t_s - self.delay_s:
+        # Keep the last input older than the window: it is in force at its start.
+        oldest = t_s - self.delay_s - HISTORY_S
+        while len(self._sent) > 1 and self._sent[1][0] <= oldest:
             self._sent.popleft()
 
     def predict(self, x: FloatArray, now_s: float) -> FloatArray:
@@ -79,16 +85,23 @@ class DelayPredictor:
         carried to ``now_s`` by the model under the inputs sent. Unchanged (a copy) when
         there is no delay, no input was sent yet, or ``x`` is not finite: the MPC then
         reports what is wrong with it as before."""
-        if self._step is None or not self._sent or not np.all(np.isfinite(x)):
+        if self.delay_s == 0.0:
             return np.array(x, dtype=float)
-        start = now_s - self.delay_s
-        times = [t for t, _ in self._sent]
+        return self.advance(x, now_s - self.delay_s, now_s)
+
+    def advance(self, x: FloatArray, from_s: float, to_s: float) -> FloatArray:
+        """``x`` (36,), the state at ``from_s``, carried to ``to_s`` [s] by the model under
+        the inputs in force in between (the oldest input kept stands for any time before
+        it). A copy of ``x`` when no input was sent, ``to_s`` is not after ``from_s``, or
+        ``x`` (or the result) is not finite."""
         state = np.array(x, dtype=float)
-        t = start
+        if not self._sent or to_s <= from_s or not np.all(np.isfinite(state)):
+            return state
+        times = [t for t, _ in self._sent]
+        t = from_s
         for k, (t_k, u) in enumerate(self._sent):
-            end = times[k + 1] if k + 1 < len(times) else now_s
-            end = min(end, now_s)
-            begin = max(t, t_k) if k > 0 else t  # the oldest input stands for the whole start
+            end = min(times[k + 1] if k + 1 < len(times) else to_s, to_s)
+            begin = max(t, t_k) if k > 0 else t
             span = end - begin
             if span <= 0.0:
                 continue

@@ -22,6 +22,7 @@ from controllers.equilibria import Reference, bar_equilibrium
 from controllers.integral_action import ReferenceIntegrator
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
 from controllers.params import BarSystemParams, Clock, MpcSettings
+from controllers.rate_filter import RateFilter
 from controllers.uav_pd import UavPdGains, uav_pd_control
 from geometry.arrays import FloatArray
 from geometry.frames import rotation_from_euler_zyx
@@ -169,6 +170,7 @@ class FlightCore:
         self._pd_targets: list[FloatArray] = [np.zeros(3), np.zeros(3)]
         self._last_u = np.zeros(BAR_INPUTS)
         self._delay = DelayPredictor(params, mpc_settings["centralized"].delay_s)
+        self._rates = RateFilter(self._delay, mpc_settings["centralized"].rate_filter_weight)
         self._mpc_state: FloatArray | None = None  # the state the last MPC step started from
         self._integral = ReferenceIntegrator(mpc_settings["centralized"].integral_gain_per_s)
         self._blend_from: FloatArray | None = None
@@ -473,6 +475,7 @@ class FlightCore:
             for c in self.controllers.values():
                 c.reset()
             self._delay.reset()
+            self._rates.reset()
             self._integral.reset()
 
     def _enter_phase(self, phase: Phase) -> None:
@@ -572,7 +575,8 @@ class FlightCore:
     ) -> tuple[tuple[UavCommand, UavCommand], Plan]:
         controller = self.controllers[self.controller]
         # The estimate is the state the mocap latency ago; the MPC plans from now on.
-        self._mpc_state = self._delay.predict(x, now_s)
+        measured_s = now_s - self._delay.delay_s
+        self._mpc_state = self._delay.predict(self._rates.filtered(x, measured_s), now_s)
         shifted = self._integral.shifted(reference, x, now_s)
         plan = controller.step(self._mpc_state, shifted, now_s)
         self._mpc_reference = shifted
