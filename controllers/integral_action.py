@@ -9,8 +9,8 @@ held reference and the estimate (bar position, bar yaw, each UAV's yaw) and move
 reference the MPC regulates to by that integral times a gain, so a steady error cannot
 remain: the equilibrium the MPC is given then asks for the missing force.
 
-It integrates only while the reference is held (no velocity, no turn rate, the same as the
-tick before): the lag of a moving reference is no offset, and integrating it would wind
+It integrates only while the reference is held (no velocity, no turn or θ_l rate, the same
+as the tick before): the lag of a moving reference is no offset, and integrating it would wind
 up. The integral is kept through moves and bounded (``IntegralLimits``), so a wrong model
 can shift the reference by at most that much. Time is an argument.
 """
@@ -71,6 +71,7 @@ class ReferenceIntegrator:
             and last[1] == reference
             and not any(reference.velocity_mps)
             and not any(reference.yaw_rates_radps)
+            and not reference.theta_l_rate_radps
         )
         if held and last is not None and np.all(np.isfinite(x)):
             dt = max(0.0, now_s - last[0])
