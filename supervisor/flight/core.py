@@ -170,7 +170,7 @@ class FlightCore:
         self._pd_targets: list[FloatArray] = [np.zeros(3), np.zeros(3)]
         self._last_u = np.zeros(BAR_INPUTS)
         self._delay = DelayPredictor(params, mpc_settings["centralized"].delay_s)
-        self._rates = RateFilter(self._delay, mpc_settings["centralized"].rate_filter_weight)
+        self._rate_filter = RateFilter(self._delay, mpc_settings["centralized"].rate_filter_weight)
         self._mpc_state: FloatArray | None = None  # the state the last MPC step started from
         self._integral = ReferenceIntegrator(mpc_settings["centralized"].integral_gain_per_s)
         self._blend_from: FloatArray | None = None
@@ -475,7 +475,7 @@ class FlightCore:
             for c in self.controllers.values():
                 c.reset()
             self._delay.reset()
-            self._rates.reset()
+            self._rate_filter.reset()
             self._integral.reset()
 
     def _enter_phase(self, phase: Phase) -> None:
@@ -576,7 +576,7 @@ class FlightCore:
         controller = self.controllers[self.controller]
         # The estimate is the state the mocap latency ago; the MPC plans from now on.
         measured_s = now_s - self._delay.delay_s
-        self._mpc_state = self._delay.predict(self._rates.filtered(x, measured_s), now_s)
+        self._mpc_state = self._delay.predict(self._rate_filter.filtered(x, measured_s), now_s)
         shifted = self._integral.shifted(reference, x, now_s)
         plan = controller.step(self._mpc_state, shifted, now_s)
         self._mpc_reference = shifted
