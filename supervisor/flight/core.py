@@ -68,6 +68,7 @@ TAKES_SETPOINTS = frozenset({Mode.ARMED, Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING
 NOTICES_KEPT = 20
 SET_DOWN_FAST_MPS = 0.5  # the landing bound above 0.2 m (docs/safety.md)
 SET_DOWN_LEVEL_M = 0.1  # the connected UAV's bar end higher than this: catch up
+GROUND_CLEARANCE_M = 0.05  # the bar this far above its resting height hangs clear of the ground
 
 
 @dataclass(frozen=True)
@@ -575,13 +576,26 @@ class FlightCore:
     ) -> tuple[tuple[UavCommand, UavCommand], Plan]:
         controller = self.controllers[self.controller]
         # The estimate is the state the mocap latency ago; the MPC plans from now on.
-        measured_s = now_s - self._delay.delay_s
-        self._mpc_state = self._delay.predict(self._rate_filter.filtered(x, measured_s), now_s)
+        if self._model_predicts(x):
+            measured_s = now_s - self._delay.delay_s
+            filtered = self._rate_filter.filtered(x, measured_s)
+            self._mpc_state = self._delay.predict(filtered, now_s)
+        else:
+            self._rate_filter.reset()
+            self._mpc_state = x
         shifted = self._integral.shifted(reference, x, now_s)
         plan = controller.step(self._mpc_state, shifted, now_s)
         self._mpc_reference = shifted
         self.mpc_was_prepared = controller.last_step_was_prepared
         return self._mpc_commands(plan), plan
+
+    def _model_predicts(self, x: FloatArray) -> bool:
+        """Whether the model describes what the inputs sent did: the bar hanging clear of
+        the ground (the model has no ground contact: a bar still resting on it would be
+        predicted falling) and both UAVs flown by this core (not one left to its PX4)."""
+        hanging = self.phase in (Phase.LIFT, Phase.HOVER, Phase.TRACKING, Phase.LOWER)
+        clear = float(bar_position(x)[2]) > self._ground_bar_z + GROUND_CLEARANCE_M
+        return hanging and clear and self.left_to_px4 is None
 
     def prepare_next(self) -> None:
         """Between ticks, once the commands are out: let the MPC that flew this tick
