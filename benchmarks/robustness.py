@@ -9,6 +9,9 @@ the figures side by side.
   without and with the integral action (``mpc.integral_gain_per_s``).
 * ``paper-integral``: the paper's sequence, nominal, without and with the integral action.
 * ``theta``: from hover, θ_l ramps to 70°, is held 10 s, and back (held 5 s).
+* ``combined``: the paper's sequence, the paper's controllers at the nominal 5 ms of
+  latency against all three remedies at 45 ms (delay 0.045 s, rate filter 0.5, integral
+  0.4).
 * ``noise``: the move and hold of ``offset`` (nominal bar) with the UAVs' body rates
   unfiltered and filtered (``mpc.rate_filter_weight``, controllers/rate_filter.py).
 
@@ -219,6 +222,24 @@ def theta_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     return _flights(scenario, {"as is": []})
 
 
+REMEDIES = [
+    "mpc.delay_s=0.045",
+    "mpc.rate_filter_weight=0.5",
+    f"mpc.integral_gain_per_s={INTEGRAL_GAIN}",
+]
+
+
+def combined_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """The paper's sequence: the paper's controllers at the nominal 5 ms of latency
+    against all three remedies together at 45 ms."""
+    scenario = shortened(load_scenario("paper"), seconds)
+    variants = {
+        "5 ms, paper's controllers": [],
+        "45 ms, all remedies": ["sim.mocap.latency_s=0.045", *REMEDIES],
+    }
+    return _flights(scenario, variants)
+
+
 def noise_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     """The held setpoint's flight with the body rates as fused and filtered."""
     scenario = shortened(_scenario(HELD), seconds)
@@ -245,6 +266,7 @@ def _flights(scenario: Scenario, variants: dict[str, list[str]]) -> dict[str, di
 
 
 CASES = {
+    "combined": combined_case,
     "noise": noise_case,
     "latency": latency_case,
     "theta": theta_case,
