@@ -81,6 +81,10 @@ class Reference:
     reference the same way: the bar turns about its centre (its ends' UAVs move with it)
     and each UAV about its own vertical axis. That is a feed-forward, not an equilibrium:
     the centripetal and gyroscopic terms it leaves out are O(ψ̇²), 0.1 m/s² at 20°/s.
+    ``theta_l_rate_radps`` (default zero) is how fast θ_l moves: the UAVs' velocities along
+    the equilibrium family (each cable swinging outward at its own θ_l,i rate), a
+    feed-forward in the same sense. Without it a θ_l ramp is tracked with a lag of about
+    two seconds: 20° at 10°/s (issue 19).
     """
 
     bar_position_m: tuple[float, float, float]
@@ -89,6 +93,7 @@ class Reference:
     theta_l_rad: float = 0.0
     velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     yaw_rates_radps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    theta_l_rate_radps: float = 0.0
 
     def with_yaws(self, bar_yaw_rad: float, uav_yaw_rad: tuple[float, float]) -> Reference:
         """The same equilibrium family, turned to other yaw angles."""
@@ -99,6 +104,7 @@ class Reference:
             self.theta_l_rad,
             self.velocity_mps,
             self.yaw_rates_radps,
+            self.theta_l_rate_radps,
         )
 
     def at_rest(self) -> Reference:
@@ -162,6 +168,7 @@ def _check_reference(reference: Reference) -> None:
         *reference.bar_position_m,
         *reference.velocity_mps,
         *reference.yaw_rates_radps,
+        reference.theta_l_rate_radps,
         reference.bar_yaw_rad,
         *reference.uav_yaw_rad,
         reference.theta_l_rad,
@@ -196,6 +203,14 @@ def _cached_equilibrium(params: BarSystemParams, reference: Reference) -> Equili
     bx, by, bz = reference.bar_position_m
     vx, vy, vz = reference.velocity_mps
     pull = params.bar_mass_kg * g / 2.0 * math.tan(reference.theta_l_rad)
+    # d(pull)/dt for a moving θ_l: m_b g/2 · sec²θ_l · θ̇_l.
+    pull_rate = (
+        params.bar_mass_kg
+        * g
+        / 2.0
+        * reference.theta_l_rate_radps
+        / math.cos(reference.theta_l_rad) ** 2
+    )
     bar_rate, *uav_rates = reference.yaw_rates_radps
 
     x = np.zeros(BAR_STATES)
@@ -222,8 +237,16 @@ def _cached_equilibrium(params: BarSystemParams, reference: Reference) -> Equili
         cable = params.cable_lengths_m[k]
         px, py = end[0] + cable * n_x, end[1] + cable * n_y
         x[p_i] = (px, py, end[2] + cable * n_z)
-        # The formation turning about the bar centre at ψ̇_b: ψ̇_b e_z × (p_i − p_b).
-        x[v_i] = (vx - bar_rate * (py - by), vy + bar_rate * (px - bx), vz)
+        # The formation turning about the bar centre at ψ̇_b: ψ̇_b e_z × (p_i − p_b); the
+        # cable swinging outward at θ̇_l,i = vertical · d(pull)/dt / T² (θ_l,i = atan2(pull,
+        # vertical)): l θ̇_l,i (sign cos θ_l,i n_b − sin θ_l,i e_z).
+        swing = cable * vertical * pull_rate / tension**2
+        out = sign * swing * math.cos(theta_l_i)
+        x[v_i] = (
+            vx - bar_rate * (py - by) + out * cos_b,
+            vy + bar_rate * (px - bx) + out * sin_b,
+            vz - swing * math.sin(theta_l_i),
+        )
         x[th_i] = (roll, pitch, yaw)
         # A turn about the vertical at ψ̇, in the body frame: ψ̇ Rᵀ e_z, with R of (2).
         cos_pitch = math.cos(pitch)

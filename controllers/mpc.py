@@ -256,7 +256,7 @@ class _PreparedModel:
     def fits(self, reference: Reference, tolerance: float) -> bool:
         """Whether it may stand for the linearization at ``reference`` (turned to the
         measured yaws): yaws and θ_l within ``tolerance`` [rad], and the reference's
-        velocity [m/s] and turn rates [rad/s] within the same number."""
+        velocity [m/s] and turn and θ_l rates [rad/s] within the same number."""
         mine = self.reference
         angles = zip(
             (mine.bar_yaw_rad, *mine.uav_yaw_rad, mine.theta_l_rad),
@@ -266,8 +266,8 @@ class _PreparedModel:
         if any(abs(math.remainder(a - b, 2.0 * math.pi)) > tolerance for a, b in angles):
             return False
         rates = zip(
-            (*mine.velocity_mps, *mine.yaw_rates_radps),
-            (*reference.velocity_mps, *reference.yaw_rates_radps),
+            (*mine.velocity_mps, *mine.yaw_rates_radps, mine.theta_l_rate_radps),
+            (*reference.velocity_mps, *reference.yaw_rates_radps, reference.theta_l_rate_radps),
             strict=True,
         )
         return all(abs(a - b) <= tolerance for a, b in rates)

@@ -120,3 +120,13 @@ class MpcSettings:
     reference_lead: ReferenceLead = ReferenceLead()
     """The decentralized MPC's setpoint lead (``ReferenceLead``); unused by the
     centralized MPC."""
+    delay_s: float = 0.0
+    """The mocap-to-command delay [s] the state is predicted across before the MPC plans
+    (``controllers.delay``); 0 plans from the estimate as it comes, as the paper does."""
+    rate_filter_weight: float = 0.0
+    """The model's weight in the UAVs' body-rate estimates, in [0, 1)
+    (``controllers.rate_filter``); 0 takes the fused rates as they come."""
+    integral_gain_per_s: float = 0.0
+    """The gain of the integral action on the held reference's error [1/s]
+    (``controllers.integral_action``); 0 is the paper's MPC, which leaves model errors as
+    steady offsets."""

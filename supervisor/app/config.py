@@ -216,6 +216,12 @@ class MpcSection(_Section):
     qp_backend: str = "hpipm"
     late_after_s: PositiveFloat = 0.015
     prepared_yaw_tolerance_rad: Annotated[float, Field(ge=0.0, le=0.1)] = 0.0
+    # The mocap-to-command delay the state is predicted across (controllers/delay.py).
+    delay_s: Annotated[float, Field(ge=0.0, le=0.2, allow_inf_nan=False)] = 0.0
+    # The model's weight in the UAVs' body-rate estimates (controllers/rate_filter.py).
+    rate_filter_weight: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.0
+    # The integral action on the held reference's error (controllers/integral_action.py).
+    integral_gain_per_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.0
     centralized: CentralizedWeights
     decentralized: DecentralizedWeights
 
@@ -240,6 +246,9 @@ class MpcSection(_Section):
             qp_backend=self.qp_backend,
             late_after_s=self.late_after_s,
             prepared_yaw_tolerance_rad=self.prepared_yaw_tolerance_rad,
+            delay_s=self.delay_s,
+            integral_gain_per_s=self.integral_gain_per_s,
+            rate_filter_weight=self.rate_filter_weight,
             reference_lead=ReferenceLead(*self.decentralized.reference_lead_s)
             if controller == "decentralized"
             else ReferenceLead(),

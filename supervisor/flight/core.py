@@ -17,9 +17,12 @@ from enum import StrEnum
 
 import numpy as np
 
+from controllers.delay import DelayPredictor
 from controllers.equilibria import Reference, bar_equilibrium
+from controllers.integral_action import ReferenceIntegrator
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
 from controllers.params import BarSystemParams, Clock, MpcSettings
+from controllers.rate_filter import RateFilter
 from controllers.uav_pd import UavPdGains, uav_pd_control
 from geometry.arrays import FloatArray
 from geometry.frames import rotation_from_euler_zyx
@@ -66,6 +69,7 @@ TAKES_SETPOINTS = frozenset({Mode.ARMED, Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING
 NOTICES_KEPT = 20
 SET_DOWN_FAST_MPS = 0.5  # the landing bound above 0.2 m (docs/safety.md)
 SET_DOWN_LEVEL_M = 0.1  # the connected UAV's bar end higher than this: catch up
+GROUND_CLEARANCE_M = 0.05  # the bar this far above its resting height hangs clear of the ground
 
 
 @dataclass(frozen=True)
@@ -176,6 +180,10 @@ class FlightCore:
         self._yaw_hold = (0.0, 0.0)
         self._pd_targets: list[FloatArray] = [np.zeros(3), np.zeros(3)]
         self._last_u = np.zeros(BAR_INPUTS)
+        self._delay = DelayPredictor(params, mpc_settings["centralized"].delay_s)
+        self._rate_filter = RateFilter(self._delay, mpc_settings["centralized"].rate_filter_weight)
+        self._mpc_state: FloatArray | None = None  # the state the last MPC step started from
+        self._integral = ReferenceIntegrator(mpc_settings["centralized"].integral_gain_per_s)
         self._blend_from: FloatArray | None = None
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
@@ -359,6 +367,7 @@ class FlightCore:
                 self._entered(self.modes.mode, now_s)
         u = np.array([v for c in commands for v in (c.thrust_n, *c.torque_nm)])
         self._last_u = u
+        self._delay.sent(now_s, u)
         state_ref = (
             bar_equilibrium(self.params, reference).x
             if reference is not None
@@ -476,6 +485,9 @@ class FlightCore:
             self.left_to_px4 = None
             for c in self.controllers.values():
                 c.reset()
+            self._delay.reset()
+            self._rate_filter.reset()
+            self._integral.reset()
 
     def _enter_phase(self, phase: Phase) -> None:
         self.phase = next_phase(self.phase, phase)
@@ -573,17 +585,34 @@ class FlightCore:
         self, now_s: float, x: FloatArray, reference: Reference
     ) -> tuple[tuple[UavCommand, UavCommand], Plan]:
         controller = self.controllers[self.controller]
-        plan = controller.step(x, reference, now_s)
-        self._mpc_reference = reference
+        # The estimate is the state the mocap latency ago; the MPC plans from now on.
+        if self._model_predicts(x):
+            measured_s = now_s - self._delay.delay_s
+            filtered = self._rate_filter.filtered(x, measured_s)
+            self._mpc_state = self._delay.predict(filtered, now_s)
+        else:
+            self._rate_filter.reset()
+            self._mpc_state = x
+        shifted = self._integral.shifted(reference, x, now_s)
+        plan = controller.step(self._mpc_state, shifted, now_s)
+        self._mpc_reference = shifted
         self.mpc_was_prepared = controller.last_step_was_prepared
         return self._mpc_commands(plan), plan
+
+    def _model_predicts(self, x: FloatArray) -> bool:
+        """Whether the model describes what the inputs sent did: the bar hanging clear of
+        the ground (the model has no ground contact: a bar still resting on it would be
+        predicted falling) and both UAVs flown by this core (not one left to its PX4)."""
+        hanging = self.phase in (Phase.LIFT, Phase.HOVER, Phase.TRACKING, Phase.LOWER)
+        clear = float(bar_position(x)[2]) > self._ground_bar_z + GROUND_CLEARANCE_M
+        return hanging and clear and self.left_to_px4 is None
 
     def prepare_next(self) -> None:
         """Between ticks, once the commands are out: let the MPC that flew this tick
         linearize for the next one (controllers/mpc.py, ``prepare``)."""
-        if self._mpc_reference is not None and self._last_estimate is not None:
+        if self._mpc_reference is not None and self._mpc_state is not None:
             controller = self.controllers[self.controller]
-            controller.prepare(self._last_estimate.x, self._mpc_reference)
+            controller.prepare(self._mpc_state, self._mpc_reference)
 
     def _takeoff(
         self, now_s: float, estimate: Estimate, events: list[Event]

@@ -1,6 +1,6 @@
 """The rate-limited reference: between setpoints the reference moves at bounded rates
 (position with a trapezoidal speed profile, yaws, θ_l), never in steps, and carries its
-velocity and turn rates so the MPC regulates to a moving (relative) equilibrium."""
+velocity, turn rates and θ_l rate so the MPC regulates to a moving (relative) equilibrium."""
 
 from __future__ import annotations
 
@@ -100,12 +100,14 @@ class ReferenceShaper:
             math.remainder(new - old, 2.0 * math.pi) / dt if dt > 0.0 else 0.0
             for new, old in zip(yaws, before, strict=True)
         )
+        theta_l = _approach(c.theta_l_rad, target.theta_l_rad, lim.theta_l_radps * dt)
         self.current = Reference(
             (float(position[0]), float(position[1]), float(position[2])),
             yaws[0],
             (yaws[1], yaws[2]),
-            _approach(c.theta_l_rad, target.theta_l_rad, lim.theta_l_radps * dt),
+            theta_l,
             (float(velocity[0]), float(velocity[1]), float(velocity[2])),
             (rates[0], rates[1], rates[2]),
+            (theta_l - c.theta_l_rad) / dt if dt > 0.0 else 0.0,
         )
         return self.current

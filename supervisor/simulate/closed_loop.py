@@ -239,10 +239,12 @@ def run_scenario(
     seed: int | None = None,
     log_path: Path | None = None,
     progress: Callable[[float], None] | None = None,
+    observe: Callable[[TickResult], None] | None = None,
 ) -> SimulationResult:
-    """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second.
-    The scenario's ``[control]`` keys apply over the setup's. Raises ``ConfigError`` before
-    anything flies when they do not validate or a setpoint step cannot be flown."""
+    """Fly ``scenario`` on the plant; ``progress`` receives the simulated time each second,
+    ``observe`` every tick's result. The scenario's ``[control]`` keys apply over the
+    setup's. Raises ``ConfigError`` before anything flies when they do not validate or a
+    setpoint step cannot be flown."""
     config = scenario_config(config, scenario)
     check_setpoints(scenario, config)
     loop = ClosedLoop(config, controller, seed)
@@ -269,6 +271,8 @@ def run_scenario(
         while True:
             result = loop.decide()
             loop.apply(result)
+            if observe is not None:
+                observe(result)
             script.messages.extend(str(notice) for notice in result.notices)
             script.advance(loop.core, loop.now_s)
             loop.driver.finish(result)  # as the service does after a tick

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 
@@ -18,6 +19,7 @@ from controllers.equilibria import (
 from controllers.model import BarSystemModel, payload_model_for
 from controllers.params import BarSystemParams
 from geometry.frames import rotation_from_euler_zyx
+from geometry.state import uav_slices
 from tests.conftest import symmetric_params, uneven_params
 
 THETA_L_GRID_DEG = (0.0, 10.0, 25.0, 45.0, 60.0, 80.0)
@@ -121,3 +123,23 @@ def test_decentralized_equilibria_are_fixed_points() -> None:
 def test_impossible_theta_l_is_refused(theta_l: float, lab_params: BarSystemParams) -> None:
     with pytest.raises(EquilibriumError, match=r"theta_l|finite"):
         bar_equilibrium(lab_params, Reference((0, 0, 1), 0.0, (0.0, 0.0), theta_l))
+
+
+@pytest.mark.parametrize("theta_l_deg", [5.0, 30.0, 70.0])
+def test_a_moving_theta_l_moves_the_uavs_along_the_equilibrium_family(
+    theta_l_deg: float, lab_params: BarSystemParams
+) -> None:
+    """The θ_l-rate feed-forward is the derivative of the UAVs' positions along the family
+    (central differences), and it leaves every other entry and the input alone."""
+    theta, rate, delta = math.radians(theta_l_deg), 0.3, 1e-6
+    reference = Reference((0.2, -0.1, 1.1), 0.7, (0.3, -0.4), theta)
+    moving = bar_equilibrium(lab_params, dataclasses.replace(reference, theta_l_rate_radps=rate))
+    still = bar_equilibrium(lab_params, reference)
+    ahead = bar_equilibrium(lab_params, dataclasses.replace(reference, theta_l_rad=theta + delta))
+    behind = bar_equilibrium(lab_params, dataclasses.replace(reference, theta_l_rad=theta - delta))
+    for i in (1, 2):
+        position, velocity, *_ = uav_slices(i)
+        expected = (ahead.x[position] - behind.x[position]) / (2 * delta) * rate
+        assert moving.x[velocity] == pytest.approx(expected, abs=1e-7)
+        still.x[velocity] = moving.x[velocity]
+    assert np.array_equal(moving.x, still.x) and np.array_equal(moving.u, still.u)

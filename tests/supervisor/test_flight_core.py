@@ -153,3 +153,28 @@ def test_setpoints_are_taken_only_in_a_mode_that_flies_them() -> None:
         with pytest.raises(SetpointRefusedError, match=f"mode '{core.modes.mode.value}'"):
             core.queue_setpoints([setpoint])
         assert core.queue.queued == []
+
+
+@pytest.mark.parametrize("gain", [0.0, 0.4])
+def test_a_bar_held_low_raises_the_thrust_only_with_the_integral_action(gain: float) -> None:
+    """Hovering with the bar measured 5 cm below its held reference for 3 s: the MPC's
+    answer is the same every tick without the integral; with it the reference it is given
+    climbs by gain × 5 cm per second, and the thrust with it."""
+    # A solve late on a busy machine would fly the shifted plan: this test is about the law.
+    overrides = [f"mpc.integral_gain_per_s={gain}", "mpc.late_after_s=10.0"]
+    config = load_config(CONFIGS / "sim.toml", overrides)
+    x = bar_equilibrium(config.system.to_params(), Reference((0.0, 0.0, 1.0))).x
+    core = flight_core_from_config(config, clock=time.perf_counter)
+    core.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07))
+    core.tick(0.02, Estimate(x, 0.005, ()))  # the hover holds the reference it starts at
+    low = x.copy()
+    low[[2, 14, 26]] -= 0.05  # the bar and both UAVs
+    thrusts = []
+    for k in range(2, 152):
+        result = core.tick(0.02 * k, Estimate(low, 0.005, ()))
+        assert result.mode is Mode.HOVER and result.plan is not None
+        thrusts.append(result.commands[0].thrust_n + result.commands[1].thrust_n)
+    if gain == 0.0:
+        assert thrusts[-1] == pytest.approx(thrusts[10], abs=1e-6)
+    else:
+        assert thrusts[-1] > thrusts[10] + 0.1

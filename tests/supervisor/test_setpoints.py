@@ -212,3 +212,13 @@ def test_a_turning_reference_carries_its_turn_rates() -> None:
     for k in range(2, 200):
         ref = shaper.update(target, 0.02 * k)
     assert ref == target and ref.yaw_rates_radps == (0.0, 0.0, 0.0)
+
+
+def test_a_reference_moving_its_theta_l_carries_the_rate() -> None:
+    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), RateLimits(theta_l_radps=0.2))
+    target = Reference((0.0, 0.0, 1.0), theta_l_rad=0.5)
+    shaper.update(target, 0.0)
+    assert shaper.update(target, 0.02).theta_l_rate_radps == pytest.approx(0.2)
+    for k in range(2, 200):
+        ref = shaper.update(target, 0.02 * k)
+    assert ref == target and ref.theta_l_rate_radps == 0.0

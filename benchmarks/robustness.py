@@ -1,0 +1,313 @@
+"""Control outside the nominal case (issue 19): each case flies both controllers on the
+closed-loop simulator (``supervisor.simulate``, ``configs/sim.toml``; the decentralized
+MPC with the reference lead [0.6, 0.2]) with and without a remedy, in one run, and prints
+the figures side by side.
+
+* ``latency``: the paper's sequence with 45 ms of mocap latency, without and with the
+  delay compensation (``mpc.delay_s``, controllers/delay.py).
+* ``offset``: a 0.54 m move and a 20 s hold, with the configured bar and one 50 % heavier,
+  without and with the integral action (``mpc.integral_gain_per_s``).
+* ``paper-integral``: the paper's sequence, nominal, without and with the integral action.
+* ``theta``: from hover, θ_l ramps to 70°, is held 10 s, and back (held 5 s).
+* ``combined``: the paper's sequence, the paper's controllers at the nominal 5 ms of
+  latency against all three remedies at 45 ms (delay 0.045 s, rate filter 0.5, integral
+  0.4).
+* ``noise``: the move and hold of ``offset`` (nominal bar) with the UAVs' body rates
+  unfiltered and filtered (``mpc.rate_filter_weight``, controllers/rate_filter.py).
+
+Figures per flight: done (the steps completed with no forced decision), max UAV tilt [°]
+(truth), share of MPC ticks with an input at its bound, cable slack events (truth), bar
+position error spread [mm] (estimate against the shaped reference: the norm of the
+per-axis standard deviations), median |Δτ| between ticks [N m], the steady error [mm]
+(norm of the mean bar error over the last 5 s) and the largest gap between the
+reference's θ_l and the cables' mean angle [°].
+
+Run: ``python -m benchmarks.robustness CASE [--json] [--seconds S]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from geometry.state import bar_ends, uav_position
+from supervisor.app.config import load_config
+from supervisor.app.config_files import CONFIG_DIR
+from supervisor.flight.core import TickResult
+from supervisor.simulate.closed_loop import run_scenario
+from supervisor.simulate.scenarios import Scenario, load_scenario
+
+CONFIG = CONFIG_DIR / "sim.toml"
+CONTROLLERS = ("centralized", "decentralized")
+# The decentralized controller as issue 19 decided it flies (its reference lead).
+LEAD = "mpc.decentralized.reference_lead_s=[0.6, 0.2]"
+SATURATION_MARGIN = 1e-6
+TICK_S = 0.02
+INTEGRAL_GAIN = 0.4
+
+
+@dataclass
+class Figures:
+    """What one simulated flight did (see the module's docstring)."""
+
+    completed: bool
+    final_mode: str
+    notices: list[str]
+    max_tilt_deg: float
+    saturated_share: float
+    slack_events: int
+    bar_error_std_mm: float
+    torque_step_median_nm: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+class Recorder:
+    """Collects each tick's inputs and tracking error while a scenario flies."""
+
+    def __init__(
+        self,
+        thrust_bounds_n: tuple[float, float],
+        torque_max_nm: float,
+        arms_m: tuple[float, float],
+    ) -> None:
+        self._arms = arms_m
+        self.cable_lags_deg: list[float] = []
+        self._thrust = thrust_bounds_n
+        self._torque = torque_max_nm
+        self.mpc_ticks = 0
+        self.saturated = 0
+        self.errors: list[np.ndarray] = []
+        self.inputs: list[np.ndarray] = []
+
+    def __call__(self, result: TickResult) -> None:
+        if result.plan is None:
+            return
+        self.mpc_ticks += 1
+        u = np.asarray(result.record.inputs).reshape(2, 4)
+        at_bound = (
+            np.any(u[:, 0] <= self._thrust[0] + SATURATION_MARGIN)
+            or np.any(u[:, 0] >= self._thrust[1] - SATURATION_MARGIN)
+            or np.any(np.abs(u[:, 1:]) >= self._torque - SATURATION_MARGIN)
+        )
+        self.saturated += int(at_bound)
+        state = np.asarray(result.record.state)
+        reference = np.asarray(result.record.state_ref)
+        self.errors.append(state[0:3] - reference[0:3])
+        self.cable_lags_deg.append(self.cable_angle_deg(state) - self.cable_angle_deg(reference))
+        self.inputs.append(u)
+
+    def cable_angle_deg(self, x: np.ndarray) -> float:
+        """The two cables' mean angle from the vertical [°] in the 36-state ``x``."""
+        ends = bar_ends(x, self._arms)
+        angles = []
+        for i in (1, 2):
+            cable = uav_position(x, i) - ends[i - 1]
+            angles.append(math.degrees(math.atan2(math.hypot(cable[0], cable[1]), cable[2])))
+        return sum(angles) / 2
+
+
+def fly(
+    scenario: Scenario, controller: str, overrides: Sequence[str], seed: int = 0
+) -> tuple[Figures, Recorder]:
+    """Fly ``scenario`` on ``configs/sim.toml`` with ``overrides``; its figures."""
+    config = load_config(CONFIG, list(overrides))
+    limits = config.mpc
+    recorder = Recorder(
+        (limits.thrust_min_n, limits.thrust_max_n),
+        limits.torque_max_nm,
+        config.system.to_params().arms_m,
+    )
+    result = run_scenario(config, scenario, controller, seed=seed, observe=recorder)
+    errors = np.array(recorder.errors) if recorder.errors else np.zeros((1, 3))
+    inputs = np.array(recorder.inputs) if recorder.inputs else np.zeros((2, 2, 4))
+    torque_steps = np.abs(np.diff(inputs[:, :, 1:], axis=0)).ravel()
+    figures = Figures(
+        completed=result.completed and not result.messages,
+        final_mode=result.final_mode,
+        notices=result.messages,
+        max_tilt_deg=result.truth.max_tilt_deg,
+        saturated_share=recorder.saturated / max(recorder.mpc_ticks, 1),
+        slack_events=result.truth.slack_events,
+        bar_error_std_mm=1e3 * float(np.linalg.norm(errors.std(axis=0))),
+        torque_step_median_nm=float(statistics.median(torque_steps.tolist() or [0.0])),
+    )
+    return figures, recorder
+
+
+def _scenario(data: dict[str, Any]) -> Scenario:
+    return Scenario.model_validate(data)
+
+
+def shortened(scenario: Scenario, seconds: float | None) -> Scenario:
+    """``scenario`` with every hold cut to ``seconds`` (None: as it is): a quicker look."""
+    if seconds is None:
+        return scenario
+    steps = [
+        step.model_copy(update={"hold_s": min(step.hold_s, seconds)}) for step in scenario.step
+    ]
+    return scenario.model_copy(update={"step": steps})
+
+
+def latency_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """The paper's sequence at 45 ms of mocap latency, without and with compensation."""
+    scenario = shortened(load_scenario("paper"), seconds)
+    latency = "sim.mocap.latency_s=0.045"
+    variants = {
+        "45 ms, no compensation": [latency],
+        "45 ms, compensated": [latency, "mpc.delay_s=0.045"],
+    }
+    return _flights(scenario, variants)
+
+
+STEADY_S = 5.0
+HELD = {
+    "name": "held setpoint",
+    "start": "hover",
+    "step": [{"bar_position": [0.5, 0.0, 1.2], "hold_s": 20.0, "timeout_s": 30.0}],
+}
+
+
+def offset_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """A move of 0.54 m then a 20 s hold, with the configured bar and one 50 % heavier
+    than configured, without and with the integral action; ``steady mm``: the norm of
+    the mean bar position error over the hold's last 5 s."""
+    scenario = shortened(_scenario(HELD), seconds)
+    heavy, integral = "sim.bar_mass_scale=1.5", f"mpc.integral_gain_per_s={INTEGRAL_GAIN}"
+    variants = {
+        "nominal bar": [],
+        "nominal bar, integral": [integral],
+        "bar +50 %": [heavy],
+        "bar +50 %, integral": [heavy, integral],
+    }
+    return _flights(scenario, variants)
+
+
+def paper_integral_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """The paper's sequence, nominal, without and with the integral action: is tracking
+    worse with it?"""
+    scenario = shortened(load_scenario("paper"), seconds)
+    variants = {"nominal": [], "integral": [f"mpc.integral_gain_per_s={INTEGRAL_GAIN}"]}
+    return _flights(scenario, variants)
+
+
+def theta_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """From hover, θ_l ramps to 70° (held 10 s) and back (held 5 s); ``lag °``: the
+    largest gap between the reference's θ_l and the estimate's mean cable angle."""
+    scenario = shortened(
+        _scenario(
+            {
+                "name": "theta_l 70",
+                "start": "hover",
+                "step": [
+                    {
+                        "bar_position": [0.0, 0.0, 1.0],
+                        "theta_l_deg": 70.0,
+                        "hold_s": 10.0,
+                        "timeout_s": 30.0,
+                    },
+                    {"bar_position": [0.0, 0.0, 1.0], "hold_s": 5.0, "timeout_s": 30.0},
+                ],
+            }
+        ),
+        seconds,
+    )
+    return _flights(scenario, {"as is": []})
+
+
+REMEDIES = [
+    "mpc.delay_s=0.045",
+    "mpc.rate_filter_weight=0.5",
+    f"mpc.integral_gain_per_s={INTEGRAL_GAIN}",
+]
+
+
+def combined_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """The paper's sequence: the paper's controllers at the nominal 5 ms of latency
+    against all three remedies together at 45 ms."""
+    scenario = shortened(load_scenario("paper"), seconds)
+    variants = {
+        "5 ms, paper's controllers": [],
+        "45 ms, all remedies": ["sim.mocap.latency_s=0.045", *REMEDIES],
+    }
+    return _flights(scenario, variants)
+
+
+def noise_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """The held setpoint's flight with the body rates as fused and filtered."""
+    scenario = shortened(_scenario(HELD), seconds)
+    variants = {
+        "rates as fused": [],
+        "rate filter 0.5": ["mpc.rate_filter_weight=0.5"],
+        "rate filter 0.8": ["mpc.rate_filter_weight=0.8"],
+    }
+    return _flights(scenario, variants)
+
+
+def _flights(scenario: Scenario, variants: dict[str, list[str]]) -> dict[str, dict[str, Figures]]:
+    table: dict[str, dict[str, Figures]] = {}
+    for controller in CONTROLLERS:
+        for label, overrides in variants.items():
+            extra = [LEAD] if controller == "decentralized" else []
+            figures, recorder = fly(scenario, controller, [*overrides, *extra])
+            steady = np.array(recorder.errors[-round(STEADY_S / TICK_S) :])
+            figures.extra["steady mm"] = 1e3 * float(np.linalg.norm(steady.mean(axis=0)))
+            figures.extra["lag °"] = max(map(abs, recorder.cable_lags_deg), default=0.0)
+            table.setdefault(controller, {})[label] = figures
+            print(f"  flown: {controller}, {label}", file=sys.stderr, flush=True)
+    return table
+
+
+CASES = {
+    "combined": combined_case,
+    "noise": noise_case,
+    "latency": latency_case,
+    "theta": theta_case,
+    "offset": offset_case,
+    "paper-integral": paper_integral_case,
+}
+
+
+def _print(table: dict[str, dict[str, Figures]]) -> None:
+    header = (
+        f"{'controller':<14} {'variant':<30} {'done':<5} {'tilt°':>6} {'sat %':>6} "
+        f"{'slack':>5} {'err mm':>7} {'|Δτ| N m':>9}  extra / notices"
+    )
+    print(header)
+    for controller, rows in table.items():
+        for label, f in rows.items():
+            extra = ", ".join(f"{k} {v:.1f}" for k, v in f.extra.items())
+            notes = "; ".join(f.notices)[:120]
+            print(
+                f"{controller:<14} {label:<30} {'yes' if f.completed else 'NO':<5} "
+                f"{f.max_tilt_deg:6.1f} {100 * f.saturated_share:6.2f} {f.slack_events:5d} "
+                f"{f.bar_error_std_mm:7.1f} {f.torque_step_median_nm:9.4f}  "
+                f"{extra} {f.final_mode} {notes}"
+            )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("case", choices=sorted(CASES))
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument(
+        "--seconds", type=float, default=None, help="cut every hold to this [s] (a quick look)"
+    )
+    args = parser.parse_args(argv)
+    table = CASES[args.case](args.seconds)
+    if args.json:
+        print(json.dumps({c: {k: vars(v) for k, v in r.items()} for c, r in table.items()}))
+    else:
+        _print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,115 @@
+"""Delay compensation: the estimate predicted across the mocap-to-command delay.
+
+A mocap frame reaches the tick ``delay_s`` after it was captured (QTM → network → fusion;
+the fusion's capture clock takes the smallest offset seen as zero, so this latency is
+invisible to it), and the tick's input acts from then on. An MPC that starts its
+prediction from the delayed state answers motions that are ``delay_s`` old: from about
+25 ms the centralized roll loop rings in a limit cycle at the torque bound (issue 19).
+
+``DelayPredictor`` keeps the inputs sent and their times, and integrates the controllers'
+nonlinear model (5)–(8) (``controllers.model``) from the estimate, taken as the state
+``delay_s`` ago, across the delay with the inputs that were in force then (zero-order
+hold, RK4). Time is an argument; it holds no clock.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import casadi as ca
+import numpy as np
+
+from controllers.codegen import NumericFunction
+from controllers.model import BarSystemModel
+from controllers.params import BarSystemParams
+from geometry.arrays import FloatArray
+from geometry.state import BAR_INPUTS, BAR_STATES
+
+# RK4 steps of at most this: the fastest modes the prediction carries (the UAVs' attitude
+# under the torque bound) change over tens of ms; 5 ms keeps the RK4 error at 45 ms far
+# below the mocap noise (tests/controllers/test_delay.py).
+MAX_STEP_S = 0.005
+
+
+def _rk4_step(model: BarSystemModel) -> ca.Function:
+    """``(x, u, h) -> x(t + h)``: one classical RK4 step of the 36-state model."""
+    x = ca.SX.sym("x", BAR_STATES)
+    u = ca.SX.sym("u", BAR_INPUTS)
+    h = ca.SX.sym("h")
+    f = model.dynamics
+    k1 = f(x, u)
+    k2 = f(x + h / 2 * k1, u)
+    k3 = f(x + h / 2 * k2, u)
+    k4 = f(x + h * k3, u)
+    return ca.Function("bar_system_rk4", [x, u, h], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+
+
+# How long inputs are kept beyond the delay: what ``advance`` may integrate over behind
+# the delay window (the rate filter's step from one tick to the next, with slack for a
+# late tick; controllers/rate_filter.py).
+HISTORY_S = 0.1
+
+
+class DelayPredictor:
+    """The 36-state ``delay_s`` [s] ahead of an estimate, with the inputs already sent.
+
+    ``sent(t_s, u)`` records the input (8,) [N, N m] applied from ``t_s`` on; ``predict``
+    integrates across the delay, ``advance`` between any two times of the last
+    ``HISTORY_S`` + ``delay_s``. Older inputs are forgotten.
+    """
+
+    def __init__(self, params: BarSystemParams, delay_s: float) -> None:
+        if not (math.isfinite(delay_s) and delay_s >= 0.0):
+            raise ValueError(f"the delay to predict across must be finite and >= 0, got {delay_s}")
+        self.delay_s = delay_s
+        self._step = NumericFunction(_rk4_step(BarSystemModel(params)))
+        self._sent: deque[tuple[float, FloatArray]] = deque()
+
+    def reset(self) -> None:
+        """Forget the inputs sent (e.g. on the ground, where none acted)."""
+        self._sent.clear()
+
+    def sent(self, t_s: float, u: FloatArray) -> None:
+        """The input ``u`` (8,) is in force from ``t_s`` [s] until the next one."""
+        if self._sent and t_s < self._sent[-1][0]:
+            self._sent.clear()  # time went backwards: a new flight, the old inputs are void
+        self._sent.append((t_s, np.array(u, dtype=float)))
+        # Keep the last input older than the window: it is in force at its start.
+        oldest = t_s - self.delay_s - HISTORY_S
+        while len(self._sent) > 1 and self._sent[1][0] <= oldest:
+            self._sent.popleft()
+
+    def predict(self, x: FloatArray, now_s: float) -> FloatArray:
+        """``x`` (36,), the estimate at ``now_s`` taken as the state ``delay_s`` earlier,
+        carried to ``now_s`` by the model under the inputs sent. Unchanged (a copy) when
+        there is no delay, no input was sent yet, or ``x`` is not finite: the MPC then
+        reports what is wrong with it as before."""
+        if self.delay_s == 0.0:
+            return np.array(x, dtype=float)
+        return self.advance(x, now_s - self.delay_s, now_s)
+
+    def advance(self, x: FloatArray, from_s: float, to_s: float) -> FloatArray:
+        """``x`` (36,), the state at ``from_s``, carried to ``to_s`` [s] by the model under
+        the inputs in force in between (the oldest input kept stands for any time before
+        it). A copy of ``x`` when no input was sent, ``to_s`` is not after ``from_s``, or
+        ``x`` (or the result) is not finite."""
+        state = np.array(x, dtype=float)
+        if not self._sent or to_s <= from_s or not np.all(np.isfinite(state)):
+            return state
+        times = [t for t, _ in self._sent]
+        t = from_s
+        for k, (t_k, u) in enumerate(self._sent):
+            end = min(times[k + 1] if k + 1 < len(times) else to_s, to_s)
+            begin = max(t, t_k) if k > 0 else t
+            span = end - begin
+            if span <= 0.0:
+                continue
+            substeps = max(1, math.ceil(span / MAX_STEP_S - 1e-9))
+            h = span / substeps
+            for _ in range(substeps):
+                state = self._step(state, u, np.array([h]))[0].ravel().copy()
+            t = end
+        if not np.all(np.isfinite(state)):
+            return np.array(x, dtype=float)
+        return state

@@ -1,0 +1,73 @@
+"""The body-rate filter: exact on the model's own trajectory, and quieter on noisy rates."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controllers.delay import DelayPredictor
+from controllers.equilibria import Reference, bar_equilibrium
+from controllers.params import BarSystemParams
+from controllers.rate_filter import RATES, RateFilter
+
+TICK_S = 0.02
+
+
+def _flown(
+    params: BarSystemParams, ticks: int, weight: float, noise_std: float = 0.0
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The model flown under varying torques, each tick's state (UAV rates with white
+    noise of ``noise_std``) filtered before that tick's input is sent, as the flight core
+    does; (true states, filtered estimates)."""
+    eq = bar_equilibrium(params, Reference((0.0, 0.0, 1.0)))
+    predictor = DelayPredictor(params, 0.0)
+    rates = RateFilter(predictor, weight)
+    rng = np.random.default_rng(3)
+    x, states, filtered = eq.x.copy(), [], []
+    for k in range(ticks):
+        noisy = x.copy()
+        noisy[RATES] += noise_std * rng.standard_normal(len(RATES))
+        states.append(x)
+        filtered.append(rates.filtered(noisy, k * TICK_S))
+        u = eq.u.copy()
+        u[[1, 2, 5, 6]] += 0.05 * math.sin(2 * math.pi * 1.5 * k * TICK_S)
+        predictor.sent(k * TICK_S, u)
+        x = predictor.advance(x, k * TICK_S, (k + 1) * TICK_S)
+    return states, filtered
+
+
+def test_the_models_own_trajectory_passes_unchanged(lab_params: BarSystemParams) -> None:
+    states, filtered = _flown(lab_params, 40, 0.8)
+    assert np.abs(np.array(filtered) - np.array(states)).max() < 1e-9
+    assert np.abs(states[-1][RATES]).max() > 0.01  # the rates did move
+
+
+def test_noisy_rates_come_out_quieter(lab_params: BarSystemParams) -> None:
+    """White rate noise through w = 0.7: the filtered error's spread is about
+    √((1 − w)/(1 + w)) ≈ 0.42 of the noise's (a first-order recursion on white noise)."""
+    noise_std = 0.05
+    states, filtered = _flown(lab_params, 300, 0.7, noise_std)
+    errors = [f[RATES] - x[RATES] for x, f in zip(states, filtered, strict=True)]
+    ratio = float(np.std(errors[20:])) / noise_std
+    assert 0.3 < ratio < 0.55
+
+
+def test_no_weight_passes_the_estimate_and_a_gap_restarts(lab_params: BarSystemParams) -> None:
+    x = bar_equilibrium(lab_params, Reference((0.0, 0.0, 1.0))).x
+    predictor = DelayPredictor(lab_params, 0.0)
+    predictor.sent(0.0, np.zeros(8))
+    noisy = x + 0.01
+    assert np.array_equal(RateFilter(predictor, 0.0).filtered(noisy, TICK_S), noisy)
+    on = RateFilter(predictor, 0.5)
+    on.filtered(x, 0.0)
+    assert np.array_equal(on.filtered(noisy, 5.0), noisy)  # 5 s later: nothing to blend with
+
+
+@pytest.mark.parametrize("weight", [-0.1, 1.0, math.nan])
+def test_a_weight_outside_zero_to_one_is_refused(
+    weight: float, lab_params: BarSystemParams
+) -> None:
+    with pytest.raises(ValueError, match="model weight"):
+        RateFilter(DelayPredictor(lab_params, 0.0), weight)
