@@ -3,8 +3,10 @@ embedded simulator."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
+import signal
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 
@@ -94,10 +96,18 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
         SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
         await page.screenshot(path=str(SCREENSHOT))
 
+        banner = page.get_by_test_id("banner")
+        await expect(banner).to_be_hidden()  # a hover after a hand-over is normal flight
         await page.get_by_test_id("mode").click()  # focus anywhere; Escape aborts
         await page.keyboard.press("Escape")
         await expect(page.get_by_test_id("mode")).to_have_text(re.compile("abort"))
+        # No safety monitor asked for it: the banner says who can have.
+        await expect(page.get_by_test_id("banner-title")).to_have_text("ABORT")
+        await expect(page.get_by_test_id("banner-text")).to_contain_text("asked for with ABORT")
+        await expect(page.get_by_test_id("abort-reason")).to_have_text("accepted")
+        await expect(page.get_by_test_id("abort-reason")).to_have_text("", timeout=10_000)
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
+        await expect(banner).to_be_hidden()
         async with service.client() as http:
             status = await service.wait_for(
                 http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
@@ -228,4 +238,56 @@ async def test_a_refused_arm_shows_px4s_own_reason_on_the_page(
         for row in ("#uav1-text", "#uav2-text"):
             await expect(page.locator(row)).to_have_text(px4_text, timeout=10_000)
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+async def test_a_monitors_abort_a_lost_link_and_a_lost_stream_are_shown_as_such(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """A vehicle's link lost in a hover: the page turns red, says what the supervisor does
+    and why (the notice), greys what came from that link; the API process killed: every
+    value greyed, the last mode no longer bold, until the stream is back."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        mode = page.get_by_test_id("mode")
+        tick_lamp = page.get_by_test_id("lamp-tick")
+        await expect(tick_lamp).to_have_class(re.compile("good"), timeout=20_000)
+        await expect(tick_lamp).to_have_attribute("title", re.compile("Now: on time"))
+        await expect(page.get_by_test_id("lamp-mocap")).to_have_attribute(
+            "title", re.compile("Now: healthy")
+        )
+
+        os.kill(service.child_pid("uavbar-api"), signal.SIGKILL)
+        await expect(page.get_by_test_id("connection")).to_have_text(re.compile("lost"))
+        await expect(page.get_by_test_id("banner-title")).to_have_text("NO LIVE DATA")
+        await expect(page.get_by_test_id("banner-text")).to_contain_text(re.compile(r"\d+ s old"))
+        assert await mode.evaluate("e => getComputedStyle(e).fontWeight") == "400"
+        assert await page.locator("#lamp-uav1").get_attribute("class") == "lamp unknown"
+        await expect(page.get_by_test_id("connection")).to_have_text("live again", timeout=30_000)
+        await expect(page.get_by_test_id("banner")).to_be_hidden()
+        assert await mode.evaluate("e => getComputedStyle(e).fontWeight") == "700"
+
+        async with service.client() as http:
+            await service.take_off(http)
+            answer = await http.post(
+                "/api/sim/faults", json={"kind": "link_lost", "vehicle": 1, "duration_s": 8.0}
+            )
+            answer.raise_for_status()
+            await expect(page.get_by_test_id("banner-title")).to_have_text("ABORT")
+            await expect(page.get_by_test_id("banner-text")).to_contain_text(
+                "why: land_other: vehicle 1 link lost"
+            )
+            assert await page.get_by_test_id("banner").get_attribute("class") == "banner bad"
+            await expect(mode).to_have_attribute("data-level", "bad")
+            lamp = page.get_by_test_id("lamp-uav1")
+            await expect(lamp).to_have_class(re.compile("bad"))
+            await expect(lamp).to_have_attribute("title", re.compile("LOST"))
+            await expect(page.get_by_test_id("uav1-px4")).to_have_class(re.compile("stale-value"))
+            await expect(page.get_by_test_id("uav2-px4")).not_to_have_class(
+                re.compile("stale-value")
+            )
+            await expect(page.get_by_test_id("uav1-px4")).to_contain_text("(link lost)")
+            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+            await expect(page.get_by_test_id("banner")).to_be_hidden()
+            await expect(page.get_by_test_id("notices")).to_contain_text("vehicle 1 link lost")
         assert not PAGE_ERRORS, PAGE_ERRORS

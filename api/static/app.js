@@ -8,6 +8,10 @@
 
 const STALE_AFTER_MS = 500;
 const PLOT_SECONDS = 20;
+const ACCEPTED_SHOWN_MS = 4000;  // an "accepted" clears itself; a refusal stays until the next try
+const NOTICE_SHOWN_S = 120;  // older notices stay in the status (and the CLI), not on the page
+const NOTICE_FRESH_S = 30;  // older ones are dimmed
+const TICK_WINDOW_S = 10;  // the ticks lamp judges the loop by its last 10 s, not since start
 const TOKEN_KEY = "uavbar-token";
 const WS_TOKEN_REQUIRED = 4401;
 const state = {
@@ -15,6 +19,23 @@ const state = {
   everConnected: false, everLive: false, stale: true, tokenRefused: false,
 };
 const plots = { error: [], solve: [] };
+const tickHistory = [];  // [page time s, tick count, missed deadlines], the last TICK_WINDOW_S
+
+// What each mode that is not normal flight means, in words; level "bad" or "warn".
+const DANGER_MODES = {
+  abort: { level: "bad", title: "ABORT", what: "coordinated landing: the bar is set down, then the vehicles disarm" },
+  px4_landing: { level: "bad", title: "PX4 LANDING", what: "each PX4 lands on its own; the supervisor sends nothing" },
+  killed: { level: "bad", title: "KILLED", what: "the motors were stopped" },
+  landing: { level: "warn", title: "LANDING", what: "the bar is set down, then the vehicles disarm" },
+};
+// Who asks for these modes when no safety monitor did (no notice younger than the mode).
+const ASKED_BY = {
+  abort: "asked for with ABORT (a dashboard, the CLI or REST)",
+  landing: "asked for with Land (a dashboard, the CLI, REST, or serve stopping)",
+  killed: "asked for with KILL",
+  px4_landing: "",
+};
+const MODE_CAUSES = new Set(["abort", "land_other", "blind", "process"]);  // notice kinds
 
 // ---- token ---------------------------------------------------------------------------------
 function takeTokenFromAddress() {
@@ -71,6 +92,10 @@ function show(reasonId, text, ok = false) {
   const element = document.getElementById(reasonId);
   element.textContent = text;
   element.classList.toggle("ok", ok);
+  const shown = (element.dataset.shown = String(Number(element.dataset.shown || 0) + 1));
+  if (ok) {
+    setTimeout(() => { if (element.dataset.shown === shown) element.textContent = ""; }, ACCEPTED_SHOWN_MS);
+  }
 }
 
 function describe(detail) {
@@ -174,9 +199,11 @@ function markStale(stale) {
   document.getElementById("stale-note").textContent = stale ? "STALE: no live data" : "";
   if (stale) {
     for (const id of ["lamp-mocap", "lamp-uav1", "lamp-uav2", "lamp-tick"]) {
-      document.getElementById(id).className = "lamp unknown";
+      lamp(id, "unknown", "no live data: the telemetry stream is not arriving");
     }
+    tickHistory.length = 0;
   }
+  renderBanner();
 }
 
 function watchStaleness() {
@@ -188,6 +215,7 @@ function watchStaleness() {
       setConnection("no telemetry", "warn");
     }
   }
+  if (state.stale) renderBanner();  // the age of what is shown keeps counting
 }
 
 // ---- rendering -----------------------------------------------------------------------------
@@ -195,40 +223,144 @@ const fmt = (v, digits = 2) => (v === null || v === undefined ? "–" : Number(v
 const deg = (rad) => (rad === null || rad === undefined ? "–" : `${(rad * 180 / Math.PI).toFixed(1)}°`);
 const vec = (v) => (v && v.every((x) => x !== null) ? `(${v.map((x) => fmt(x)).join(", ")}) m` : "–");
 
-function lamp(id, level) {
-  document.getElementById(id).className = `lamp ${level}`;
+function lamp(id, level, title) {
+  const element = document.getElementById(id);
+  element.className = `lamp ${level}`;
+  element.title = title;
 }
 
 const ago = (seconds) => (seconds < 90 ? `${Math.round(seconds)} s ago` : `${Math.round(seconds / 60)} min ago`);
 
 function renderNotices(notices) {
-  const items = notices.slice(-3).reverse().map((notice) => {
+  const recent = notices.filter((notice) => notice.age_s < NOTICE_SHOWN_S);
+  const items = recent.slice(-3).reverse().map((notice) => {
     const item = document.createElement("li");
     item.textContent = `${ago(notice.age_s)} — ${notice.message}`;
+    item.classList.toggle("old", notice.age_s >= NOTICE_FRESH_S);
     return item;
   });
   document.getElementById("notices").replaceChildren(...items);
 }
 
+const noticeKind = (message) => message.split(":", 1)[0];
+
+// The notices that put the system in its mode: those no older than the mode itself.
+function modeCauses(t) {
+  const since = (t.mode_for_s ?? Infinity) + 0.5;  // the same tick, give or take a message
+  return (t.notices || [])
+    .filter((notice) => notice.age_s <= since && MODE_CAUSES.has(noticeKind(notice.message)))
+    .map((notice) => notice.message);
+}
+
+// The danger the last telemetry shows (null: normal): a mode that is not normal flight and
+// why, the safety monitors' faults of the last tick, and whether all of it is stale.
+function danger(t) {
+  if (!t) return null;
+  const mode = DANGER_MODES[t.mode];
+  const faults = t.faults || [];
+  if (!mode && !faults.length) return null;
+  const parts = [];
+  if (mode) {
+    parts.push(mode.what);
+    const causes = modeCauses(t);
+    parts.push(causes.length ? `why: ${causes.join("; ")}` : ASKED_BY[t.mode]);
+  }
+  if (faults.length) parts.push(`faults now: ${faults.join("; ")}`);
+  return {
+    level: mode ? mode.level : "warn",
+    title: mode ? mode.title : "FAULT",
+    text: parts.filter(Boolean).join(" — "),
+  };
+}
+
+function renderBanner() {
+  const banner = document.getElementById("banner");
+  const shown = danger(state.telemetry);
+  const age = (performance.now() - state.lastMessageAt) / 1000;
+  const staleNote = state.telemetry ? `no live data: what is shown is ${ago(age).replace(" ago", "")} old` : "no live data yet";
+  let level = null, title = "", text = "";
+  if (shown) {
+    ({ level, title, text } = shown);
+    if (state.stale) text += ` (last known; ${staleNote})`;
+  } else if (state.stale) {
+    level = "warn";
+    title = "NO LIVE DATA";
+    text = staleNote;
+  }
+  banner.hidden = level === null;
+  banner.className = `banner ${level || ""}`;
+  document.getElementById("banner-title").textContent = title;
+  document.getElementById("banner-text").textContent = text;
+  document.body.dataset.danger = shown ? shown.level : "";
+}
+
+function mocapLamp(m) {
+  const rate = `${fmt(m.rate_hz, 0)} frames/s`;
+  const meaning = "motion capture (green: every body measured and fresh; yellow: streaming, but the estimate is not healthy; red: no stream)";
+  if (m.healthy) return ["good", `${meaning}. Now: healthy, ${rate}`];
+  if (m.connected) {
+    const bodies = m.unhealthy && m.unhealthy.length ? `: ${m.unhealthy.join(", ")}` : "";
+    return ["warn", `${meaning}. Now: connected, ${rate}, not healthy${bodies}`];
+  }
+  return ["bad", `${meaning}. Now: not connected`];
+}
+
+function uavLamp(uav, i) {
+  const meaning = `vehicle ${i} link (green: PX4's heartbeat heard; red: lost)`;
+  return uav.connected
+    ? ["good", `${meaning}. Now: connected, PX4 mode ${uav.px4_mode}`]
+    : ["bad", `${meaning}. Now: LOST — the values from this link are stale`];
+}
+
+// Judged on the last TICK_WINDOW_S: a deadline missed at start-up does not keep it yellow.
+function tickLamp(tick) {
+  const now = performance.now() / 1000;
+  const last = tickHistory[tickHistory.length - 1];
+  if (last && tick.count < last[1]) tickHistory.length = 0;  // a restarted flight process
+  tickHistory.push([now, tick.count ?? 0, tick.missed_deadlines ?? 0]);
+  while (tickHistory.length > 1 && tickHistory[0][0] < now - TICK_WINDOW_S) tickHistory.shift();
+  const [since, count, missed] = tickHistory[0];
+  const span = now - since;
+  const ticks = (tick.count ?? 0) - count;
+  const late = (tick.missed_deadlines ?? 0) - missed;
+  const meaning = "20 ms control loop (green: every tick on time; yellow: ticks missed their deadline; red: no ticks)";
+  const total = `; ${tick.missed_deadlines ?? 0} missed of ${tick.count ?? 0} since start`;
+  if (span >= 1 && ticks === 0) return ["bad", `${meaning}. Now: no tick for ${span.toFixed(0)} s`];
+  if (late > 0) return ["warn", `${meaning}. Now: ${late} of ${ticks} missed in the last ${span.toFixed(0)} s${total}`];
+  if (ticks > 0) return ["good", `${meaning}. Now: on time for the last ${span.toFixed(0)} s${total}`];
+  return ["unknown", `${meaning}. Now: waiting for ticks`];
+}
+
 function render(t) {
-  document.getElementById("mode").textContent = t.mode;
+  const modeElement = document.getElementById("mode");
+  modeElement.textContent = t.mode;
+  modeElement.dataset.level = DANGER_MODES[t.mode] ? DANGER_MODES[t.mode].level : "";
   document.getElementById("phase").textContent = t.phase;
   document.getElementById("controller").textContent = t.controller;
   for (const button of document.querySelectorAll("[data-controller]")) {
     button.classList.toggle("selected", button.dataset.controller === t.controller);
   }
   renderNotices(t.notices || []);
-  lamp("lamp-mocap", t.mocap.healthy ? "good" : t.mocap.connected ? "warn" : "bad");
-  t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, uav.connected ? "good" : "bad"));
+  renderBanner();
+  lamp("lamp-mocap", ...mocapLamp(t.mocap));
+  t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, ...uavLamp(uav, i + 1)));
   const tick = t.tick || {};
-  lamp("lamp-tick", tick.missed_deadlines > 0 ? "warn" : tick.count > 0 ? "good" : "unknown");
+  lamp("lamp-tick", ...tickLamp(tick));
+  const blocked = document.getElementById("arm-blocked");
+  blocked.textContent = t.arm_blocked_by ? `Arm would be refused now: ${t.arm_blocked_by}` : "";
+  document.getElementById("arm").classList.toggle("blocked", Boolean(t.arm_blocked_by));
+  // Greyed: what comes from a source that is not live (the mocap's estimate, a lost link).
+  greyed(".mocap-value", !t.mocap.healthy);
   document.getElementById("bar-position").textContent = vec(t.bar.position);
   document.getElementById("bar-yaw").textContent = deg(t.bar.yaw);
   document.getElementById("bar-error").textContent = t.bar.error_m === null ? "–" : `${fmt(t.bar.error_m, 3)} m`;
   t.uavs.forEach((uav, i) => {
-    document.getElementById(`uav${i + 1}-info`).textContent =
-      `${vec(uav.position)} · ${uav.px4_mode} · ${t.armed[i] ? "armed" : "disarmed"}`;
-    document.getElementById(`uav${i + 1}-text`).textContent = uav.status_text || "–";
+    const n = i + 1;
+    greyed(`.link${n}-value`, !uav.connected);
+    document.getElementById(`uav${n}-position`).textContent = vec(uav.position).replace(" m", "");
+    document.getElementById(`uav${n}-px4`).textContent = uav.connected ? uav.px4_mode : `${uav.px4_mode} (link lost)`;
+    document.getElementById(`uav${n}-armed`).textContent = t.armed[i] ? "armed" : "disarmed";
+    document.getElementById(`uav${n}-text`).textContent = uav.status_text || "–";
   });
   document.getElementById("tick-info").textContent =
     `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`;
@@ -239,6 +371,10 @@ function render(t) {
   drawViews(t);
   drawPlot("error-plot", plots.error, now, "m");
   drawPlot("solve-plot", plots.solve, now, "ms");
+}
+
+function greyed(selector, stale) {
+  for (const element of document.querySelectorAll(selector)) element.classList.toggle("stale-value", stale);
 }
 
 function describeSetpoint(s) {
