@@ -60,6 +60,37 @@ async def open_dashboard(browser: Browser, service: RunningService, token: str) 
     return page
 
 
+COLOUR_PIXELS_JS = """([selector, rgb, below]) => {
+    const source = document.querySelector(selector);
+    const copy = document.createElement("canvas");
+    copy.width = source.width;
+    copy.height = source.height;
+    const g = copy.getContext("2d");
+    g.drawImage(source, 0, 0);
+    const ratio = source.width / source.getBoundingClientRect().width;
+    const data = g.getImageData(0, 0, copy.width, copy.height).data;
+    let n = 0, sx = 0, sy = 0;
+    for (let i = 0; i < data.length; i += 4) {
+        const [x, y] = [(i / 4) % copy.width, Math.floor(i / 4 / copy.width)];
+        const off = [0, 1, 2].reduce((sum, c) => sum + Math.abs(data[i + c] - rgb[c]), 0);
+        if (y >= below * ratio && off < 40) { n += 1; sx += x; sy += y; }
+    }
+    return { count: n, x: n ? sx / n / ratio : null, y: n ? sy / n / ratio : null };
+}"""
+UAV1_BLUE, UAV2_VIOLET = (0x4E, 0xA1, 0xFF), (0xC5, 0x8B, 0xFF)
+
+
+async def colour_pixels(
+    page: Page, selector: str, rgb: tuple[int, int, int], below_px: float = 0.0
+) -> dict[str, float]:
+    """How many pixels of the canvas at ``selector`` (those ``below_px`` CSS pixels or more
+    from its top) are near ``rgb``, and their centroid in CSS pixels from the canvas's top
+    left: what was drawn, WebGL or 2D."""
+    arguments = [selector, list(rgb), below_px]
+    result: dict[str, float] = await page.evaluate(COLOUR_PIXELS_JS, arguments)
+    return result
+
+
 async def take_off(page: Page) -> None:
     await page.get_by_test_id("arm").click()
     await expect(page.get_by_test_id("mode")).to_have_text("armed", timeout=10_000)
@@ -122,6 +153,14 @@ async def test_switch_controller_and_queue_a_setpoint_from_the_page(
     async with running_service(TOKEN, tmp_path) as service:
         page = await open_dashboard(browser, service, TOKEN)
         await take_off(page)
+        # Each UAV's battery, in the table and plotted over the last 20 s.
+        for n in (1, 2):
+            await expect(page.get_by_test_id(f"uav{n}-battery")).to_have_text(
+                re.compile(r"^1[0-9]\.\d V$")
+            )
+        for colour in (UAV1_BLUE, UAV2_VIOLET):  # the lines, below the legend
+            drawn = await colour_pixels(page, "#battery-plot", colour, below_px=20)
+            assert drawn["count"] > 50, drawn
         await page.get_by_test_id("controller-decentralized").click()
         await expect(page.get_by_test_id("controller")).to_have_text("decentralized")
         form = page.get_by_test_id("setpoint-form")

@@ -18,7 +18,9 @@ const state = {
   telemetry: null, lastMessageAt: 0, socket: null, retryMs: 500,
   everConnected: false, everLive: false, stale: true, tokenRefused: false,
 };
-const plots = { error: [], solve: [] };
+// [page time s, value] for the last PLOT_SECONDS; null breaks the line (no live data).
+const plots = { error: [], solve: [], battery1: [], battery2: [] };
+const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", uav2: "#c58bff", ref: "#9be39b", grid: "#2a333c", muted: "#8c98a4", text: "#e6e9ec" };
 const tickHistory = [];  // [page time s, tick count, missed deadlines], the last TICK_WINDOW_S
 
 // What each mode that is not normal flight means, in words; level "bad" or "warn".
@@ -215,7 +217,12 @@ function watchStaleness() {
       setConnection("no telemetry", "warn");
     }
   }
-  if (state.stale) renderBanner();  // the age of what is shown keeps counting
+  if (state.stale) {
+    renderBanner();  // the age of what is shown keeps counting
+    const now = performance.now() / 1000;
+    for (const series of Object.values(plots)) pushHistory(series, now, null);
+    drawPlots(now);
+  }
 }
 
 // ---- rendering -----------------------------------------------------------------------------
@@ -361,16 +368,27 @@ function render(t) {
     document.getElementById(`uav${n}-px4`).textContent = uav.connected ? uav.px4_mode : `${uav.px4_mode} (link lost)`;
     document.getElementById(`uav${n}-armed`).textContent = t.armed[i] ? "armed" : "disarmed";
     document.getElementById(`uav${n}-text`).textContent = uav.status_text || "–";
+    document.getElementById(`uav${n}-battery`).textContent =
+      uav.battery_v === null || uav.battery_v === undefined ? "–" : `${fmt(uav.battery_v, 1)} V`;
   });
   document.getElementById("tick-info").textContent =
     `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`;
   renderSetpoints(t.setpoints);
-  const now = t.time_s;
+  const now = performance.now() / 1000;
   pushHistory(plots.error, now, t.bar.error_m);
   pushHistory(plots.solve, now, t.plan ? t.plan.solve_ms : null);
+  t.uavs.forEach((uav, i) => pushHistory(plots[`battery${i + 1}`], now, uav.connected ? uav.battery_v : null));
   drawViews(t);
-  drawPlot("error-plot", plots.error, now, "m");
-  drawPlot("solve-plot", plots.solve, now, "ms");
+  drawPlots(now);
+}
+
+function drawPlots(now) {
+  drawPlot("error-plot", [{ points: plots.error, colour: COLOURS.uav }], now, "m", true);
+  drawPlot("solve-plot", [{ points: plots.solve, colour: COLOURS.uav }], now, "ms", true);
+  drawPlot("battery-plot", [
+    { points: plots.battery1, colour: COLOURS.uav, label: "UAV 1" },
+    { points: plots.battery2, colour: COLOURS.uav2, label: "UAV 2" },
+  ], now, "V", false);
 }
 
 function greyed(selector, stale) {
@@ -394,29 +412,92 @@ function renderSetpoints(setpoints) {
 }
 
 function pushHistory(series, t, value) {
+  if (value === undefined) value = null;
   series.push([t, value]);
   while (series.length && series[0][0] < t - PLOT_SECONDS) series.shift();
 }
 
-function drawPlot(id, series, now, unit) {
-  const canvas = document.getElementById(id);
-  const g = canvas.getContext("2d");
-  g.clearRect(0, 0, canvas.width, canvas.height);
-  const values = series.map(([, v]) => v).filter((v) => v !== null);
-  const top = Math.max(1e-3, ...values) * 1.1;
-  g.fillStyle = "#8c98a4";
-  g.fillText(`${fmt(top, 3)} ${unit}`, 4, 12);
-  g.strokeStyle = "#4ea1ff";
-  g.beginPath();
-  let drawing = false;
-  for (const [t, v] of series) {
-    if (v === null) { drawing = false; continue; }
-    const x = canvas.width * (1 - (now - t) / PLOT_SECONDS);
-    const y = canvas.height * (1 - v / top);
-    if (drawing) g.lineTo(x, y); else g.moveTo(x, y);
-    drawing = true;
+// A canvas drawn at its laid-out size (CSS pixels × the device's pixel ratio); the context
+// works in CSS pixels.
+function fitCanvas(canvas) {
+  const ratio = window.devicePixelRatio || 1;
+  const width = Math.max(1, Math.round(canvas.clientWidth * ratio));
+  const height = Math.max(1, Math.round(canvas.clientHeight * ratio));
+  if (canvas.width !== width || canvas.height !== height) {
+    canvas.width = width;
+    canvas.height = height;
   }
-  g.stroke();
+  const g = canvas.getContext("2d");
+  g.setTransform(ratio, 0, 0, ratio, 0, 0);
+  g.clearRect(0, 0, canvas.clientWidth, canvas.clientHeight);
+  g.font = "11px system-ui, sans-serif";
+  return [g, canvas.clientWidth, canvas.clientHeight];
+}
+
+// Round steps (1, 2, 5 × 10^k) for about ``count`` ticks over [low, high].
+function ticks(low, high, count) {
+  const raw = (high - low) / count;
+  const magnitude = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 5, 10].map((m) => m * magnitude).find((m) => m >= raw);
+  const first = Math.ceil(low / step) * step;
+  const values = [];
+  for (let v = first; v <= high + step * 1e-9; v += step) values.push(Number(v.toPrecision(12)));
+  return values;
+}
+
+// Time on x (the last PLOT_SECONDS, "now" at the right), the value on y with its unit.
+function drawPlot(id, series, now, unit, fromZero) {
+  const [g, width, height] = fitCanvas(document.getElementById(id));
+  const bottom = 16, top = 6, right = 8;
+  const values = series.flatMap((s) => s.points.map(([, v]) => v)).filter((v) => v !== null);
+  let low = fromZero ? 0 : Math.min(...values), high = Math.max(...values);
+  if (!values.length) { low = 0; high = 1; }
+  if (high - low < 1e-3) { low -= fromZero ? 0 : 0.05; high += 0.05; }
+  const pad = (high - low) * 0.1;
+  high += pad;
+  if (!fromZero) low -= pad;
+  const yTicks = ticks(low, high, 3);
+  const digits = Math.max(0, -Math.floor(Math.log10(yTicks[1] - yTicks[0] || 1)));
+  const labels = yTicks.map((v) => `${v.toFixed(digits)} ${unit}`);
+  const left = 8 + Math.max(...labels.map((label) => g.measureText(label).width));
+  const x = (t) => left + (width - left - right) * (1 - (now - t) / PLOT_SECONDS);
+  const y = (v) => top + (height - top - bottom) * (1 - (v - low) / (high - low));
+  g.strokeStyle = COLOURS.grid;
+  g.fillStyle = COLOURS.muted;
+  g.lineWidth = 1;
+  g.textAlign = "right";
+  g.textBaseline = "middle";
+  yTicks.forEach((v, i) => {
+    g.beginPath(); g.moveTo(left, y(v)); g.lineTo(width - right, y(v)); g.stroke();
+    g.fillText(labels[i], left - 4, y(v));
+  });
+  g.textAlign = "center";
+  g.textBaseline = "top";
+  for (let ago = PLOT_SECONDS; ago >= 0; ago -= 5) {
+    const at = x(now - ago);
+    g.beginPath(); g.moveTo(at, top); g.lineTo(at, height - bottom); g.stroke();
+    g.fillText(ago ? `−${ago} s` : "now", Math.min(at, width - right - 10), height - bottom + 3);
+  }
+  g.save();
+  g.beginPath(); g.rect(left, top, width - left - right, height - top - bottom); g.clip();
+  series.forEach(({ points, colour }, i) => {
+    g.lineWidth = 1.5 * (series.length - i);  // wider first: equal values stay visible
+    g.strokeStyle = colour;
+    g.beginPath();
+    let drawing = false;
+    for (const [t, v] of points) {
+      if (v === null) { drawing = false; continue; }
+      if (drawing) g.lineTo(x(t), y(v)); else g.moveTo(x(t), y(v));
+      drawing = true;
+    }
+    g.stroke();
+  });
+  g.restore();
+  g.textAlign = "left";
+  series.filter((s) => s.label).forEach((s, i) => {
+    g.fillStyle = s.colour;
+    g.fillText(s.label, left + 6 + i * 48, top + 2);
+  });
 }
 
 function drawViews(t) {
