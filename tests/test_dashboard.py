@@ -11,14 +11,17 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 
 import pytest
-from playwright.async_api import Browser, Page, async_playwright, expect
+from playwright.async_api import Browser, Page, ViewportSize, async_playwright, expect
 
 from benchmarks.service import RunningService, all_connected, running_service
 from tests.test_px4_sitl import PX4_REFUSAL, require_gps_for_arming
 from tests.test_service import require_px4
 
 CHROMIUM = shutil.which("chromium")
-SCREENSHOT = Path(__file__).resolve().parent.parent / "docs" / "images" / "dashboard.png"
+IMAGES = Path(__file__).resolve().parent.parent / "docs" / "images"
+SCREENSHOT = IMAGES / "dashboard.png"
+DESKTOP = ViewportSize(width=1500, height=1000)
+SMALL = ViewportSize(width=1024, height=700)
 TOKEN = "dashboard-token-0123"
 PAGE_ERRORS: list[str] = []
 
@@ -44,10 +47,12 @@ async def browser(tmp_path: Path) -> AsyncIterator[Browser]:
         await chromium.close()
 
 
-async def open_dashboard(browser: Browser, service: RunningService, token: str) -> Page:
+async def open_dashboard(
+    browser: Browser, service: RunningService, token: str, viewport: ViewportSize = DESKTOP
+) -> Page:
     async with service.client() as http:
         await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
-    page = await browser.new_page(viewport={"width": 1500, "height": 1000})
+    page = await browser.new_page(viewport=viewport)
     page.on("pageerror", lambda error: PAGE_ERRORS.append(str(error)))
     await page.goto(f"{service.url}/#token={token}")
     connection = page.get_by_test_id("connection")
@@ -329,4 +334,61 @@ async def test_a_monitors_abort_a_lost_link_and_a_lost_stream_are_shown_as_such(
             await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
             await expect(page.get_by_test_id("banner")).to_be_hidden()
             await expect(page.get_by_test_id("notices")).to_contain_text("vehicle 1 link lost")
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+IN_SIGHT = ("abort", "mode", "lamp-tick", "top-view", "side-view", "arm", "land", "setpoint-form")
+APART = ("top", "views", "flight-panel", "setpoint-panel")
+
+
+async def assert_laid_out(page: Page, viewport: ViewportSize) -> None:
+    """The controls, both views and the setpoint form inside the window; the header, the
+    views and the two panels side by side, none over another; no sideways scrolling."""
+    boxes = {}
+    for name in (*IN_SIGHT, *APART):
+        found = page.locator(f"#{name}") if name == "top" else page.get_by_test_id(name)
+        box = await found.bounding_box()
+        assert box is not None, f"{name} is not laid out"
+        boxes[name] = box
+    for name in IN_SIGHT:
+        b = boxes[name]
+        inside = b["x"] >= 0 and b["y"] >= 0
+        inside &= b["x"] + b["width"] <= viewport["width"]
+        inside &= b["y"] + b["height"] <= viewport["height"]
+        assert inside, f"{name} is not inside the {viewport} window: {b}"
+    for i, first in enumerate(APART):
+        for second in APART[i + 1 :]:
+            a, b = boxes[first], boxes[second]
+            apart = a["x"] + a["width"] <= b["x"] or b["x"] + b["width"] <= a["x"]
+            apart |= a["y"] + a["height"] <= b["y"] or b["y"] + b["height"] <= a["y"]
+            assert apart, f"{first} {a} overlaps {second} {b}"
+    width = await page.evaluate("document.scrollingElement.scrollWidth")
+    assert width <= viewport["width"], f"the page scrolls sideways: {width} px wide"
+
+
+async def test_the_layout_at_1024_by_700_keeps_the_views_and_the_setpoints_in_sight(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """Checked on the page's boxes in a hover and in an abort (its banner and notice make
+    the header taller); the README's screenshots of both, small and desktop."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN, SMALL)
+        await assert_laid_out(page, SMALL)
+        async with service.client() as http:
+            await service.take_off(http)
+            await expect(page.get_by_test_id("mode")).to_have_text("hover")
+            await assert_laid_out(page, SMALL)
+            await page.wait_for_timeout(2000)  # some live plot for the picture
+            await page.screenshot(path=str(IMAGES / "dashboard-1024.png"))
+
+            fault = {"kind": "link_lost", "vehicle": 1, "duration_s": 8.0}
+            (await http.post("/api/sim/faults", json=fault)).raise_for_status()
+            await expect(page.get_by_test_id("banner-text")).to_contain_text("why: land_other")
+            await page.screenshot(path=str(IMAGES / "dashboard-1024-abort.png"))
+            await assert_laid_out(page, SMALL)
+            await page.set_viewport_size(DESKTOP)
+            await expect(page.get_by_test_id("mode")).to_have_text("abort")
+            await page.screenshot(path=str(IMAGES / "dashboard-abort.png"))
+            await assert_laid_out(page, DESKTOP)
+            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
         assert not PAGE_ERRORS, PAGE_ERRORS

@@ -506,15 +506,28 @@ function drawViews(t) {
   drawView("side-view", t, arena, 0, 2);
 }
 
+// The arena, scaled to fit and centred, a ``a`` → right, ``b`` ↑.
 function drawView(id, t, arena, a, b) {
-  const canvas = document.getElementById(id);
-  const g = canvas.getContext("2d");
+  const [g, width, height] = fitCanvas(document.getElementById(id));
   const span = [arena.max[a] - arena.min[a], arena.max[b] - arena.min[b]];
-  const scale = Math.min(canvas.width / span[0], canvas.height / span[1]);
-  const px = (p) => [(p[a] - arena.min[a]) * scale, canvas.height - (p[b] - arena.min[b]) * scale];
-  g.clearRect(0, 0, canvas.width, canvas.height);
-  g.strokeStyle = "#2a333c";
-  g.strokeRect(0, canvas.height - span[1] * scale, span[0] * scale, span[1] * scale);
+  const scale = Math.min((width - 2) / span[0], (height - 2) / span[1]);
+  const x0 = (width - span[0] * scale) / 2, y0 = (height + span[1] * scale) / 2;
+  const px = (p) => [x0 + (p[a] - arena.min[a]) * scale, y0 - (p[b] - arena.min[b]) * scale];
+  g.strokeStyle = COLOURS.grid;
+  g.lineWidth = 1;
+  g.strokeRect(x0, y0 - span[1] * scale, span[0] * scale, span[1] * scale);
+  g.fillStyle = COLOURS.muted;
+  g.strokeStyle = "#1c232a";  // a 1 m grid, labelled along the edges
+  for (let v = Math.ceil(arena.min[a]); v <= arena.max[a]; v += 1) {
+    const [x] = px({ [a]: v, [b]: arena.min[b] });
+    g.beginPath(); g.moveTo(x, y0); g.lineTo(x, y0 - span[1] * scale); g.stroke();
+    if (x < width - 24) g.fillText(`${v} m`, x + 2, y0 - 3);
+  }
+  for (let v = Math.ceil(arena.min[b]); v <= arena.max[b]; v += 1) {
+    const [, y] = px({ [a]: arena.min[a], [b]: v });
+    g.beginPath(); g.moveTo(x0, y); g.lineTo(x0 + span[0] * scale, y); g.stroke();
+    if (v) g.fillText(`${v} m`, x0 + 2, y - 3);
+  }
   const reference = t.reference;
   if (reference) {
     g.setLineDash([5, 4]);
@@ -621,7 +634,20 @@ function wire() {
   setInterval(watchStaleness, 100);
 }
 
+// The header's height, for the views' (they fill the window below it); a resize redraws.
+function watchLayout() {
+  const top = document.getElementById("top");
+  const redraw = () => {
+    document.documentElement.style.setProperty("--top-h", `${top.offsetHeight}px`);
+    if (state.telemetry) drawViews(state.telemetry);
+    drawPlots(performance.now() / 1000);
+  };
+  new ResizeObserver(redraw).observe(top);
+  new ResizeObserver(redraw).observe(document.getElementById("views"));
+}
+
 takeTokenFromAddress();
+watchLayout();
 wire();
 showEquilibrium();
 connect();
