@@ -3,6 +3,7 @@ embedded simulator."""
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -10,6 +11,7 @@ import signal
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 
+import httpx
 import pytest
 from playwright.async_api import Browser, Page, ViewportSize, async_playwright, expect
 
@@ -34,14 +36,17 @@ pytestmark = [
 @pytest.fixture
 async def browser(tmp_path: Path) -> AsyncIterator[Browser]:
     """Chromium at a lower priority: on a 2-core machine the browser's rendering must not
-    starve the simulated world (a lab's mocap runs on its own computer)."""
+    starve the simulated world (a lab's mocap runs on its own computer). WebGL without a
+    GPU is SwiftShader's (software), which Chromium gives only when asked for."""
     assert CHROMIUM is not None
     launcher = tmp_path / "chromium-niced"
     launcher.write_text(f'#!/bin/sh\nexec nice -n 10 {CHROMIUM} "$@"\n')
     launcher.chmod(0o755)
     async with async_playwright() as playwright:
         chromium = await playwright.chromium.launch(
-            executable_path=str(launcher), args=["--no-sandbox"], headless=True
+            executable_path=str(launcher),
+            args=["--no-sandbox", "--enable-unsafe-swiftshader"],
+            headless=True,
         )
         yield chromium
         await chromium.close()
@@ -390,5 +395,52 @@ async def test_the_layout_at_1024_by_700_keeps_the_views_and_the_setpoints_in_si
             await expect(page.get_by_test_id("mode")).to_have_text("abort")
             await page.screenshot(path=str(IMAGES / "dashboard-abort.png"))
             await assert_laid_out(page, DESKTOP)
+            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+BAR_ORANGE, MAJOR_GRID = (0xF0, 0xA0, 0x30), (0x46, 0x52, 0x5E)
+DRAWN_WITHIN_PX = 10.0
+
+
+async def bar_drawn_and_projected(
+    page: Page, service: RunningService, http: httpx.AsyncClient
+) -> tuple[dict[str, float], list[float]]:
+    """The 3D view's orange pixels (the bar) and where the view's camera puts the bar's
+    estimated middle (from ``/api/status``), in CSS pixels from the canvas's top left."""
+    position = (await service.status(http))["bar"]["position"]
+    await page.wait_for_timeout(500)  # a few messages drawn since
+    drawn = await colour_pixels(page, "#view3d", BAR_ORANGE)
+    projected: list[float] = await page.evaluate("p => window.uavbarView3d.project(p)", position)
+    return drawn, projected
+
+
+async def test_the_3d_view_draws_the_arena_and_follows_the_bar(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """WebGL (SwiftShader) in headless Chromium: the arena's grid is drawn, and the bar is
+    drawn where its estimate is, resting and then hovering a metre higher."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        view = page.get_by_test_id("view3d")
+        await expect(view).to_have_attribute("data-renders", re.compile(r"^[1-9]"))
+        await expect(page.get_by_test_id("view3d-note")).to_have_text("")
+        assert await page.evaluate("window.uavbarView3d.webgl") in ("webgl", "webgl2")
+        assert (await colour_pixels(page, "#view3d", MAJOR_GRID))["count"] > 500
+
+        async with service.client() as http:
+            resting, projected = await bar_drawn_and_projected(page, service, http)
+            assert resting["count"] > 30, resting
+            off = math.dist((resting["x"], resting["y"]), projected)
+            assert off < DRAWN_WITHIN_PX, (resting, projected)
+
+            await service.take_off(http)
+            hovering, projected = await bar_drawn_and_projected(page, service, http)
+            assert hovering["count"] > 30, hovering
+            off = math.dist((hovering["x"], hovering["y"]), projected)
+            assert off < DRAWN_WITHIN_PX, (hovering, projected)
+            assert resting["y"] - hovering["y"] > 20, (resting, hovering)  # drawn higher up
+            await page.locator("#view3d").screenshot(path=str(IMAGES / "dashboard-3d.png"))
+            (await http.post("/api/land")).raise_for_status()
             await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
         assert not PAGE_ERRORS, PAGE_ERRORS

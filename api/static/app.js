@@ -17,6 +17,7 @@ const WS_TOKEN_REQUIRED = 4401;
 const state = {
   telemetry: null, lastMessageAt: 0, socket: null, retryMs: 500,
   everConnected: false, everLive: false, stale: true, tokenRefused: false,
+  lastCheckAt: 0, deferredCheck: false,
 };
 // [page time s, value] for the last PLOT_SECONDS; null breaks the line (no live data).
 const plots = { error: [], solve: [], battery1: [], battery2: [] };
@@ -172,6 +173,7 @@ function connect() {
     }
     state.everLive = true;
     render(state.telemetry);
+    window.dispatchEvent(new CustomEvent("uavbar:telemetry", { detail: state.telemetry }));
   };
   socket.onclose = async (event) => {
     state.stale = true;
@@ -208,7 +210,18 @@ function markStale(stale) {
   renderBanner();
 }
 
+// Every 100 ms. After a stall of the page itself (a check over 250 ms late: the 3D view's
+// shaders compiling, say) the messages that arrived meanwhile are still queued: the verdict
+// waits for one more check, never for two in a row.
 function watchStaleness() {
+  const checkedAt = performance.now();
+  const late = checkedAt - state.lastCheckAt > 250;
+  state.lastCheckAt = checkedAt;
+  if (late && !state.deferredCheck) {
+    state.deferredCheck = true;
+    return;
+  }
+  state.deferredCheck = false;
   const stale = !state.telemetry || performance.now() - state.lastMessageAt > STALE_AFTER_MS;
   if (stale && !state.stale) {
     state.stale = true;
