@@ -46,6 +46,7 @@ from api.models import (
     SetpointsBody,
     ValidationFailed,
 )
+from api.world_reset import settle_after_reset
 from controllers.equilibria import EquilibriumError
 from controllers.params import BarSystemParams
 from supervisor.flight.equilibrium_summary import equilibrium_summary
@@ -202,7 +203,7 @@ def create_app(
     app.include_router(_operator_routes(flight, policy))
     app.include_router(_setpoint_routes(flight, params, arena, policy))
     app.include_router(_telemetry_route(flight, policy))
-    app.include_router(_sim_routes(world, policy))
+    app.include_router(_sim_routes(world, flight, policy))
     if STATIC_DIR.is_dir():
         _dashboard(app)
     _document_bearer(app)
@@ -386,7 +387,7 @@ def _setpoint_routes(
     return router
 
 
-def _sim_routes(world: WorldClient | None, policy: HttpPolicy) -> APIRouter:
+def _sim_routes(world: WorldClient | None, flight: FlightClient, policy: HttpPolicy) -> APIRouter:
     """Faults and reset of the embedded world: reading is ``read``, the rest needs the
     token and an embedded world."""
     router = APIRouter()
@@ -401,7 +402,10 @@ def _sim_routes(world: WorldClient | None, policy: HttpPolicy) -> APIRouter:
     async def ask(request: WorldRequest) -> JSONResponse:
         reply = await embedded().request(request)
         if reply.ok:
-            return JSONResponse({"accepted": True, "embedded": True, **reply.data})
+            data = dict(reply.data)
+            if isinstance(request, ResetWorld):
+                data |= await settle_after_reset(flight, data.pop("resting_positions"))
+            return JSONResponse({"accepted": True, "embedded": True, **data})
         if reply.outcome is Outcome.INVALID:
             # The body fitted its schema here; what the world still refuses (a rigid body
             # it does not have) is a refusal, 409, like the queue's and the arena's.
@@ -438,7 +442,8 @@ def _sim_routes(world: WorldClient | None, policy: HttpPolicy) -> APIRouter:
     async def reset() -> JSONResponse:
         """Put the simulated world back in its resting pose: the plant's initial state, the
         simulated PX4s disarmed in their boot mode, faults cleared. Refused while a vehicle
-        is armed."""
+        is armed. Answers once the motion capture tracks the bodies there (at most 3 s):
+        ``tracked``, and ``arm_blocked_by`` (null: the pre-arm checks pass)."""
         return await ask(ResetWorld())
 
     return router

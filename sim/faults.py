@@ -49,11 +49,19 @@ def _number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
+MAX_DURATION_S = 3600.0  # longer is "until cleared" (no duration)
+MAX_OFFSET_M = 20.0  # beyond any arena: a jump no mocap gives
+
+
 def _check_duration(duration_s: float | None) -> None:
     if duration_s is None:
         return
-    if not (_number(duration_s) and math.isfinite(duration_s) and duration_s > 0.0):
-        raise FaultError("duration_s", f"a positive finite number of seconds, got {duration_s!r}")
+    if not (_number(duration_s) and 0.0 < duration_s <= MAX_DURATION_S):
+        raise FaultError(
+            "duration_s",
+            f"seconds, > 0 and at most {MAX_DURATION_S:.0f} (none: until cleared), "
+            f"got {duration_s!r}",
+        )
 
 
 def _check_vehicle(vehicle: int) -> None:
@@ -125,9 +133,13 @@ class MocapJump:
         if not (
             isinstance(offset, tuple)
             and len(offset) == 3
-            and all(_number(v) and math.isfinite(v) for v in offset)
+            and all(_number(v) and abs(v) <= MAX_OFFSET_M for v in offset)
         ):
-            raise FaultError("offset_m", f"three finite numbers [x, y, z] (metres), got {offset!r}")
+            raise FaultError(
+                "offset_m",
+                f"three numbers [x, y, z] (metres), each within ±{MAX_OFFSET_M:.0f}, "
+                f"got {offset!r}",
+            )
         _check_duration(self.duration_s)
 
 

@@ -49,16 +49,14 @@ async def telemetry_messages(service: RunningService, opened: asyncio.Event) -> 
     return count
 
 
-async def arm_after_reset(service: RunningService, http: httpx.AsyncClient) -> tuple[int, str, str]:
-    """``arm --wait`` once the reset world is tracked again: the bodies moved back to
-    their resting pose, a jump the mocap gate takes a few frames to accept."""
-    await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
-    for _ in range(10):
-        status, out, err = await cli("arm", "--wait")
-        if "no fresh motion capture" not in err:
-            break
-        await asyncio.sleep(0.5)
-    return status, out, err
+async def reset_and_arm(service: RunningService, http: httpx.AsyncClient) -> tuple[int, str, str]:
+    """``reset``, then ``arm --wait`` at once: the reset answers once the motion capture
+    tracks the bodies at their resting pose, so nothing needs waiting for in between."""
+    status, out, err = await cli("reset")
+    assert status == 0, err
+    assert "not ready to arm" not in out and "does not track" not in out, out
+    await service.wait_for(http, all_connected, 60.0, "both links")
+    return await cli("arm", "--wait")
 
 
 @pytest.mark.slow
@@ -91,8 +89,7 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
 
         # A take-off that an abort ends: exit 1 with the abort's reason. (The landing put
         # the UAVs down 0.3 m from the bar's ends: the world's reset puts them back.)
-        assert (await cli("reset"))[0] == 0
-        status, out, err = await arm_after_reset(service, http)
+        status, out, err = await reset_and_arm(service, http)
         assert status == 0, err
         takeoff = asyncio.create_task(cli("takeoff", "--wait"))
         await service.wait_for(http, lambda s: s["phase"] == "lift", 30.0, "lifting the bar")
@@ -109,8 +106,7 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
         assert status == 1 and "refused (409)" in err  # disarmed: refused at once
 
         # Ctrl-C (to serve; its children leave SIGINT to it) with the dashboard connected.
-        assert (await cli("reset"))[0] == 0
-        assert (await arm_after_reset(service, http))[0] == 0
+        assert (await reset_and_arm(service, http))[0] == 0
         assert (await cli("takeoff", "--wait"))[0] == 0
         service.process.send_signal(signal.SIGINT)
         async with asyncio.timeout(120.0):

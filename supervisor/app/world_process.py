@@ -31,7 +31,13 @@ from sim.px4_firmware import (
     resolve_px4_dir,
 )
 from sim.px4_sitl import Px4SitlVehicle
-from sim.world import SimulatedVehicle, SimulatedWorld, VehicleFactory, WorldRefusedError
+from sim.world import (
+    PLANT_BODIES,
+    SimulatedVehicle,
+    SimulatedWorld,
+    VehicleFactory,
+    WorldRefusedError,
+)
 from supervisor.app.assembly import (
     mocap_params_from_config,
     plant_params_from_config,
@@ -157,6 +163,9 @@ def handle_world_request(world: SimulatedWorld, request: WorldRequest) -> Reply:
         elif isinstance(request, ResetWorld):
             data["cleared"] = [ended.view(world.plant.time_s) for ended in world.reset()]
             data["reset"] = True
+            data["resting_positions"] = {
+                name: world.plant.body(name).position_m.tolist() for name in PLANT_BODIES
+            }
         else:
             assert isinstance(request, ListFaults)
     except FaultError as error:

@@ -111,6 +111,10 @@ def format_faults(answer: dict[str, Any]) -> str:
     lines = []
     if answer.get("reset"):
         lines.append("world reset: resting pose, PX4s disarmed in their boot mode")
+        if not answer.get("tracked", True):
+            lines.append("motion capture does not track the bodies at the resting pose yet")
+        if answer.get("arm_blocked_by"):
+            lines.append(f"not ready to arm: {answer['arm_blocked_by']}")
     lines += [f"ended: {_format_fault(fault)}" for fault in answer.get("cleared", [])]
     faults = answer.get("faults", [])
     lines += [f"in effect: {_format_fault(fault)}" for fault in faults]

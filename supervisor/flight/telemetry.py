@@ -27,6 +27,7 @@ from geometry.state import (
 )
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
+from supervisor.flight.modes import Mode
 from supervisor.flight.operator_requests import setpoint_json
 from supervisor.vehicles.types import VehicleView
 
@@ -83,6 +84,9 @@ def build_telemetry(
         "phase": core.phase,
         "controller": core.controller,
         "armed": [v.armed for v in vehicles],
+        "arm_blocked_by": (core.not_ready_to_arm() or None)
+        if core.modes.mode is Mode.DISARMED
+        else None,
         "arena": {"min": list(core.arena.min_m), "max": list(core.arena.max_m)},
         "bar": {
             "position": _floats(bar_position(x)),

@@ -18,8 +18,13 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter
 
 from supervisor.flight.operator_requests import Reply
 
-Seconds = Annotated[float, Field(gt=0.0, strict=True, description="seconds, > 0")]
-Coordinate = Annotated[float, Field(strict=True)]
+# The bounds of sim.faults (MAX_DURATION_S, MAX_OFFSET_M), which this module may not import.
+Seconds = Annotated[
+    float, Field(gt=0.0, le=3600.0, strict=True, description="seconds, > 0, at most 3600")
+]
+Coordinate = Annotated[
+    float, Field(ge=-20.0, le=20.0, strict=True, description="metres, within ±20")
+]
 
 
 def _integral_number(value: object) -> object:

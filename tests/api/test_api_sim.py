@@ -205,6 +205,9 @@ async def test_reset_is_refused_while_armed_then_puts_the_world_back(sim_api: Si
     assert response.status_code == 200, response.text
     answer = response.json()
     assert answer["reset"] and answer["faults"] == [] and len(answer["cleared"]) == 1
+    # No flight process behind this API: the reply came after the wait, not tracked.
+    assert answer["tracked"] is False and answer["arm_blocked_by"] == "no telemetry"
+    assert "resting_positions" not in answer
     position = world.plant.body("uav2").position_m
     np.testing.assert_allclose(position, resting[body_slice("uav2")][:3], atol=0.02)
     assert px4.model.intended == BOOT_MODE and not px4.armed

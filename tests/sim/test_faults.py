@@ -70,6 +70,8 @@ def faults(*started: Any, now_s: float = 0.0) -> FaultSet:
         ({"kind": "mocap_silent", "duration_s": 0.0}, "duration_s"),
         ({"kind": "mocap_silent", "duration_s": math.inf}, "duration_s"),
         ({"kind": "mocap_silent", "duration_s": math.nan}, "duration_s"),
+        ({"kind": "mocap_silent", "duration_s": 1e300}, "duration_s"),
+        ({"kind": "mocap_jump", "body": "bar", "offset_m": [0, 0, 1e9]}, "offset_m"),
     ],
 )
 def test_an_invalid_fault_names_the_field(request_: dict[str, Any], field: str) -> None:

@@ -66,6 +66,11 @@ def test_a_fault_survives_the_channel_as_its_type() -> None:
         ({"kind": "udp_loss", "fraction": "0.5"}, ("udp_loss", "fraction")),
         ({"kind": "mocap_freeze", "duration_s": -2}, ("mocap_freeze", "duration_s")),
         ({"kind": "mocap_freeze", "duration_s": math.inf}, ("mocap_freeze", "duration_s")),
+        ({"kind": "mocap_freeze", "duration_s": 1e300}, ("mocap_freeze", "duration_s")),
+        (
+            {"kind": "mocap_jump", "body": "bar", "offset_m": [0, 0, 1e9]},
+            ("mocap_jump", "offset_m"),
+        ),
     ],
 )
 def test_malformed_faults_are_refused_at_the_parse_naming_the_field(
