@@ -8,7 +8,8 @@
 import * as THREE from "/static/vendor/three.module.min.js";
 
 const COLOURS = { bar: 0xf0a030, uav: 0x4ea1ff, cable: 0x9aa4ad, ref: 0x9be39b, grid: 0x2a333c, major: 0x46525e, box: 0x5c6a78 };
-const HOME = { azimuth: -Math.PI / 3, elevation: Math.PI / 7, distance: 0 };  // distance: from the arena
+const HOME = { azimuth: -Math.PI / 3, elevation: Math.PI / 7, zoom: 1 };
+const FOV_DEG = 40;
 
 function label(text, colour = "#8c98a4", height = 0.22) {
   const canvas = document.createElement("canvas");
@@ -117,9 +118,10 @@ function start() {
   renderer.setClearColor(0x0d1115);
   THREE.Object3D.DEFAULT_UP.set(0, 0, 1);
   const scene = new THREE.Scene();
-  const camera = new THREE.PerspectiveCamera(40, 1, 0.05, 200);
+  const camera = new THREE.PerspectiveCamera(FOV_DEG, 1, 0.05, 200);
   camera.up.set(0, 0, 1);
   const view = { ...HOME, target: new THREE.Vector3(0, 0, 0.8) };
+  let arenaRadius = 4.5;  // half the arena's diagonal [m]
 
   const bar = new THREE.Mesh(new THREE.CylinderGeometry(0.04, 0.04, 1, 16), new THREE.MeshBasicMaterial({ color: COLOURS.bar }));
   const drop = movingLine(COLOURS.box, true);  // from the bar's middle to the floor: its height
@@ -135,18 +137,23 @@ function start() {
     bar: movingLine(COLOURS.ref, true),
     cables: [movingLine(COLOURS.ref, true), movingLine(COLOURS.ref, true)],
     uavs: [1, 2].map(() => new THREE.Mesh(new THREE.SphereGeometry(0.13, 10, 6),
-      new THREE.MeshBasicMaterial({ color: COLOURS.ref, wireframe: true }))),
+      new THREE.MeshBasicMaterial({ color: COLOURS.ref, wireframe: true, transparent: true, opacity: 0.35 }))),
   };
   scene.add(bar, drop, ...uavs, ...cables, reference.bar, ...reference.cables, ...reference.uavs);
   let arenaKey = "", arenaGroup = null, floorZ = 0;
   let visible = true, pending = false, renders = 0;
 
+  // At zoom 1 the arena's bounding sphere, shrunk to 95 % (its corners are seldom all in
+  // view at once), fits the narrower field of view.
   function placeCamera() {
+    const vertical = (FOV_DEG * Math.PI) / 180;
+    const horizontal = 2 * Math.atan(Math.tan(vertical / 2) * camera.aspect);
+    const distance = view.zoom * 0.95 * arenaRadius / Math.sin(Math.min(vertical, horizontal) / 2);
     const c = Math.cos(view.elevation);
     camera.position.set(
-      view.target.x + view.distance * c * Math.cos(view.azimuth),
-      view.target.y + view.distance * c * Math.sin(view.azimuth),
-      view.target.z + view.distance * Math.sin(view.elevation),
+      view.target.x + distance * c * Math.cos(view.azimuth),
+      view.target.y + distance * c * Math.sin(view.azimuth),
+      view.target.z + distance * Math.sin(view.elevation),
     );
     camera.lookAt(view.target);
   }
@@ -179,9 +186,8 @@ function start() {
     scene.add(arenaGroup);
     floorZ = arena.min[2];
     const size = new THREE.Vector3(...arena.max).sub(new THREE.Vector3(...arena.min));
-    view.target.set((arena.min[0] + arena.max[0]) / 2, (arena.min[1] + arena.max[1]) / 2, floorZ + size.z / 6);
-    HOME.distance = 1.35 * size.length();
-    if (!view.distance) view.distance = HOME.distance;
+    view.target.set((arena.min[0] + arena.max[0]) / 2, (arena.min[1] + arena.max[1]) / 2, floorZ + size.z / 4);
+    arenaRadius = size.length() / 2;
   }
 
   function place(t) {
@@ -241,10 +247,10 @@ function start() {
   });
   canvas.addEventListener("wheel", (event) => {
     event.preventDefault();
-    view.distance = Math.min(60, Math.max(1, view.distance * Math.exp(event.deltaY * 0.001)));
+    view.zoom = Math.min(5, Math.max(0.1, view.zoom * Math.exp(event.deltaY * 0.001)));
     redraw();
   }, { passive: false });
-  canvas.addEventListener("dblclick", () => { Object.assign(view, { azimuth: HOME.azimuth, elevation: HOME.elevation, distance: HOME.distance }); redraw(); });
+  canvas.addEventListener("dblclick", () => { Object.assign(view, HOME); redraw(); });
   new ResizeObserver(redraw).observe(canvas);
   new IntersectionObserver(([entry]) => { visible = entry.isIntersecting; if (visible) redraw(); }).observe(canvas);
   window.addEventListener("uavbar:telemetry", (event) => place(event.detail));
