@@ -3,20 +3,27 @@ embedded simulator."""
 
 from __future__ import annotations
 
+import math
+import os
 import re
 import shutil
+import signal
 from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 
+import httpx
 import pytest
-from playwright.async_api import Browser, Page, async_playwright, expect
+from playwright.async_api import Browser, Page, ViewportSize, async_playwright, expect
 
 from benchmarks.service import RunningService, all_connected, running_service
 from tests.test_px4_sitl import PX4_REFUSAL, require_gps_for_arming
 from tests.test_service import require_px4
 
 CHROMIUM = shutil.which("chromium")
-SCREENSHOT = Path(__file__).resolve().parent.parent / "docs" / "images" / "dashboard.png"
+IMAGES = Path(__file__).resolve().parent.parent / "docs" / "images"
+SCREENSHOT = IMAGES / "dashboard.png"
+DESKTOP = ViewportSize(width=1500, height=1000)
+SMALL = ViewportSize(width=1024, height=700)
 TOKEN = "dashboard-token-0123"
 PAGE_ERRORS: list[str] = []
 
@@ -29,23 +36,28 @@ pytestmark = [
 @pytest.fixture
 async def browser(tmp_path: Path) -> AsyncIterator[Browser]:
     """Chromium at a lower priority: on a 2-core machine the browser's rendering must not
-    starve the simulated world (a lab's mocap runs on its own computer)."""
+    starve the simulated world (a lab's mocap runs on its own computer). WebGL without a
+    GPU is SwiftShader's (software), which Chromium gives only when asked for."""
     assert CHROMIUM is not None
     launcher = tmp_path / "chromium-niced"
     launcher.write_text(f'#!/bin/sh\nexec nice -n 10 {CHROMIUM} "$@"\n')
     launcher.chmod(0o755)
     async with async_playwright() as playwright:
         chromium = await playwright.chromium.launch(
-            executable_path=str(launcher), args=["--no-sandbox"], headless=True
+            executable_path=str(launcher),
+            args=["--no-sandbox", "--enable-unsafe-swiftshader"],
+            headless=True,
         )
         yield chromium
         await chromium.close()
 
 
-async def open_dashboard(browser: Browser, service: RunningService, token: str) -> Page:
+async def open_dashboard(
+    browser: Browser, service: RunningService, token: str, viewport: ViewportSize = DESKTOP
+) -> Page:
     async with service.client() as http:
         await service.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
-    page = await browser.new_page(viewport={"width": 1500, "height": 1000})
+    page = await browser.new_page(viewport=viewport)
     page.on("pageerror", lambda error: PAGE_ERRORS.append(str(error)))
     await page.goto(f"{service.url}/#token={token}")
     connection = page.get_by_test_id("connection")
@@ -56,6 +68,37 @@ async def open_dashboard(browser: Browser, service: RunningService, token: str) 
     await expect(page.locator("#lamp-uav2")).to_have_class(re.compile("good"), timeout=20_000)
     assert "token" not in page.url  # the fragment is removed from the address bar
     return page
+
+
+COLOUR_PIXELS_JS = """([selector, rgb, below]) => {
+    const source = document.querySelector(selector);
+    const copy = document.createElement("canvas");
+    copy.width = source.width;
+    copy.height = source.height;
+    const g = copy.getContext("2d");
+    g.drawImage(source, 0, 0);
+    const ratio = source.width / source.getBoundingClientRect().width;
+    const data = g.getImageData(0, 0, copy.width, copy.height).data;
+    let n = 0, sx = 0, sy = 0;
+    for (let i = 0; i < data.length; i += 4) {
+        const [x, y] = [(i / 4) % copy.width, Math.floor(i / 4 / copy.width)];
+        const off = [0, 1, 2].reduce((sum, c) => sum + Math.abs(data[i + c] - rgb[c]), 0);
+        if (y >= below * ratio && off < 40) { n += 1; sx += x; sy += y; }
+    }
+    return { count: n, x: n ? sx / n / ratio : null, y: n ? sy / n / ratio : null };
+}"""
+UAV1_BLUE, UAV2_VIOLET = (0x4E, 0xA1, 0xFF), (0xC5, 0x8B, 0xFF)
+
+
+async def colour_pixels(
+    page: Page, selector: str, rgb: tuple[int, int, int], below_px: float = 0.0
+) -> dict[str, float]:
+    """How many pixels of the canvas at ``selector`` (those ``below_px`` CSS pixels or more
+    from its top) are near ``rgb``, and their centroid in CSS pixels from the canvas's top
+    left: what was drawn, WebGL or 2D."""
+    arguments = [selector, list(rgb), below_px]
+    result: dict[str, float] = await page.evaluate(COLOUR_PIXELS_JS, arguments)
+    return result
 
 
 async def take_off(page: Page) -> None:
@@ -94,10 +137,18 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
         SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
         await page.screenshot(path=str(SCREENSHOT))
 
+        banner = page.get_by_test_id("banner")
+        await expect(banner).to_be_hidden()  # a hover after a hand-over is normal flight
         await page.get_by_test_id("mode").click()  # focus anywhere; Escape aborts
         await page.keyboard.press("Escape")
         await expect(page.get_by_test_id("mode")).to_have_text(re.compile("abort"))
+        # No safety monitor asked for it: the banner says who can have.
+        await expect(page.get_by_test_id("banner-title")).to_have_text("ABORT")
+        await expect(page.get_by_test_id("banner-text")).to_contain_text("asked for with ABORT")
+        await expect(page.get_by_test_id("abort-reason")).to_have_text("accepted")
+        await expect(page.get_by_test_id("abort-reason")).to_have_text("", timeout=10_000)
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
+        await expect(banner).to_be_hidden()
         async with service.client() as http:
             status = await service.wait_for(
                 http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
@@ -112,6 +163,14 @@ async def test_switch_controller_and_queue_a_setpoint_from_the_page(
     async with running_service(TOKEN, tmp_path) as service:
         page = await open_dashboard(browser, service, TOKEN)
         await take_off(page)
+        # Each UAV's battery, in the table and plotted over the last 20 s.
+        for n in (1, 2):
+            await expect(page.get_by_test_id(f"uav{n}-battery")).to_have_text(
+                re.compile(r"^1[0-9]\.\d V$")
+            )
+        for colour in (UAV1_BLUE, UAV2_VIOLET):  # the lines, below the legend
+            drawn = await colour_pixels(page, "#battery-plot", colour, below_px=20)
+            assert drawn["count"] > 50, drawn
         await page.get_by_test_id("controller-decentralized").click()
         await expect(page.get_by_test_id("controller")).to_have_text("decentralized")
         form = page.get_by_test_id("setpoint-form")
@@ -228,4 +287,178 @@ async def test_a_refused_arm_shows_px4s_own_reason_on_the_page(
         for row in ("#uav1-text", "#uav2-text"):
             await expect(page.locator(row)).to_have_text(px4_text, timeout=10_000)
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+async def test_a_monitors_abort_a_lost_link_and_a_lost_stream_are_shown_as_such(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """A vehicle's link lost in a hover: the page turns red, says what the supervisor does
+    and why (the notice), greys what came from that link; the API process killed: every
+    value greyed, the last mode no longer bold, until the stream is back."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        mode = page.get_by_test_id("mode")
+        tick_lamp = page.get_by_test_id("lamp-tick")
+        await expect(tick_lamp).to_have_class(re.compile("good"), timeout=20_000)
+        await expect(tick_lamp).to_have_attribute("title", re.compile("Now: on time"))
+        await expect(page.get_by_test_id("lamp-mocap")).to_have_attribute(
+            "title", re.compile("Now: healthy")
+        )
+
+        # The bar unseen while disarmed: the mocap lamp turns yellow, the bar's values are
+        # greyed, and the page says why an arm would be refused now, until it is seen again.
+        async with service.client() as http:
+            lost = {"kind": "mocap_body_lost", "body": "bar", "duration_s": 3.0}
+            (await http.post("/api/sim/faults", json=lost)).raise_for_status()
+        blocked = page.get_by_test_id("arm-blocked")
+        await expect(blocked).to_contain_text("Arm would be refused now: no fresh motion capture")
+        await expect(page.get_by_test_id("arm")).to_have_class(re.compile("blocked"))
+        await expect(page.get_by_test_id("lamp-mocap")).to_have_class(re.compile("warn"))
+        await expect(page.get_by_test_id("bar-position")).to_have_class(re.compile("stale-value"))
+        await expect(blocked).to_have_text("", timeout=20_000)
+        await expect(page.get_by_test_id("bar-position")).not_to_have_class(
+            re.compile("stale-value")
+        )
+
+        os.kill(service.child_pid("uavbar-api"), signal.SIGKILL)
+        await expect(page.get_by_test_id("connection")).to_have_text(re.compile("lost"))
+        await expect(page.get_by_test_id("banner-title")).to_have_text("NO LIVE DATA")
+        await expect(page.get_by_test_id("banner-text")).to_contain_text(re.compile(r"\d+ s old"))
+        assert await mode.evaluate("e => getComputedStyle(e).fontWeight") == "400"
+        assert await page.locator("#lamp-uav1").get_attribute("class") == "lamp unknown"
+        await expect(page.get_by_test_id("connection")).to_have_text("live again", timeout=30_000)
+        await expect(page.get_by_test_id("banner")).to_be_hidden()
+        assert await mode.evaluate("e => getComputedStyle(e).fontWeight") == "700"
+
+        async with service.client() as http:
+            await service.take_off(http)
+            # Until cleared: what the page shows is checked while the link is still lost.
+            answer = await http.post("/api/sim/faults", json={"kind": "link_lost", "vehicle": 1})
+            answer.raise_for_status()
+            await expect(page.get_by_test_id("banner-title")).to_have_text("ABORT")
+            await expect(page.get_by_test_id("banner-text")).to_contain_text(
+                "why: land_other: vehicle 1 link lost"
+            )
+            assert await page.get_by_test_id("banner").get_attribute("class") == "banner bad"
+            await expect(mode).to_have_attribute("data-level", "bad")
+            lamp = page.get_by_test_id("lamp-uav1")
+            await expect(lamp).to_have_class(re.compile("bad"))
+            await expect(lamp).to_have_attribute("title", re.compile("LOST"))
+            await expect(page.get_by_test_id("uav1-px4")).to_have_class(re.compile("stale-value"))
+            await expect(page.get_by_test_id("uav2-px4")).not_to_have_class(
+                re.compile("stale-value")
+            )
+            await expect(page.get_by_test_id("uav1-px4")).to_contain_text("(link lost)")
+            (await http.delete("/api/sim/faults")).raise_for_status()
+            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+            await expect(page.get_by_test_id("banner")).to_be_hidden()
+            await expect(page.get_by_test_id("notices")).to_contain_text("vehicle 1 link lost")
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+IN_SIGHT = ("abort", "mode", "lamp-tick", "top-view", "side-view", "arm", "land", "setpoint-form")
+APART = ("top", "views", "flight-panel", "setpoint-panel")
+
+
+async def assert_laid_out(page: Page, viewport: ViewportSize) -> None:
+    """The controls, both views and the setpoint form inside the window; the header, the
+    views and the two panels side by side, none over another; no sideways scrolling."""
+    boxes = {}
+    for name in (*IN_SIGHT, *APART):
+        found = page.locator(f"#{name}") if name == "top" else page.get_by_test_id(name)
+        box = await found.bounding_box()
+        assert box is not None, f"{name} is not laid out"
+        boxes[name] = box
+    for name in IN_SIGHT:
+        b = boxes[name]
+        inside = b["x"] >= 0 and b["y"] >= 0
+        inside &= b["x"] + b["width"] <= viewport["width"]
+        inside &= b["y"] + b["height"] <= viewport["height"]
+        assert inside, f"{name} is not inside the {viewport} window: {b}"
+    for i, first in enumerate(APART):
+        for second in APART[i + 1 :]:
+            a, b = boxes[first], boxes[second]
+            apart = a["x"] + a["width"] <= b["x"] or b["x"] + b["width"] <= a["x"]
+            apart |= a["y"] + a["height"] <= b["y"] or b["y"] + b["height"] <= a["y"]
+            assert apart, f"{first} {a} overlaps {second} {b}"
+    width = await page.evaluate("document.scrollingElement.scrollWidth")
+    assert width <= viewport["width"], f"the page scrolls sideways: {width} px wide"
+
+
+async def test_the_layout_at_1024_by_700_keeps_the_views_and_the_setpoints_in_sight(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """Checked on the page's boxes in a hover and in an abort (its banner and notice make
+    the header taller); the README's screenshots of both, small and desktop."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN, SMALL)
+        await assert_laid_out(page, SMALL)
+        async with service.client() as http:
+            await service.take_off(http)
+            await expect(page.get_by_test_id("mode")).to_have_text("hover")
+            await assert_laid_out(page, SMALL)
+            await page.wait_for_timeout(2000)  # some live plot for the picture
+            await page.screenshot(path=str(IMAGES / "dashboard-1024.png"))
+
+            fault = {"kind": "link_lost", "vehicle": 1}  # until cleared: the abort lasts
+            (await http.post("/api/sim/faults", json=fault)).raise_for_status()
+            await expect(page.get_by_test_id("banner-text")).to_contain_text("why: land_other")
+            await page.screenshot(path=str(IMAGES / "dashboard-1024-abort.png"))
+            await assert_laid_out(page, SMALL)
+            await page.set_viewport_size(DESKTOP)
+            await expect(page.get_by_test_id("mode")).to_have_text("abort")
+            await page.screenshot(path=str(IMAGES / "dashboard-abort.png"))
+            await assert_laid_out(page, DESKTOP)
+            (await http.delete("/api/sim/faults")).raise_for_status()
+            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+BAR_ORANGE, MAJOR_GRID = (0xF0, 0xA0, 0x30), (0x46, 0x52, 0x5E)
+DRAWN_WITHIN_PX = 10.0
+
+
+async def bar_drawn_and_projected(
+    page: Page, service: RunningService, http: httpx.AsyncClient
+) -> tuple[dict[str, float], list[float]]:
+    """The 3D view's orange pixels (the bar) and where the view's camera puts the bar's
+    estimated middle (from ``/api/status``), in CSS pixels from the canvas's top left."""
+    position = (await service.status(http))["bar"]["position"]
+    await page.wait_for_timeout(500)  # a few messages drawn since
+    drawn = await colour_pixels(page, "#view3d", BAR_ORANGE)
+    projected: list[float] = await page.evaluate("p => window.uavbarView3d.project(p)", position)
+    return drawn, projected
+
+
+async def test_the_3d_view_draws_the_arena_and_follows_the_bar(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """WebGL (SwiftShader) in headless Chromium: the arena's grid is drawn, and the bar is
+    drawn where its estimate is, resting and then hovering a metre higher."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        view = page.get_by_test_id("view3d")
+        await expect(view).to_have_attribute("data-renders", re.compile(r"^[1-9]"))
+        await expect(page.get_by_test_id("view3d-note")).to_have_text("")
+        assert await page.evaluate("window.uavbarView3d.webgl") in ("webgl", "webgl2")
+        assert (await colour_pixels(page, "#view3d", MAJOR_GRID))["count"] > 500
+
+        async with service.client() as http:
+            resting, projected = await bar_drawn_and_projected(page, service, http)
+            assert resting["count"] > 30, resting
+            off = math.dist((resting["x"], resting["y"]), projected)
+            assert off < DRAWN_WITHIN_PX, (resting, projected)
+
+            await service.take_off(http)
+            hovering, projected = await bar_drawn_and_projected(page, service, http)
+            assert hovering["count"] > 30, hovering
+            off = math.dist((hovering["x"], hovering["y"]), projected)
+            assert off < DRAWN_WITHIN_PX, (hovering, projected)
+            assert resting["y"] - hovering["y"] > 20, (resting, hovering)  # drawn higher up
+            box = await page.get_by_test_id("view3d").bounding_box()
+            assert box is not None
+            await page.screenshot(path=str(IMAGES / "dashboard-3d.png"), clip=box)
+            (await http.post("/api/land")).raise_for_status()
+            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
         assert not PAGE_ERRORS, PAGE_ERRORS

@@ -41,6 +41,10 @@ def test_the_wheel_holds_the_configs_scenarios_and_dashboard(tmp_path: Path) -> 
     shipped = package_data()
     assert {"configs/sim.toml", "configs/scenarios/paper.toml"} <= shipped
     assert {"api/static/index.html", "sim/px4_events.json"} <= shipped
+    assert {
+        "api/static/vendor/three.module.min.js",
+        "api/static/vendor/three-LICENSE.txt",
+    } <= shipped
     assert shipped <= names, shipped - names
     assert not any(name.startswith("tests/") for name in names)
     entry_points = next(name for name in names if name.endswith("entry_points.txt"))

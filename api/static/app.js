@@ -8,13 +8,37 @@
 
 const STALE_AFTER_MS = 500;
 const PLOT_SECONDS = 20;
+const ACCEPTED_SHOWN_MS = 4000;  // an "accepted" clears itself; a refusal stays until the next try
+const NOTICE_SHOWN_S = 120;  // older notices stay in the status (and the CLI), not on the page
+const NOTICE_FRESH_S = 30;  // older ones are dimmed
+const TICK_WINDOW_S = 10;  // the ticks lamp judges the loop by its last 10 s, not since start
 const TOKEN_KEY = "uavbar-token";
 const WS_TOKEN_REQUIRED = 4401;
 const state = {
   telemetry: null, lastMessageAt: 0, socket: null, retryMs: 500,
   everConnected: false, everLive: false, stale: true, tokenRefused: false,
+  lastCheckAt: 0, silentMs: 0,
 };
-const plots = { error: [], solve: [] };
+// [page time s, value] for the last PLOT_SECONDS; null breaks the line (no live data).
+const plots = { error: [], solve: [], battery1: [], battery2: [] };
+const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", uav2: "#c58bff", ref: "#9be39b", grid: "#2a333c", muted: "#8c98a4", text: "#e6e9ec" };
+const tickHistory = [];  // [page time s, tick count, missed deadlines], the last TICK_WINDOW_S
+
+// What each mode that is not normal flight means, in words; level "bad" or "warn".
+const DANGER_MODES = {
+  abort: { level: "bad", title: "ABORT", what: "coordinated landing: the bar is set down, then the vehicles disarm" },
+  px4_landing: { level: "bad", title: "PX4 LANDING", what: "each PX4 lands on its own; the supervisor sends nothing" },
+  killed: { level: "bad", title: "KILLED", what: "the motors were stopped" },
+  landing: { level: "warn", title: "LANDING", what: "the bar is set down, then the vehicles disarm" },
+};
+// Who asks for these modes when no safety monitor did (no notice younger than the mode).
+const ASKED_BY = {
+  abort: "asked for with ABORT (a dashboard, the CLI or REST)",
+  landing: "asked for with Land (a dashboard, the CLI, REST, or serve stopping)",
+  killed: "asked for with KILL",
+  px4_landing: "",
+};
+const MODE_CAUSES = new Set(["abort", "land_other", "blind", "process"]);  // notice kinds
 
 // ---- token ---------------------------------------------------------------------------------
 function takeTokenFromAddress() {
@@ -71,6 +95,10 @@ function show(reasonId, text, ok = false) {
   const element = document.getElementById(reasonId);
   element.textContent = text;
   element.classList.toggle("ok", ok);
+  const shown = (element.dataset.shown = String(Number(element.dataset.shown || 0) + 1));
+  if (ok) {
+    setTimeout(() => { if (element.dataset.shown === shown) element.textContent = ""; }, ACCEPTED_SHOWN_MS);
+  }
 }
 
 function describe(detail) {
@@ -138,6 +166,7 @@ function connect() {
   socket.onmessage = (event) => {
     state.telemetry = JSON.parse(event.data);
     state.lastMessageAt = performance.now();
+    state.silentMs = 0;
     if (state.stale) {
       state.stale = false;
       markStale(false);
@@ -145,6 +174,7 @@ function connect() {
     }
     state.everLive = true;
     render(state.telemetry);
+    window.dispatchEvent(new CustomEvent("uavbar:telemetry", { detail: state.telemetry }));
   };
   socket.onclose = async (event) => {
     state.stale = true;
@@ -167,6 +197,7 @@ function setConnection(text, level) {
   const element = document.getElementById("connection");
   element.textContent = text;
   element.className = `lamp ${level}`;
+  element.title = `the telemetry stream (WebSocket) from the service: ${text}`;
 }
 
 function markStale(stale) {
@@ -174,19 +205,34 @@ function markStale(stale) {
   document.getElementById("stale-note").textContent = stale ? "STALE: no live data" : "";
   if (stale) {
     for (const id of ["lamp-mocap", "lamp-uav1", "lamp-uav2", "lamp-tick"]) {
-      document.getElementById(id).className = "lamp unknown";
+      lamp(id, "unknown", "no live data: the telemetry stream is not arriving");
     }
+    tickHistory.length = 0;
   }
+  renderBanner();
 }
 
+// Every 100 ms. Silence is counted in the page's own running time: a check comes late when
+// the page itself stalled (the 3D view's shaders compiling on a busy machine), and the
+// messages that arrived meanwhile are still queued, so a check counts at most 150 ms. A
+// page that keeps stalling still says "stale", later.
 function watchStaleness() {
-  const stale = !state.telemetry || performance.now() - state.lastMessageAt > STALE_AFTER_MS;
+  const checkedAt = performance.now();
+  state.silentMs += Math.min(checkedAt - state.lastCheckAt, 150);
+  state.lastCheckAt = checkedAt;
+  const stale = !state.telemetry || state.silentMs > STALE_AFTER_MS;
   if (stale && !state.stale) {
     state.stale = true;
     markStale(true);
     if (state.socket && state.socket.readyState === WebSocket.OPEN) {
       setConnection("no telemetry", "warn");
     }
+  }
+  if (state.stale) {
+    renderBanner();  // the age of what is shown keeps counting
+    const now = performance.now() / 1000;
+    for (const series of Object.values(plots)) pushHistory(series, now, null);
+    drawPlots(now);
   }
 }
 
@@ -195,50 +241,169 @@ const fmt = (v, digits = 2) => (v === null || v === undefined ? "–" : Number(v
 const deg = (rad) => (rad === null || rad === undefined ? "–" : `${(rad * 180 / Math.PI).toFixed(1)}°`);
 const vec = (v) => (v && v.every((x) => x !== null) ? `(${v.map((x) => fmt(x)).join(", ")}) m` : "–");
 
-function lamp(id, level) {
-  document.getElementById(id).className = `lamp ${level}`;
+function lamp(id, level, title) {
+  const element = document.getElementById(id);
+  element.className = `lamp ${level}`;
+  element.title = title;
 }
 
 const ago = (seconds) => (seconds < 90 ? `${Math.round(seconds)} s ago` : `${Math.round(seconds / 60)} min ago`);
 
 function renderNotices(notices) {
-  const items = notices.slice(-3).reverse().map((notice) => {
+  const recent = notices.filter((notice) => notice.age_s < NOTICE_SHOWN_S);
+  const items = recent.slice(-3).reverse().map((notice) => {
     const item = document.createElement("li");
     item.textContent = `${ago(notice.age_s)} — ${notice.message}`;
+    item.classList.toggle("old", notice.age_s >= NOTICE_FRESH_S);
     return item;
   });
   document.getElementById("notices").replaceChildren(...items);
 }
 
+const noticeKind = (message) => message.split(":", 1)[0];
+
+// The notices that put the system in its mode: those no older than the mode itself.
+function modeCauses(t) {
+  const since = (t.mode_for_s ?? Infinity) + 0.5;  // the same tick, give or take a message
+  return (t.notices || [])
+    .filter((notice) => notice.age_s <= since && MODE_CAUSES.has(noticeKind(notice.message)))
+    .map((notice) => notice.message);
+}
+
+// The danger the last telemetry shows (null: normal): a mode that is not normal flight and
+// why, the safety monitors' faults of the last tick, and whether all of it is stale.
+function danger(t) {
+  if (!t) return null;
+  const mode = DANGER_MODES[t.mode];
+  const faults = t.faults || [];
+  if (!mode && !faults.length) return null;
+  const parts = [];
+  if (mode) {
+    parts.push(mode.what);
+    const causes = modeCauses(t);
+    parts.push(causes.length ? `why: ${causes.join("; ")}` : ASKED_BY[t.mode]);
+  }
+  if (faults.length) parts.push(`faults now: ${faults.join("; ")}`);
+  return {
+    level: mode ? mode.level : "warn",
+    title: mode ? mode.title : "FAULT",
+    text: parts.filter(Boolean).join(" — "),
+  };
+}
+
+function renderBanner() {
+  const banner = document.getElementById("banner");
+  const shown = danger(state.telemetry);
+  const age = (performance.now() - state.lastMessageAt) / 1000;
+  const staleNote = state.telemetry ? `no live data: what is shown is ${ago(age).replace(" ago", "")} old` : "no live data yet";
+  let level = null, title = "", text = "";
+  if (shown) {
+    ({ level, title, text } = shown);
+    if (state.stale) text += ` (last known; ${staleNote})`;
+  } else if (state.stale) {
+    level = "warn";
+    title = "NO LIVE DATA";
+    text = staleNote;
+  }
+  banner.hidden = level === null;
+  banner.className = `banner ${level || ""}`;
+  document.getElementById("banner-title").textContent = title;
+  document.getElementById("banner-text").textContent = text;
+  document.body.dataset.danger = shown ? shown.level : "";
+}
+
+function mocapLamp(m) {
+  const rate = `${fmt(m.rate_hz, 0)} frames/s`;
+  const meaning = "motion capture (green: every body measured and fresh; yellow: streaming, but the estimate is not healthy; red: no stream)";
+  if (m.healthy) return ["good", `${meaning}. Now: healthy, ${rate}`];
+  if (m.connected) {
+    const bodies = m.unhealthy && m.unhealthy.length ? `: ${m.unhealthy.join(", ")}` : "";
+    return ["warn", `${meaning}. Now: connected, ${rate}, not healthy${bodies}`];
+  }
+  return ["bad", `${meaning}. Now: not connected`];
+}
+
+function uavLamp(uav, i) {
+  const meaning = `vehicle ${i} link (green: PX4's heartbeat heard; red: lost)`;
+  return uav.connected
+    ? ["good", `${meaning}. Now: connected, PX4 mode ${uav.px4_mode}`]
+    : ["bad", `${meaning}. Now: LOST — the values from this link are stale`];
+}
+
+// Judged on the last TICK_WINDOW_S: a deadline missed at start-up does not keep it yellow.
+function tickLamp(tick) {
+  const now = performance.now() / 1000;
+  const last = tickHistory[tickHistory.length - 1];
+  if (last && tick.count < last[1]) tickHistory.length = 0;  // a restarted flight process
+  tickHistory.push([now, tick.count ?? 0, tick.missed_deadlines ?? 0]);
+  while (tickHistory.length > 1 && tickHistory[0][0] < now - TICK_WINDOW_S) tickHistory.shift();
+  const [since, count, missed] = tickHistory[0];
+  const span = now - since;
+  const ticks = (tick.count ?? 0) - count;
+  const late = (tick.missed_deadlines ?? 0) - missed;
+  const meaning = "20 ms control loop (green: every tick on time; yellow: ticks missed their deadline; red: no ticks)";
+  const total = `; ${tick.missed_deadlines ?? 0} missed of ${tick.count ?? 0} since start`;
+  if (span >= 1 && ticks === 0) return ["bad", `${meaning}. Now: no tick for ${span.toFixed(0)} s`];
+  if (late > 0) return ["warn", `${meaning}. Now: ${late} of ${ticks} missed in the last ${span.toFixed(0)} s${total}`];
+  if (ticks > 0) return ["good", `${meaning}. Now: on time for the last ${span.toFixed(0)} s${total}`];
+  return ["unknown", `${meaning}. Now: waiting for ticks`];
+}
+
 function render(t) {
-  document.getElementById("mode").textContent = t.mode;
+  const modeElement = document.getElementById("mode");
+  modeElement.textContent = t.mode;
+  modeElement.dataset.level = DANGER_MODES[t.mode] ? DANGER_MODES[t.mode].level : "";
   document.getElementById("phase").textContent = t.phase;
   document.getElementById("controller").textContent = t.controller;
   for (const button of document.querySelectorAll("[data-controller]")) {
     button.classList.toggle("selected", button.dataset.controller === t.controller);
   }
   renderNotices(t.notices || []);
-  lamp("lamp-mocap", t.mocap.healthy ? "good" : t.mocap.connected ? "warn" : "bad");
-  t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, uav.connected ? "good" : "bad"));
+  renderBanner();
+  lamp("lamp-mocap", ...mocapLamp(t.mocap));
+  t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, ...uavLamp(uav, i + 1)));
   const tick = t.tick || {};
-  lamp("lamp-tick", tick.missed_deadlines > 0 ? "warn" : tick.count > 0 ? "good" : "unknown");
+  lamp("lamp-tick", ...tickLamp(tick));
+  const blocked = document.getElementById("arm-blocked");
+  blocked.textContent = t.arm_blocked_by ? `Arm would be refused now: ${t.arm_blocked_by}` : "";
+  document.getElementById("arm").classList.toggle("blocked", Boolean(t.arm_blocked_by));
+  // Greyed: what comes from a source that is not live (the mocap's estimate, a lost link).
+  greyed(".mocap-value", !t.mocap.healthy);
   document.getElementById("bar-position").textContent = vec(t.bar.position);
   document.getElementById("bar-yaw").textContent = deg(t.bar.yaw);
   document.getElementById("bar-error").textContent = t.bar.error_m === null ? "–" : `${fmt(t.bar.error_m, 3)} m`;
   t.uavs.forEach((uav, i) => {
-    document.getElementById(`uav${i + 1}-info`).textContent =
-      `${vec(uav.position)} · ${uav.px4_mode} · ${t.armed[i] ? "armed" : "disarmed"}`;
-    document.getElementById(`uav${i + 1}-text`).textContent = uav.status_text || "–";
+    const n = i + 1;
+    greyed(`.link${n}-value`, !uav.connected);
+    document.getElementById(`uav${n}-position`).textContent = vec(uav.position).replace(" m", "");
+    document.getElementById(`uav${n}-px4`).textContent = uav.connected ? uav.px4_mode : `${uav.px4_mode} (link lost)`;
+    document.getElementById(`uav${n}-armed`).textContent = t.armed[i] ? "armed" : "disarmed";
+    document.getElementById(`uav${n}-text`).textContent = uav.status_text || "–";
+    document.getElementById(`uav${n}-battery`).textContent =
+      uav.battery_v === null || uav.battery_v === undefined ? "–" : `${fmt(uav.battery_v, 1)} V`;
   });
   document.getElementById("tick-info").textContent =
     `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`;
   renderSetpoints(t.setpoints);
-  const now = t.time_s;
+  const now = performance.now() / 1000;
   pushHistory(plots.error, now, t.bar.error_m);
   pushHistory(plots.solve, now, t.plan ? t.plan.solve_ms : null);
+  t.uavs.forEach((uav, i) => pushHistory(plots[`battery${i + 1}`], now, uav.connected ? uav.battery_v : null));
   drawViews(t);
-  drawPlot("error-plot", plots.error, now, "m");
-  drawPlot("solve-plot", plots.solve, now, "ms");
+  drawPlots(now);
+}
+
+function drawPlots(now) {
+  drawPlot("error-plot", [{ points: plots.error, colour: COLOURS.uav }], now, "m", true);
+  drawPlot("solve-plot", [{ points: plots.solve, colour: COLOURS.uav }], now, "ms", true);
+  drawPlot("battery-plot", [
+    { points: plots.battery1, colour: COLOURS.uav, label: "UAV 1" },
+    { points: plots.battery2, colour: COLOURS.uav2, label: "UAV 2" },
+  ], now, "V", false);
+}
+
+function greyed(selector, stale) {
+  for (const element of document.querySelectorAll(selector)) element.classList.toggle("stale-value", stale);
 }
 
 function describeSetpoint(s) {
@@ -258,29 +423,92 @@ function renderSetpoints(setpoints) {
 }
 
 function pushHistory(series, t, value) {
+  if (value === undefined) value = null;
   series.push([t, value]);
   while (series.length && series[0][0] < t - PLOT_SECONDS) series.shift();
 }
 
-function drawPlot(id, series, now, unit) {
-  const canvas = document.getElementById(id);
-  const g = canvas.getContext("2d");
-  g.clearRect(0, 0, canvas.width, canvas.height);
-  const values = series.map(([, v]) => v).filter((v) => v !== null);
-  const top = Math.max(1e-3, ...values) * 1.1;
-  g.fillStyle = "#8c98a4";
-  g.fillText(`${fmt(top, 3)} ${unit}`, 4, 12);
-  g.strokeStyle = "#4ea1ff";
-  g.beginPath();
-  let drawing = false;
-  for (const [t, v] of series) {
-    if (v === null) { drawing = false; continue; }
-    const x = canvas.width * (1 - (now - t) / PLOT_SECONDS);
-    const y = canvas.height * (1 - v / top);
-    if (drawing) g.lineTo(x, y); else g.moveTo(x, y);
-    drawing = true;
+// A canvas drawn at its laid-out size (CSS pixels × the device's pixel ratio); the context
+// works in CSS pixels.
+function fitCanvas(canvas) {
+  const ratio = window.devicePixelRatio || 1;
+  const width = Math.max(1, Math.round(canvas.clientWidth * ratio));
+  const height = Math.max(1, Math.round(canvas.clientHeight * ratio));
+  if (canvas.width !== width || canvas.height !== height) {
+    canvas.width = width;
+    canvas.height = height;
   }
-  g.stroke();
+  const g = canvas.getContext("2d");
+  g.setTransform(ratio, 0, 0, ratio, 0, 0);
+  g.clearRect(0, 0, canvas.clientWidth, canvas.clientHeight);
+  g.font = "11px system-ui, sans-serif";
+  return [g, canvas.clientWidth, canvas.clientHeight];
+}
+
+// Round steps (1, 2, 5 × 10^k) for about ``count`` ticks over [low, high].
+function ticks(low, high, count) {
+  const raw = (high - low) / count;
+  const magnitude = 10 ** Math.floor(Math.log10(raw));
+  const step = [1, 2, 5, 10].map((m) => m * magnitude).find((m) => m >= raw);
+  const first = Math.ceil(low / step) * step;
+  const values = [];
+  for (let v = first; v <= high + step * 1e-9; v += step) values.push(Number(v.toPrecision(12)));
+  return values;
+}
+
+// Time on x (the last PLOT_SECONDS, "now" at the right), the value on y with its unit.
+function drawPlot(id, series, now, unit, fromZero) {
+  const [g, width, height] = fitCanvas(document.getElementById(id));
+  const bottom = 16, top = 6, right = 8;
+  const values = series.flatMap((s) => s.points.map(([, v]) => v)).filter((v) => v !== null);
+  let low = fromZero ? 0 : Math.min(...values), high = Math.max(...values);
+  if (!values.length) { low = 0; high = 1; }
+  if (high - low < 1e-3) { low -= fromZero ? 0 : 0.05; high += 0.05; }
+  const pad = (high - low) * 0.1;
+  high += pad;
+  if (!fromZero) low -= pad;
+  const yTicks = ticks(low, high, 3);
+  const digits = Math.max(0, -Math.floor(Math.log10(yTicks[1] - yTicks[0] || 1)));
+  const labels = yTicks.map((v) => `${v.toFixed(digits)} ${unit}`);
+  const left = 8 + Math.max(...labels.map((label) => g.measureText(label).width));
+  const x = (t) => left + (width - left - right) * (1 - (now - t) / PLOT_SECONDS);
+  const y = (v) => top + (height - top - bottom) * (1 - (v - low) / (high - low));
+  g.strokeStyle = COLOURS.grid;
+  g.fillStyle = COLOURS.muted;
+  g.lineWidth = 1;
+  g.textAlign = "right";
+  g.textBaseline = "middle";
+  yTicks.forEach((v, i) => {
+    g.beginPath(); g.moveTo(left, y(v)); g.lineTo(width - right, y(v)); g.stroke();
+    g.fillText(labels[i], left - 4, y(v));
+  });
+  g.textAlign = "center";
+  g.textBaseline = "top";
+  for (let ago = PLOT_SECONDS; ago >= 0; ago -= 5) {
+    const at = x(now - ago);
+    g.beginPath(); g.moveTo(at, top); g.lineTo(at, height - bottom); g.stroke();
+    g.fillText(ago ? `−${ago} s` : "now", Math.min(at, width - right - 10), height - bottom + 3);
+  }
+  g.save();
+  g.beginPath(); g.rect(left, top, width - left - right, height - top - bottom); g.clip();
+  series.forEach(({ points, colour }, i) => {
+    g.lineWidth = 1.5 * (series.length - i);  // wider first: equal values stay visible
+    g.strokeStyle = colour;
+    g.beginPath();
+    let drawing = false;
+    for (const [t, v] of points) {
+      if (v === null) { drawing = false; continue; }
+      if (drawing) g.lineTo(x(t), y(v)); else g.moveTo(x(t), y(v));
+      drawing = true;
+    }
+    g.stroke();
+  });
+  g.restore();
+  g.textAlign = "left";
+  series.filter((s) => s.label).forEach((s, i) => {
+    g.fillStyle = s.colour;
+    g.fillText(s.label, left + 6 + i * 48, top + 2);
+  });
 }
 
 function drawViews(t) {
@@ -289,15 +517,28 @@ function drawViews(t) {
   drawView("side-view", t, arena, 0, 2);
 }
 
+// The arena, scaled to fit and centred, a ``a`` → right, ``b`` ↑.
 function drawView(id, t, arena, a, b) {
-  const canvas = document.getElementById(id);
-  const g = canvas.getContext("2d");
+  const [g, width, height] = fitCanvas(document.getElementById(id));
   const span = [arena.max[a] - arena.min[a], arena.max[b] - arena.min[b]];
-  const scale = Math.min(canvas.width / span[0], canvas.height / span[1]);
-  const px = (p) => [(p[a] - arena.min[a]) * scale, canvas.height - (p[b] - arena.min[b]) * scale];
-  g.clearRect(0, 0, canvas.width, canvas.height);
-  g.strokeStyle = "#2a333c";
-  g.strokeRect(0, canvas.height - span[1] * scale, span[0] * scale, span[1] * scale);
+  const scale = Math.min((width - 2) / span[0], (height - 2) / span[1]);
+  const x0 = (width - span[0] * scale) / 2, y0 = (height + span[1] * scale) / 2;
+  const px = (p) => [x0 + (p[a] - arena.min[a]) * scale, y0 - (p[b] - arena.min[b]) * scale];
+  g.strokeStyle = COLOURS.grid;
+  g.lineWidth = 1;
+  g.strokeRect(x0, y0 - span[1] * scale, span[0] * scale, span[1] * scale);
+  g.fillStyle = COLOURS.muted;
+  g.strokeStyle = "#1c232a";  // a 1 m grid, labelled along the edges
+  for (let v = Math.ceil(arena.min[a]); v <= arena.max[a]; v += 1) {
+    const [x] = px({ [a]: v, [b]: arena.min[b] });
+    g.beginPath(); g.moveTo(x, y0); g.lineTo(x, y0 - span[1] * scale); g.stroke();
+    if (x < width - 24) g.fillText(`${v} m`, x + 2, y0 - 3);
+  }
+  for (let v = Math.ceil(arena.min[b]); v <= arena.max[b]; v += 1) {
+    const [, y] = px({ [a]: arena.min[a], [b]: v });
+    g.beginPath(); g.moveTo(x0, y); g.lineTo(x0 + span[0] * scale, y); g.stroke();
+    if (v) g.fillText(`${v} m`, x0 + 2, y - 3);
+  }
   const reference = t.reference;
   if (reference) {
     g.setLineDash([5, 4]);
@@ -404,7 +645,20 @@ function wire() {
   setInterval(watchStaleness, 100);
 }
 
+// The header's height, for the views' (they fill the window below it); a resize redraws.
+function watchLayout() {
+  const top = document.getElementById("top");
+  const redraw = () => {
+    document.documentElement.style.setProperty("--top-h", `${top.offsetHeight}px`);
+    if (state.telemetry) drawViews(state.telemetry);
+    drawPlots(performance.now() / 1000);
+  };
+  new ResizeObserver(redraw).observe(top);
+  new ResizeObserver(redraw).observe(document.getElementById("views"));
+}
+
 takeTokenFromAddress();
+watchLayout();
 wire();
 showEquilibrium();
 connect();

@@ -2,6 +2,8 @@
 
 Pure: built from the tick core, the last tick, the estimate and plain views of the links
 and the mocap source. Angles in radians, positions in metres (arena frame), times in ms.
+``mode_for_s``: how long the mode has been what it is [s] (a notice younger than that is
+what put it there).
 """
 
 from __future__ import annotations
@@ -78,6 +80,7 @@ def build_telemetry(
     return {
         "time_s": now_s,
         "mode": core.modes.mode.value,
+        "mode_for_s": now_s - core.modes.changed_at_s,
         "phase": core.phase,
         "controller": core.controller,
         "armed": [v.armed for v in vehicles],

@@ -1,0 +1,260 @@
+// The 3D view: the arena (floor grid every 0.5 m, 1 m lines labelled, its bounds), the bar,
+// the cables, the UAVs and the reference (dashed), in the arena's frame (z up), drawn with
+// three.js (vendor/three.module.min.js, r170, MIT: vendor/three-LICENSE.txt).
+// A module of its own, fed by app.js's "uavbar:telemetry" events: if WebGL or the library
+// is missing, the view says so and the rest of the page, ABORT first, works as before.
+// Drag to turn, wheel to zoom, double-click for the first view. It draws only when a message
+// arrives or the camera moves, and not at all while it is scrolled out of sight.
+import * as THREE from "/static/vendor/three.module.min.js";
+
+const COLOURS = { bar: 0xf0a030, uav: 0x4ea1ff, cable: 0x9aa4ad, ref: 0x9be39b, grid: 0x2a333c, major: 0x46525e, box: 0x5c6a78 };
+const HOME = { azimuth: -Math.PI / 3, elevation: Math.PI / 7, zoom: 1 };
+const FOV_DEG = 40;
+
+function label(text, colour = "#8c98a4", height = 0.22) {
+  const canvas = document.createElement("canvas");
+  const g = canvas.getContext("2d");
+  g.font = "48px system-ui, sans-serif";
+  canvas.width = Math.ceil(g.measureText(text).width) + 8;
+  canvas.height = 60;
+  g.font = "48px system-ui, sans-serif";
+  g.fillStyle = colour;
+  g.textBaseline = "middle";
+  g.fillText(text, 4, 32);
+  const material = new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(canvas), depthTest: false });
+  const sprite = new THREE.Sprite(material);
+  sprite.scale.set((height * canvas.width) / canvas.height, height, 1);
+  return sprite;
+}
+
+function segments(points, colour, dashed = false) {
+  const geometry = new THREE.BufferGeometry().setFromPoints(points);
+  const material = dashed
+    ? new THREE.LineDashedMaterial({ color: colour, dashSize: 0.08, gapSize: 0.06 })
+    : new THREE.LineBasicMaterial({ color: colour });
+  const lines = new THREE.LineSegments(geometry, material);
+  if (dashed) lines.computeLineDistances();
+  return lines;
+}
+
+// The floor grid, the arena's edges, the axes at the origin and the metre labels.
+function arenaObjects(arena) {
+  const [min, max] = [new THREE.Vector3(...arena.min), new THREE.Vector3(...arena.max)];
+  const group = new THREE.Group();
+  const minor = [], major = [];
+  for (let x = Math.ceil(min.x * 2) / 2; x <= max.x + 1e-9; x += 0.5) {
+    (Number.isInteger(x) ? major : minor).push(new THREE.Vector3(x, min.y, min.z), new THREE.Vector3(x, max.y, min.z));
+  }
+  for (let y = Math.ceil(min.y * 2) / 2; y <= max.y + 1e-9; y += 0.5) {
+    (Number.isInteger(y) ? major : minor).push(new THREE.Vector3(min.x, y, min.z), new THREE.Vector3(max.x, y, min.z));
+  }
+  group.add(segments(minor, COLOURS.grid), segments(major, COLOURS.major));
+  const size = new THREE.Vector3().subVectors(max, min);
+  const box = new THREE.LineSegments(new THREE.EdgesGeometry(new THREE.BoxGeometry(size.x, size.y, size.z)),
+    new THREE.LineBasicMaterial({ color: COLOURS.box }));
+  box.position.addVectors(min, max).multiplyScalar(0.5);
+  group.add(box);
+  const origin = new THREE.Vector3(0, 0, min.z);
+  [[1, 0, 0, 0xe5534b, "x"], [0, 1, 0, 0x57ab5a, "y"], [0, 0, 1, 0x539bf5, "z"]].forEach(([x, y, z, colour, name]) => {
+    const end = origin.clone().add(new THREE.Vector3(x, y, z));
+    group.add(segments([origin, end], colour));
+    const tag = label(name, `#${colour.toString(16).padStart(6, "0")}`, 0.26);
+    tag.position.copy(end).add(new THREE.Vector3(x, y, z).multiplyScalar(0.15));
+    group.add(tag);
+  });
+  for (let x = Math.ceil(min.x); x <= max.x; x += 1) {
+    const tag = label(`${x} m`);
+    tag.position.set(x, min.y - 0.3, min.z);
+    group.add(tag);
+  }
+  for (let y = Math.ceil(min.y); y <= max.y; y += 1) {
+    const tag = label(`${y} m`);
+    tag.position.set(max.x + 0.4, y, min.z);
+    group.add(tag);
+  }
+  for (let z = Math.ceil(min.z) + 1; z <= max.z; z += 1) {
+    const tag = label(`${z} m`);
+    tag.position.set(min.x - 0.3, min.y, z);
+    group.add(segments([new THREE.Vector3(min.x, min.y, z), new THREE.Vector3(min.x + 0.15, min.y, z)], COLOURS.box));
+    group.add(tag);
+  }
+  return group;
+}
+
+// A line whose two ends are moved every message.
+function movingLine(colour, dashed = false) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.Float32BufferAttribute(new Float32Array(6), 3));
+  const material = dashed
+    ? new THREE.LineDashedMaterial({ color: colour, dashSize: 0.08, gapSize: 0.06 })
+    : new THREE.LineBasicMaterial({ color: colour });
+  const line = new THREE.Line(geometry, material);
+  line.frustumCulled = false;
+  line.place = (a, b) => {
+    const position = geometry.attributes.position;
+    position.setXYZ(0, ...a);
+    position.setXYZ(1, ...b);
+    position.needsUpdate = true;
+    if (dashed) line.computeLineDistances();
+    line.visible = true;
+  };
+  return line;
+}
+
+const known = (p) => Array.isArray(p) && p.every((v) => v !== null && v !== undefined);
+
+function start() {
+  const canvas = document.getElementById("view3d");
+  const note = document.getElementById("view3d-note");
+  let renderer;
+  try {
+    // The drawing buffer is kept so that what was drawn can be read back (the page's tests).
+    renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+  } catch (error) {
+    note.textContent = `3D view unavailable: ${error.message}`;
+    return;
+  }
+  renderer.setPixelRatio(window.devicePixelRatio || 1);
+  renderer.setClearColor(0x0d1115);
+  THREE.Object3D.DEFAULT_UP.set(0, 0, 1);
+  const scene = new THREE.Scene();
+  const camera = new THREE.PerspectiveCamera(FOV_DEG, 1, 0.05, 200);
+  camera.up.set(0, 0, 1);
+  const view = { ...HOME, target: new THREE.Vector3(0, 0, 0.8) };
+  let arenaRadius = 4.5;  // half the arena's diagonal [m]
+
+  const bar = new THREE.Mesh(new THREE.CylinderGeometry(0.04, 0.04, 1, 16), new THREE.MeshBasicMaterial({ color: COLOURS.bar }));
+  const drop = movingLine(COLOURS.box, true);  // from the bar's middle to the floor: its height
+  const uavs = [1, 2].map((n) => {
+    const body = new THREE.Mesh(new THREE.SphereGeometry(0.09, 20, 12), new THREE.MeshBasicMaterial({ color: COLOURS.uav }));
+    const tag = label(`UAV ${n}`, "#e6e9ec", 0.24);
+    body.add(tag);
+    tag.position.set(0, 0, 0.28);
+    return body;
+  });
+  const cables = [movingLine(COLOURS.cable), movingLine(COLOURS.cable)];
+  const reference = {
+    bar: movingLine(COLOURS.ref, true),
+    cables: [movingLine(COLOURS.ref, true), movingLine(COLOURS.ref, true)],
+    uavs: [1, 2].map(() => new THREE.Mesh(new THREE.SphereGeometry(0.13, 10, 6),
+      new THREE.MeshBasicMaterial({ color: COLOURS.ref, wireframe: true, transparent: true, opacity: 0.35 }))),
+  };
+  scene.add(bar, drop, ...uavs, ...cables, reference.bar, ...reference.cables, ...reference.uavs);
+  let arenaKey = "", arenaGroup = null, floorZ = 0;
+  let visible = true, pending = false, renders = 0;
+
+  // At zoom 1 the arena's bounding sphere, shrunk to 95 % (its corners are seldom all in
+  // view at once), fits the narrower field of view.
+  function placeCamera() {
+    const vertical = (FOV_DEG * Math.PI) / 180;
+    const horizontal = 2 * Math.atan(Math.tan(vertical / 2) * camera.aspect);
+    const distance = view.zoom * 0.95 * arenaRadius / Math.sin(Math.min(vertical, horizontal) / 2);
+    const c = Math.cos(view.elevation);
+    camera.position.set(
+      view.target.x + distance * c * Math.cos(view.azimuth),
+      view.target.y + distance * c * Math.sin(view.azimuth),
+      view.target.z + distance * Math.sin(view.elevation),
+    );
+    camera.lookAt(view.target);
+  }
+
+  function fit() {
+    const width = Math.max(1, canvas.clientWidth), height = Math.max(1, canvas.clientHeight);
+    renderer.setSize(width, height, false);
+    camera.aspect = width / height;
+    camera.updateProjectionMatrix();
+  }
+
+  function draw() {
+    pending = false;
+    if (!visible) return;
+    fit();
+    placeCamera();
+    renderer.render(scene, camera);
+    renders += 1;
+    canvas.dataset.renders = String(renders);
+  }
+
+  const redraw = () => { if (!pending) { pending = true; requestAnimationFrame(draw); } };
+
+  function setArena(arena) {
+    const key = JSON.stringify(arena);
+    if (key === arenaKey) return;
+    arenaKey = key;
+    if (arenaGroup) scene.remove(arenaGroup);
+    arenaGroup = arenaObjects(arena);
+    scene.add(arenaGroup);
+    floorZ = arena.min[2];
+    const size = new THREE.Vector3(...arena.max).sub(new THREE.Vector3(...arena.min));
+    view.target.set((arena.min[0] + arena.max[0]) / 2, (arena.min[1] + arena.max[1]) / 2, floorZ + size.z / 4);
+    arenaRadius = size.length() / 2;
+  }
+
+  function place(t) {
+    setArena(t.arena || { min: [-3, -3, 0], max: [3, 3, 3] });
+    const ends = t.bar.ends;
+    const barKnown = known(ends) && ends.every(known);
+    bar.visible = drop.visible = barKnown;
+    if (barKnown) {
+      const [a, b] = ends.map((e) => new THREE.Vector3(...e));
+      const along = new THREE.Vector3().subVectors(b, a);
+      bar.position.addVectors(a, b).multiplyScalar(0.5);
+      bar.scale.set(1, along.length(), 1);
+      bar.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), along.normalize());
+      drop.place(bar.position.toArray(), [bar.position.x, bar.position.y, floorZ]);
+    }
+    t.uavs.forEach((uav, i) => {
+      const shown = known(uav.position);
+      uavs[i].visible = shown;
+      if (shown) uavs[i].position.set(...uav.position);
+      cables[i].visible = shown && barKnown;
+      if (shown && barKnown) cables[i].place(uav.position, ends[i]);
+      uavs[i].material.color.set(uav.connected ? COLOURS.uav : COLOURS.cable);  // grey: link lost
+    });
+    const r = t.reference;
+    const referenceKnown = r && known(r.bar_ends[0]) && known(r.bar_ends[1]);
+    reference.bar.visible = Boolean(referenceKnown);
+    reference.uavs.forEach((ghost, i) => {
+      const shown = referenceKnown && known(r.uav_positions[i]);
+      ghost.visible = reference.cables[i].visible = Boolean(shown);
+      if (shown) {
+        ghost.position.set(...r.uav_positions[i]);
+        reference.cables[i].place(r.uav_positions[i], r.bar_ends[i]);
+      }
+    });
+    if (referenceKnown) reference.bar.place(r.bar_ends[0], r.bar_ends[1]);
+    redraw();
+  }
+
+  // Where a point of the arena is drawn [CSS pixels from the canvas's top left].
+  function project(point) {
+    fit();
+    placeCamera();
+    camera.updateMatrixWorld();
+    const p = new THREE.Vector3(...point).project(camera);
+    return [(p.x + 1) / 2 * canvas.clientWidth, (1 - p.y) / 2 * canvas.clientHeight];
+  }
+
+  let drag = null;
+  canvas.addEventListener("pointerdown", (event) => { drag = [event.clientX, event.clientY]; canvas.setPointerCapture(event.pointerId); });
+  canvas.addEventListener("pointerup", () => { drag = null; });
+  canvas.addEventListener("pointermove", (event) => {
+    if (!drag) return;
+    view.azimuth -= (event.clientX - drag[0]) * 0.01;
+    view.elevation = Math.min(1.5, Math.max(-0.1, view.elevation + (event.clientY - drag[1]) * 0.01));
+    drag = [event.clientX, event.clientY];
+    redraw();
+  });
+  canvas.addEventListener("wheel", (event) => {
+    event.preventDefault();
+    view.zoom = Math.min(5, Math.max(0.1, view.zoom * Math.exp(event.deltaY * 0.001)));
+    redraw();
+  }, { passive: false });
+  canvas.addEventListener("dblclick", () => { Object.assign(view, HOME); redraw(); });
+  new ResizeObserver(redraw).observe(canvas);
+  new IntersectionObserver(([entry]) => { visible = entry.isIntersecting; if (visible) redraw(); }).observe(canvas);
+  window.addEventListener("uavbar:telemetry", (event) => place(event.detail));
+  window.uavbarView3d = { project, webgl: renderer.capabilities.isWebGL2 ? "webgl2" : "webgl" };
+}
+
+start();
