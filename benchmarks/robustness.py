@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from geometry.state import bar_ends, uav_position
+from geometry.state import bar_ends, bar_position, uav_position
 from supervisor.app.config import load_config
 from supervisor.app.config_files import CONFIG_DIR
 from supervisor.flight.core import TickResult
@@ -100,7 +100,7 @@ class Recorder:
         self.saturated += int(at_bound)
         state = np.asarray(result.record.state)
         reference = np.asarray(result.record.state_ref)
-        self.errors.append(state[0:3] - reference[0:3])
+        self.errors.append(bar_position(state) - bar_position(reference))
         self.cable_lags_deg.append(self.cable_angle_deg(state) - self.cable_angle_deg(reference))
         self.inputs.append(u)
 

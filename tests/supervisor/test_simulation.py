@@ -195,9 +195,12 @@ def test_paper_scenario_centralized_tracks_the_bar_better(
     sim_config: Config, tmp_path: Path
 ) -> None:
     """Section VII's sequence with both controllers: the Table III comparison (each
-    controller alone: no hand-over on a swing)."""
+    controller alone, as the paper's: no hand-over on a swing, no reference lead)."""
     scenario = load_scenario("paper")
-    alone = load_config(CONFIGS / "sim.toml", ["safety.max_bar_yaw_error_deg=0"])
+    alone = load_config(
+        CONFIGS / "sim.toml",
+        ["safety.max_bar_yaw_error_deg=0", "mpc.decentralized.reference_lead_s=[0, 0]"],
+    )
     x_error_std = {}
     truths = {}
     for name in ("centralized", "decentralized"):
@@ -216,14 +219,14 @@ def test_paper_scenario_centralized_tracks_the_bar_better(
     assert truths["centralized"].min_tension_airborne_n > 1.0
 
 
-def test_a_swinging_decentralized_bar_is_handed_to_the_centralized_mpc(
-    sim_config: Config, tmp_path: Path
-) -> None:
-    """The same sequence under the decentralized MPC with the swing monitor on (the
-    default): its bar-yaw swing grows (test_closed_loop_modes.py) until it passes 20°, the
-    centralized MPC takes over and settles the bar, and no cable goes slack."""
+def test_a_swinging_decentralized_bar_is_handed_to_the_centralized_mpc(tmp_path: Path) -> None:
+    """The same sequence under Section V's decentralized MPC alone (no reference lead)
+    with the swing monitor on (the default): its bar-yaw swing grows
+    (test_closed_loop_modes.py) until it passes 20°, the centralized MPC takes over and
+    settles the bar, and no cable goes slack."""
+    section_v = load_config(CONFIGS / "sim.toml", ["mpc.decentralized.reference_lead_s=[0, 0]"])
     result = run_scenario(
-        sim_config, load_scenario("paper"), "decentralized", log_path=tmp_path / "f.jsonl"
+        section_v, load_scenario("paper"), "decentralized", log_path=tmp_path / "f.jsonl"
     )
     assert result.completed, result.messages
     swings = [m for m in result.messages if m.startswith("swing")]
@@ -246,11 +249,14 @@ def test_a_swinging_decentralized_bar_is_handed_to_the_centralized_mpc(
 def test_with_the_reference_lead_the_decentralized_bar_needs_no_hand_over(
     tmp_path: Path,
 ) -> None:
-    """The same sequence under the decentralized MPC with the lead beyond the paper
-    (configs/kth_sml.toml's comment): no swing reaches the hand-over angle, and the bar's
-    x-error spread stays well below Section V alone's (108 mm, README)."""
-    lead = f"[{RECOMMENDED_LEAD.position_s}, {RECOMMENDED_LEAD.yaw_s}]"
-    led = load_config(CONFIGS / "sim.toml", [f"mpc.decentralized.reference_lead_s={lead}"])
+    """The same sequence under the decentralized MPC with the lead beyond the paper, the
+    default (configs/kth_sml.toml's comment): no swing reaches the hand-over angle, and the
+    bar's x-error spread stays well below Section V alone's (108 mm, README)."""
+    led = load_config(CONFIGS / "sim.toml")
+    assert led.mpc.decentralized.reference_lead_s == [
+        RECOMMENDED_LEAD.position_s,
+        RECOMMENDED_LEAD.yaw_s,
+    ]
     result = run_scenario(
         led, load_scenario("paper"), "decentralized", log_path=tmp_path / "f.jsonl"
     )
