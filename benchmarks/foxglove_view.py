@@ -30,7 +30,11 @@ from benchmarks.tick import TOKEN, fly, load, summarize, watch
 RUNS = {
     "view off, JSON Lines log": ['log.format="jsonl"', "foxglove.enabled=false"],
     "view off, MCAP log": ['log.format="mcap"', "foxglove.enabled=false"],
-    "view on + 1 client, MCAP log": ['log.format="mcap"', "foxglove.port=0"],
+    "view on + 1 client, MCAP log": [
+        'log.format="mcap"',
+        "foxglove.enabled=true",
+        "foxglove.port=0",
+    ],
 }
 FIGURES = ("ticks", "missed_deadlines", "compute_ms_p50", "compute_ms_p99", "lateness_ms_p99")
 

@@ -59,6 +59,7 @@ WALL_CLOCK_MODULES = {
     "tests/api/test_openapi_contract.py",
     "tests/sim/test_px4_mavsdk.py",
     "tests/supervisor/test_mavlink_px4.py",
+    "tests/supervisor/test_foxglove_live.py",
 }
 TESTS = Path(__file__).parent
 

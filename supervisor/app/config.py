@@ -577,7 +577,9 @@ class FoxgloveSection(_Section):
     """The live Foxglove view: a WebSocket server (subprotocol foxglove.sdk.v1) on the API's
     host streaming the flight log's channels (docs/flight-logs.md)."""
 
-    enabled: bool = True
+    enabled: bool = False
+    """Off unless asked for: the protocol has no token and no origin check, so while it
+    runs any web page open on this computer can read the arena (docs/flight-logs.md)."""
     port: Annotated[int, Field(ge=0, le=65535)] = 8765
     """0: a free port, logged at start."""
     host: str | None = None

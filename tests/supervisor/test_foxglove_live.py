@@ -113,7 +113,9 @@ async def test_the_old_protocol_name_alone_is_refused(lab_params: BarSystemParam
 
 @pytest.mark.slow
 async def test_serve_streams_the_ticks_to_a_foxglove_client(tmp_path: Path) -> None:
-    async with running_service(TOKEN, tmp_path, ["foxglove.port=0"]) as service:
+    async with running_service(
+        TOKEN, tmp_path, ["foxglove.enabled=true", "foxglove.port=0"]
+    ) as service:
         async with asyncio.timeout(60.0):
             port = None
             while port is None:
