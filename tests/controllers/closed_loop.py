@@ -18,6 +18,20 @@ class Run:
     plans: list[Plan]
 
 
+def hold(
+    model: BarSystemModel, x: np.ndarray, u: np.ndarray, h: float, substeps: int
+) -> np.ndarray:
+    """``x`` after ``substeps`` RK4 steps of ``h`` [s] with the input ``u`` held."""
+    f = model.dynamics
+    for _ in range(substeps):
+        k1 = np.asarray(f(x, u)).ravel()
+        k2 = np.asarray(f(x + h / 2 * k1, u)).ravel()
+        k3 = np.asarray(f(x + h / 2 * k2, u)).ravel()
+        k4 = np.asarray(f(x + h * k3, u)).ravel()
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
 def fly(
     controller: CentralizedMpc | DecentralizedMpc,
     model: BarSystemModel,
@@ -29,19 +43,12 @@ def fly(
     """Zero-order hold of each plan's u for one tick, RK4 with ``substeps`` per tick."""
     h_tick = controller.settings.dt_s
     h = h_tick / substeps
-    f = model.dynamics
     x = x0.copy()
     states, plans = [x.copy()], []
     ticks = round(duration_s / h_tick)
     for k in range(ticks):
         plan = controller.step(x, reference, k * h_tick)
         plans.append(plan)
-        u = plan.u
-        for _ in range(substeps):
-            k1 = np.asarray(f(x, u)).ravel()
-            k2 = np.asarray(f(x + h / 2 * k1, u)).ravel()
-            k3 = np.asarray(f(x + h / 2 * k2, u)).ravel()
-            k4 = np.asarray(f(x + h * k3, u)).ravel()
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x = hold(model, x, plan.u, h, substeps)
         states.append(x.copy())
     return Run(np.arange(ticks + 1) * h_tick, np.array(states), plans)

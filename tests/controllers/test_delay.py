@@ -19,6 +19,7 @@ from controllers.params import RECOMMENDED_LEAD, BarSystemParams, ReferenceLead
 from geometry.state import P_B, torque_slice
 from supervisor.app.config import load_config
 from tests.conftest import CONFIGS
+from tests.controllers.closed_loop import hold
 
 CONFIG = load_config(CONFIGS / "kth_sml.toml")
 TICK_S = 0.02
@@ -93,7 +94,7 @@ def _fly_late(
     """The model flown with each tick seeing the state ``late_ticks`` ticks old (RK4, four
     substeps a tick); (bar position errors at each tick, share of ticks with a torque at
     its bound)."""
-    f = BarSystemModel(params).dynamics
+    model = BarSystemModel(params)
     reference = Reference((0.0, 0.0, 1.0))
     x = bar_equilibrium(params, Reference((0.3, 0.0, 1.0), math.radians(20), (0.0, 0.0))).x
     seen = [x.copy()] * (late_ticks + 1)
@@ -107,12 +108,7 @@ def _fly_late(
         u = plan.u
         torques = np.concatenate([u[torque_slice(i)] for i in (1, 2)])
         saturated += int(np.abs(torques).max() >= torque_max - 1e-6)
-        for _ in range(4):
-            k1 = np.asarray(f(x, u)).ravel()
-            k2 = np.asarray(f(x + h / 2 * k1, u)).ravel()
-            k3 = np.asarray(f(x + h / 2 * k2, u)).ravel()
-            k4 = np.asarray(f(x + h * k3, u)).ravel()
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x = hold(model, x, u, h, 4)
         seen = [*seen[1:], x.copy()]
         errors.append(np.linalg.norm(x[P_B] - np.asarray(reference.bar_position_m)))
     return np.array(errors), saturated / round(duration_s / TICK_S)

@@ -18,6 +18,7 @@ from controllers.params import RECOMMENDED_LEAD, BarSystemParams, ReferenceLead
 from geometry.state import BAR_YAW, P_B, uav_slices
 from supervisor.app.config import load_config
 from tests.conftest import CONFIGS
+from tests.controllers.closed_loop import hold
 
 CONFIG = load_config(CONFIGS / "kth_sml.toml")
 TICK_S = 0.02
@@ -99,19 +100,14 @@ def _steady_error(
     """The model of ``plant`` flown by ``controller`` (built for other parameters) at a
     held reference from its own equilibrium; the bar's mean position error over the last
     2 s [m]."""
-    f = BarSystemModel(plant).dynamics
+    model = BarSystemModel(plant)
     reference = Reference((0.0, 0.0, 1.0))
     x = bar_equilibrium(controller.params, reference).x
     h, errors = TICK_S / 4, []
     ticks = round(duration_s / TICK_S)
     for k in range(ticks):
         u = controller.step(x, integrator.shifted(reference, x, k * TICK_S), k * TICK_S).u
-        for _ in range(4):
-            k1 = np.asarray(f(x, u)).ravel()
-            k2 = np.asarray(f(x + h / 2 * k1, u)).ravel()
-            k3 = np.asarray(f(x + h / 2 * k2, u)).ravel()
-            k4 = np.asarray(f(x + h * k3, u)).ravel()
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x = hold(model, x, u, h, 4)
         errors.append(x[P_B] - np.asarray(reference.bar_position_m))
     return float(np.linalg.norm(np.mean(errors[-100:], axis=0)))
 
