@@ -125,6 +125,15 @@ def _label(log: FlightLog, logs: list[FlightLog]) -> str:
     return f"{log.controller} ({'solid' if log is logs[0] else 'dashed'})"
 
 
+def _against_reference(
+    ax: Any, logs: list[FlightLog], k: int, values: np.ndarray, reference: np.ndarray
+) -> None:
+    """Log ``k``'s ``values`` in its style, and its ``reference`` dotted (labelled once)."""
+    t_s = logs[k].t_s
+    ax.plot(t_s, values, _style(k), color=COLOURS[k], lw=1.1, label=_label(logs[k], logs))
+    ax.plot(t_s, reference, ":", color="k", lw=0.9, label="reference" if k == 0 else None)
+
+
 def _positions(logs: list[FlightLog]) -> Any:
     """Fig. 6, positions: bar, UAV 1, UAV 2 (columns) × x, y, z (rows), reference dotted."""
     fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
@@ -132,21 +141,8 @@ def _positions(logs: list[FlightLog]) -> Any:
         for row, axis in enumerate(AXES):
             ax = axes[row, col]
             for k, log in enumerate(logs):
-                ax.plot(
-                    log.t_s,
-                    log.state[:, offset + row],
-                    _style(k),
-                    color=COLOURS[k],
-                    lw=1.1,
-                    label=_label(log, logs),
-                )
-                ax.plot(
-                    log.t_s,
-                    log.state_ref[:, offset + row],
-                    ":",
-                    color="k",
-                    lw=0.9,
-                    label="reference" if k == 0 else None,
+                _against_reference(
+                    ax, logs, k, log.state[:, offset + row], log.state_ref[:, offset + row]
                 )
             ax.set_title(f"{body} {axis}", fontsize=9)
             ax.set_ylabel("[m]")
@@ -190,22 +186,7 @@ def _orientations(logs: list[FlightLog]) -> Any:
                 state, ref = _unwrapped_pair(
                     log.state[:, offset + 6 + row], log.state_ref[:, offset + 6 + row]
                 )
-                ax.plot(
-                    log.t_s,
-                    np.degrees(state),
-                    _style(k),
-                    color=COLOURS[k],
-                    lw=1.1,
-                    label=_label(log, logs),
-                )
-                ax.plot(
-                    log.t_s,
-                    np.degrees(ref),
-                    ":",
-                    color="k",
-                    lw=0.9,
-                    label="reference" if k == 0 else None,
-                )
+                _against_reference(ax, logs, k, np.degrees(state), np.degrees(ref))
             ax.set_title(f"{body} {ANGLES[row]}", fontsize=9)
             ax.set_ylabel("[°]")
             ax.grid(alpha=0.3)
