@@ -71,7 +71,22 @@ def _on_the_wall_clock(item: pytest.Item) -> bool:
     return path.parent == TESTS or module in WALL_CLOCK_MODULES or real_px4
 
 
+# Before xdist's own hook, which turns the marker into the group it schedules by: hooks of
+# plugins registered later run first, and without tryfirst the marker came too late (both
+# workers then ran serve-based tests at once and starved each other).
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if _on_the_wall_clock(item):
             item.add_marker(pytest.mark.xdist_group("wall_clock"))
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Under ``--dist loadgroup`` every wall-clock test must carry its group in its id (what
+    xdist schedules by): otherwise the workers run ``serve``-based tests at once, which
+    starve each other on two cores and fail as flaky."""
+    if not session.config.getoption("loadgroup", default=False):
+        return
+    ungrouped = [i.nodeid for i in session.items if _on_the_wall_clock(i) and "@" not in i.nodeid]
+    if ungrouped:
+        raise pytest.UsageError(f"xdist would run {ungrouped[0]} outside its group")
