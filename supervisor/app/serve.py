@@ -22,22 +22,23 @@ import secrets
 import signal
 import socket
 from collections.abc import Sequence
-from dataclasses import dataclass
 from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any
 
 from api.server import bind
 from supervisor.app.api_process import GO, READY, ApiStart, api_tls
-from supervisor.app.children import (
-    SPAWN,
-    Child,
-    Lifeline,
-    ignore_ctrl_c,
-    start_deaf_to_ctrl_c,
-    stop_child,
+from supervisor.app.child_entries import (
+    LinkSockets,
+    Setup,
+    SigningKeys,
+    api_main,
+    flight_main,
+    relay_main,
+    world_main,
 )
-from supervisor.app.config import TOKEN_ENV, Config, ConfigError, load_config
+from supervisor.app.children import SPAWN, Child, Lifeline, start_deaf_to_ctrl_c, stop_child
+from supervisor.app.config import TOKEN_ENV, Config, ConfigError
 from supervisor.app.flight_main import FlightStart
 from supervisor.app.relay_main import relay_addresses
 from supervisor.app.signing_keys import load_signing_keys, signing_keys_path
@@ -52,17 +53,6 @@ API_START_TIMEOUT_S = 60.0
 SPARE_API_AFTER_S = 5.0  # the spare API process loads once the service is up, not during it
 
 
-@dataclass(frozen=True)
-class Setup:
-    """How to rebuild the configuration in a child process."""
-
-    config_path: Path
-    overrides: tuple[str, ...]
-
-    def load(self) -> Config:
-        return load_config(self.config_path, self.overrides)
-
-
 def resolve_token(config: Config) -> tuple[str, bool]:
     """The API token and whether it was generated (then it must be shown)."""
     if config.api.token:
@@ -71,46 +61,6 @@ def resolve_token(config: Config) -> tuple[str, bool]:
     if from_env:
         return from_env, False
     return secrets.token_urlsafe(18), True
-
-
-LinkSockets = tuple[socket.socket, socket.socket]
-SigningKeys = dict[int, bytes] | None
-
-
-def _world_main(setup: Setup, ready: Lifeline, listener: socket.socket) -> None:
-    ignore_ctrl_c()
-    from supervisor.app.world_process import run_world_process
-
-    run_world_process(setup.load(), ready, listener)
-
-
-def _flight_main(
-    setup: Setup, start: FlightStart, world: dict[str, Any] | None, parent: Lifeline
-) -> None:
-    ignore_ctrl_c()
-    from supervisor.app.flight_main import run_flight_process
-
-    run_flight_process(setup.load(), start, world, parent)
-
-
-def _relay_main(
-    setup: Setup,
-    world: dict[str, Any] | None,
-    link_sockets: LinkSockets,
-    signing_keys: SigningKeys,
-    parent: Lifeline,
-) -> None:
-    ignore_ctrl_c()
-    from supervisor.app.relay_main import run_relay_process
-
-    run_relay_process(setup.load(), world, link_sockets, parent, signing_keys)
-
-
-def _api_main(setup: Setup, start: ApiStart, parent: Lifeline) -> None:
-    ignore_ctrl_c()
-    from supervisor.app.api_process import run_api_process
-
-    run_api_process(setup.load(), start, parent)
 
 
 def _bind_link_sockets(config: Config, world: dict[str, Any] | None) -> LinkSockets:
@@ -173,7 +123,7 @@ def _start_world(
 ) -> tuple[BaseProcess, Lifeline, dict[str, Any]]:
     """The world process, its lifeline (which also brings its addresses)."""
     parent, child = SPAWN.Pipe()
-    process = SPAWN.Process(target=_world_main, args=(setup, child, listener), name="uavbar-world")
+    process = SPAWN.Process(target=world_main, args=(setup, child, listener), name="uavbar-world")
     start_deaf_to_ctrl_c(process)
     child.close()
     if not parent.poll(WORLD_START_TIMEOUT_S):
@@ -270,7 +220,7 @@ class Service:
     def _start_relay(self, _: str | None) -> tuple[BaseProcess, Lifeline]:
         return _spawn(
             "uavbar-relay",
-            _relay_main,
+            relay_main,
             self.setup,
             self.world_addresses,
             self.link_sockets,
@@ -287,7 +237,7 @@ class Service:
             because,
             self.signing_keys,
         )
-        return _spawn("uavbar-flight", _flight_main, self.setup, start, self.world_addresses)
+        return _spawn("uavbar-flight", flight_main, self.setup, start, self.world_addresses)
 
     def _spawn_api(self) -> tuple[BaseProcess, Lifeline, multiprocessing.connection.Connection]:
         """An API process, loaded and waiting for ``GO``."""
@@ -295,7 +245,7 @@ class Service:
         start = ApiStart(
             self.http_socket, self.rendezvous, self.token, self.config.sim.embedded, theirs
         )
-        process, lifeline = _spawn("uavbar-api", _api_main, self.setup, start)
+        process, lifeline = _spawn("uavbar-api", api_main, self.setup, start)
         theirs.close()
         return process, lifeline, ours
 

@@ -62,7 +62,10 @@ TELEMETRY_PERIOD_S = 0.04
 TELEMETRY_BACKLOG_BYTES = 1 << 20
 LANDING_TIMEOUT_S = 90.0
 FULL_COLLECTION_TICKS = 250  # a full garbage collection every 5 s, between two ticks
-RESUME_GAP_S = 0.2  # a gap between two ticks this long: the process was frozen
+# A gap between two ticks this long (three periods): the process, or the whole computer,
+# was stalled. The frames that came meanwhile are read before anything is decided: a
+# 100 ms stall of a busy computer otherwise looked like 100 ms of lost mocap.
+RESUME_GAP_S = 0.06
 RESUME_READ_S = 0.06  # then this long to read the backlog (frames arrive one per read)
 PX4_OF_LOSS_T_S = 1.0  # COM_OF_LOSS_T's default, when the setup does not set it
 OFFBOARD_LOSS_MARGIN_S = 0.05

@@ -1,6 +1,7 @@
 """The OpenAPI document against the answers, by schemathesis (every check, with and
-without the token): against ``serve`` on the embedded simulator, and against an API that
-listens beyond loopback (reads need the token)."""
+without the token), against ``serve`` on the embedded simulator (a test on the wall clock;
+the API beyond loopback is checked in process, beside the suite:
+test_openapi_contract_beyond_loopback.py)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from api.guard import HttpPolicy
 from benchmarks.service import running_service
-from tests.api.conftest import TOKEN, serve_api
 
 pytest.importorskip("schemathesis")
 pytestmark = pytest.mark.slow
@@ -51,9 +50,3 @@ async def test_schemathesis_finds_nothing_against_serve(tmp_path: Path) -> None:
     async with running_service(SERVE_TOKEN, tmp_path) as service:
         for token in (SERVE_TOKEN, None):
             assert_no_failure(*await schemathesis(service.url, token, tmp_path))
-
-
-async def test_schemathesis_finds_nothing_beyond_loopback(tmp_path: Path) -> None:
-    async with serve_api(HttpPolicy(TOKEN, reads_need_token=True)) as api:
-        for token in (TOKEN, None):
-            assert_no_failure(*await schemathesis(api.url, token, tmp_path))
