@@ -391,6 +391,18 @@ class _DatagramProtocol(asyncio.DatagramProtocol):
         self._client._last_error = f"UDP: {exc}"
 
 
+async def cancel_for_good(task: asyncio.Task[None]) -> None:
+    """Cancel ``task`` and wait until it has ended. Before Python 3.12 ``asyncio.wait_for``
+    loses a cancellation that arrives as its inner wait completes (CPython gh-86296), and the
+    sessions wait that way many times a second: a single ``cancel`` then left ``__aexit__``
+    waiting for ever (seen under load in the test suite)."""
+    while not task.done():
+        task.cancel()
+        await asyncio.wait({task}, timeout=0.1)
+    with contextlib.suppress(asyncio.CancelledError):
+        task.result()
+
+
 class QtmClient:
     """QTM RT client over TCP (commands) and UDP (frames); an async context manager.
 
@@ -512,9 +524,7 @@ class QtmClient:
     ) -> None:
         task, self._task = self._task, None
         if task is not None:
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+            await cancel_for_good(task)
 
     @property
     def connected(self) -> bool:
