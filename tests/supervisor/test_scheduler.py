@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import time
 
@@ -33,7 +34,10 @@ async def test_deadlines_are_absolute_and_never_drift() -> None:
     for timing in timings:
         assert timing.deadline_s == pytest.approx(t0 + timing.index * 0.005, abs=1e-12)
         assert timing.started_s >= timing.deadline_s
-    assert [t.index for t in timings] == list(range(40))
+    # Every period either ticked or was counted as skipped (a busy machine may hold the
+    # loop past a whole period: that is skipping, not drift).
+    for before, after in itertools.pairwise(timings):
+        assert after.index == before.index + 1 + after.skipped
 
 
 async def test_a_stalled_loop_skips_the_missed_periods() -> None:
