@@ -71,7 +71,9 @@ async def test_a_lost_frozen_or_jumping_mocap_hands_over_to_px4_at_its_limit(
     handed = log.modes.index("px4_landing")
     coast_ms = SafetyLimits().mocap_coast_s * 1e3
     age_ms = log.mocap_age_ms[handed]
-    assert coast_ms - 2.0 < age_ms <= coast_ms + TICK_MS + 5.0
+    # Within a tick of the limit, as the issue asks: a frozen stream is handed over on its
+    # 10th repeated frame, which a stall of this computer can bring a few ms early (96 ms).
+    assert coast_ms - TICK_MS < age_ms <= coast_ms + TICK_MS + 5.0
     assert np.all(np.asarray(log.mocap_age_ms[:handed]) <= coast_ms)
     # No refused pose reached the estimate the MPC flew on: from the hover to the hand-over,
     # no tick-to-tick step of a UAV beyond what 20 ms of hovering allow (a jump is 1 m).

@@ -46,7 +46,9 @@ async def test_a_recording_holds_every_frame_with_its_arrival_time(tmp_path: Pat
     recording = await recorded(1.0)
     assert recording.body_names == NAMES and recording.protocol_version == "1.25"
     frames = list(recording.frames())
-    assert 80 <= len(frames) <= 101
+    # A busy machine slows the in-process server's frames (73 a second seen in a CI run),
+    # never the recording of each: none may be lost, below.
+    assert 40 <= len(frames) <= 101
     numbers = [f.frame_number for f in frames]
     assert numbers == list(range(numbers[0], numbers[0] + len(numbers)))  # none lost
     for frame in frames:
