@@ -108,15 +108,13 @@ async def test_a_lab_naming_its_bodies_gets_the_plants_poses_under_those_names()
 
 async def test_a_stall_of_the_worlds_own_process_is_counted_and_said() -> None:
     """The world's event loop blocked for 0.2 s (as a busy computer would hold it): a
-    stall of about that length, counted and dated on the world's clock. (A shared machine
-    may add stalls of its own above the 50 ms threshold, so others are not ruled out.)"""
+    stall of about that length is counted, the worst so far. (A shared machine may add
+    shorter stalls of its own above the 50 ms threshold, so others are not ruled out.)"""
     async with running_world() as world:
         await asyncio.sleep(0.3)
         before = world.stalls.count
         time.sleep(0.2)  # noqa: ASYNC251 -- the point: the world's own loop does not run
-        blocked_at_s = world.plant.time_s
         await asyncio.sleep(0.1)
         assert world.stalls.count > before
         view = world.stalls.view(world.plant.time_s)
         assert 150.0 < view["worst_ms"] < 400.0
-        assert 0.0 <= world.plant.time_s - blocked_at_s < 0.3
