@@ -176,7 +176,7 @@ async def measure(
         await timed_abort(http)  # the connection open, as the dashboard's is
         baseline = await aborts(http, n_aborts, every_s)
 
-        await service.take_off(http)
+        await service.take_off(http, again_after_world_stall=False)
         context = multiprocessing.get_context("spawn")
         stop, report = context.Event(), context.Queue()
         load = context.Process(

@@ -31,7 +31,7 @@ Case = Callable[[RunningService, httpx.AsyncClient], Awaitable[dict[str, Any]]]
 
 async def hover(service: RunningService, http: httpx.AsyncClient) -> Path:
     """Take off and hover 2 s; the flight's log."""
-    status = await service.take_off(http)
+    status = await service.take_off(http, again_after_world_stall=False)
     await asyncio.sleep(2.0)
     return Path(status["log"])
 

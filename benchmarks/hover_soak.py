@@ -78,7 +78,7 @@ async def one_hover(hover_s: float) -> dict[str, Any]:
         async with running_service(TOKEN, Path(scratch)) as service, service.client() as http:
             started = time.monotonic()
             try:
-                await service.take_off(http)
+                await service.take_off(http, again_after_world_stall=False)
             except (RuntimeError, TimeoutError) as error:
                 status = await service.status(http)
                 return {"ok": False, "failed": f"take-off: {error}", **_brief(status)}

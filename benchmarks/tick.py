@@ -99,7 +99,7 @@ async def fly(service: RunningService, duration_s: float) -> str:
     """Arm, take off, fly the paper's setpoints until ``duration_s`` has passed, land.
     Returns the flight log's path."""
     async with service.client() as http:
-        status = await service.take_off(http)
+        status = await service.take_off(http, again_after_world_stall=False)
         log = str(status["log"])
         started = time.monotonic()
         while time.monotonic() - started < duration_s:
