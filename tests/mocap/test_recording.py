@@ -175,7 +175,7 @@ async def test_the_cli_records_and_replays(tmp_path: Path) -> None:
     assert record.returncode == 0, said
     assert "packets" in said.decode() and ", ".join(NAMES) in said.decode()
     recording = read_recording(out)
-    assert 80 <= len(recording.packets) <= 101
+    assert 40 <= len(recording.packets) <= 101  # a busy machine slows the server (above)
     # Served by the command, read by our client.
     probe = await asyncio.get_running_loop().create_server(asyncio.Protocol, LOCALHOST, 0)
     port = probe.sockets[0].getsockname()[1]
