@@ -17,7 +17,7 @@ const WS_TOKEN_REQUIRED = 4401;
 const state = {
   telemetry: null, lastMessageAt: 0, socket: null, retryMs: 500,
   everConnected: false, everLive: false, stale: true, tokenRefused: false,
-  lastCheckAt: 0, silentMs: 0,
+  lastCheckAt: 0, silentMs: 0, renderPending: false,
 };
 // [page time s, value] for the last PLOT_SECONDS; null breaks the line (no live data).
 const plots = { error: [], solve: [], battery1: [], battery2: [] };
@@ -173,8 +173,10 @@ function connect() {
       setConnection(state.everLive ? "live again" : "connected", "good");
     }
     state.everLive = true;
-    render(state.telemetry);
-    window.dispatchEvent(new CustomEvent("uavbar:telemetry", { detail: state.telemetry }));
+    if (!state.renderPending) {
+      state.renderPending = true;
+      requestAnimationFrame(renderLatest);
+    }
   };
   socket.onclose = async (event) => {
     state.stale = true;
@@ -191,6 +193,15 @@ function connect() {
     setTimeout(connect, state.retryMs);
     state.retryMs = Math.min(state.retryMs * 2, 5000);
   };
+}
+
+// Drawn once per frame, the latest message only: a page that cannot keep up at the
+// telemetry's rate (a busy laptop, software WebGL) draws less often instead of queueing
+// work behind which clicks, ABORT's included, would wait.
+function renderLatest() {
+  state.renderPending = false;
+  render(state.telemetry);
+  window.dispatchEvent(new CustomEvent("uavbar:telemetry", { detail: state.telemetry }));
 }
 
 function setConnection(text, level) {
@@ -241,10 +252,26 @@ const fmt = (v, digits = 2) => (v === null || v === undefined ? "–" : Number(v
 const deg = (rad) => (rad === null || rad === undefined ? "–" : `${(rad * 180 / Math.PI).toFixed(1)}°`);
 const vec = (v) => (v && v.every((x) => x !== null) ? `(${v.map((x) => fmt(x)).join(", ")}) m` : "–");
 
+// Written only on a change: a write of the same text still costs the page a layout and a
+// paint, 25 times a second.
+function setText(id, text) {
+  const element = document.getElementById(id);
+  if (element.textContent !== text) element.textContent = text;
+}
+
+function replaceItems(id, items) {
+  const list = document.getElementById(id);
+  const key = items.map((item) => `${item.className}|${item.textContent}`).join("\n");
+  if (list.dataset.key === key) return;
+  list.dataset.key = key;
+  list.replaceChildren(...items);
+}
+
 function lamp(id, level, title) {
   const element = document.getElementById(id);
-  element.className = `lamp ${level}`;
-  element.title = title;
+  const className = `lamp ${level}`;
+  if (element.className !== className) element.className = className;
+  if (element.title !== title) element.title = title;
 }
 
 const ago = (seconds) => (seconds < 90 ? `${Math.round(seconds)} s ago` : `${Math.round(seconds / 60)} min ago`);
@@ -257,7 +284,7 @@ function renderNotices(notices) {
     item.classList.toggle("old", notice.age_s >= NOTICE_FRESH_S);
     return item;
   });
-  document.getElementById("notices").replaceChildren(...items);
+  replaceItems("notices", items);
 }
 
 const noticeKind = (message) => message.split(":", 1)[0];
@@ -306,10 +333,12 @@ function renderBanner() {
     text = staleNote;
   }
   banner.hidden = level === null;
-  banner.className = `banner ${level || ""}`;
-  document.getElementById("banner-title").textContent = title;
-  document.getElementById("banner-text").textContent = text;
-  document.body.dataset.danger = shown ? shown.level : "";
+  const className = `banner ${level || ""}`;
+  if (banner.className !== className) banner.className = className;
+  setText("banner-title", title);
+  setText("banner-text", text);
+  const dangerLevel = shown ? shown.level : "";
+  if (document.body.dataset.danger !== dangerLevel) document.body.dataset.danger = dangerLevel;
 }
 
 function mocapLamp(m) {
@@ -350,11 +379,12 @@ function tickLamp(tick) {
 }
 
 function render(t) {
+  setText("mode", t.mode);
+  const modeLevel = DANGER_MODES[t.mode] ? DANGER_MODES[t.mode].level : "";
   const modeElement = document.getElementById("mode");
-  modeElement.textContent = t.mode;
-  modeElement.dataset.level = DANGER_MODES[t.mode] ? DANGER_MODES[t.mode].level : "";
-  document.getElementById("phase").textContent = t.phase;
-  document.getElementById("controller").textContent = t.controller;
+  if (modeElement.dataset.level !== modeLevel) modeElement.dataset.level = modeLevel;
+  setText("phase", t.phase);
+  setText("controller", t.controller);
   for (const button of document.querySelectorAll("[data-controller]")) {
     button.classList.toggle("selected", button.dataset.controller === t.controller);
   }
@@ -364,26 +394,23 @@ function render(t) {
   t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, ...uavLamp(uav, i + 1)));
   const tick = t.tick || {};
   lamp("lamp-tick", ...tickLamp(tick));
-  const blocked = document.getElementById("arm-blocked");
-  blocked.textContent = t.arm_blocked_by ? `Arm would be refused now: ${t.arm_blocked_by}` : "";
+  setText("arm-blocked", t.arm_blocked_by ? `Arm would be refused now: ${t.arm_blocked_by}` : "");
   document.getElementById("arm").classList.toggle("blocked", Boolean(t.arm_blocked_by));
   // Greyed: what comes from a source that is not live (the mocap's estimate, a lost link).
   greyed(".mocap-value", !t.mocap.healthy);
-  document.getElementById("bar-position").textContent = vec(t.bar.position);
-  document.getElementById("bar-yaw").textContent = deg(t.bar.yaw);
-  document.getElementById("bar-error").textContent = t.bar.error_m === null ? "–" : `${fmt(t.bar.error_m, 3)} m`;
+  setText("bar-position", vec(t.bar.position));
+  setText("bar-yaw", deg(t.bar.yaw));
+  setText("bar-error", t.bar.error_m === null ? "–" : `${fmt(t.bar.error_m, 3)} m`);
   t.uavs.forEach((uav, i) => {
     const n = i + 1;
     greyed(`.link${n}-value`, !uav.connected);
-    document.getElementById(`uav${n}-position`).textContent = vec(uav.position).replace(" m", "");
-    document.getElementById(`uav${n}-px4`).textContent = uav.connected ? uav.px4_mode : `${uav.px4_mode} (link lost)`;
-    document.getElementById(`uav${n}-armed`).textContent = t.armed[i] ? "armed" : "disarmed";
-    document.getElementById(`uav${n}-text`).textContent = uav.status_text || "–";
-    document.getElementById(`uav${n}-battery`).textContent =
-      uav.battery_v === null || uav.battery_v === undefined ? "–" : `${fmt(uav.battery_v, 1)} V`;
+    setText(`uav${n}-position`, vec(uav.position).replace(" m", ""));
+    setText(`uav${n}-px4`, uav.connected ? uav.px4_mode : `${uav.px4_mode} (link lost)`);
+    setText(`uav${n}-armed`, t.armed[i] ? "armed" : "disarmed");
+    setText(`uav${n}-text`, uav.status_text || "–");
+    setText(`uav${n}-battery`, uav.battery_v === null || uav.battery_v === undefined ? "–" : `${fmt(uav.battery_v, 1)} V`);
   });
-  document.getElementById("tick-info").textContent =
-    `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`;
+  setText("tick-info", `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`);
   renderSetpoints(t.setpoints);
   const now = performance.now() / 1000;
   pushHistory(plots.error, now, t.bar.error_m);
@@ -412,10 +439,8 @@ function describeSetpoint(s) {
 }
 
 function renderSetpoints(setpoints) {
-  document.getElementById("active-setpoint").textContent =
-    setpoints.active ? describeSetpoint(setpoints.active) : "none";
-  const list = document.getElementById("queued-setpoints");
-  list.replaceChildren(...setpoints.queued.map((s) => {
+  setText("active-setpoint", setpoints.active ? describeSetpoint(setpoints.active) : "none");
+  replaceItems("queued-setpoints", setpoints.queued.map((s) => {
     const item = document.createElement("li");
     item.textContent = describeSetpoint(s);
     return item;

@@ -160,6 +160,8 @@ function start() {
 
   function fit() {
     const width = Math.max(1, canvas.clientWidth), height = Math.max(1, canvas.clientHeight);
+    const size = renderer.getSize(new THREE.Vector2());
+    if (size.x === width && size.y === height) return;  // a resize reallocates the drawing buffer
     renderer.setSize(width, height, false);
     camera.aspect = width / height;
     camera.updateProjectionMatrix();
