@@ -62,6 +62,7 @@ WALL_CLOCK_MODULES = {
     "tests/supervisor/test_foxglove_live.py",
 }
 TESTS = Path(__file__).parent
+RERUN_REASON_LINES = 25  # of the first failure's report: its error and where
 
 
 def _on_the_wall_clock(item: pytest.Item) -> bool:
@@ -94,3 +95,17 @@ def pytest_collection_finish(session: pytest.Session) -> None:
     ungrouped = [i.nodeid for i in session.items if _on_the_wall_clock(i) and "@" not in i.nodeid]
     if ungrouped:
         raise pytest.UsageError(f"xdist would run {ungrouped[0]} outside its group")
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Why each rerun test failed the first time (the rerun plugin names it only), so that
+    a CI log that passes on a rerun still tells what a loaded machine did to it."""
+    reruns = terminalreporter.stats.get("rerun", [])
+    if not reruns:
+        return
+    terminalreporter.section("why tests were rerun")
+    for report in reruns:
+        terminalreporter.write_line(f"{report.nodeid}:")
+        lines = report.longreprtext.splitlines()
+        for line in lines[-RERUN_REASON_LINES:]:
+            terminalreporter.write_line(f"    {line}")

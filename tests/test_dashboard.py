@@ -34,17 +34,15 @@ pytestmark = [
 
 
 @pytest.fixture
-async def browser(tmp_path: Path) -> AsyncIterator[Browser]:
-    """Chromium at a lower priority: on a 2-core machine the browser's rendering must not
-    starve the simulated world (a lab's mocap runs on its own computer). WebGL without a
-    GPU is SwiftShader's (software), which Chromium gives only when asked for."""
+async def browser() -> AsyncIterator[Browser]:
+    """Chromium at the usual priority: serve's world, flight and relay processes run at
+    real-time priority where they may (as in CI), which a browser cannot starve; a niced
+    browser was starved instead by the other test worker, its clicks timing out. WebGL
+    without a GPU is SwiftShader's (software), which Chromium gives only when asked for."""
     assert CHROMIUM is not None
-    launcher = tmp_path / "chromium-niced"
-    launcher.write_text(f'#!/bin/sh\nexec nice -n 10 {CHROMIUM} "$@"\n')
-    launcher.chmod(0o755)
     async with async_playwright() as playwright:
         chromium = await playwright.chromium.launch(
-            executable_path=str(launcher),
+            executable_path=CHROMIUM,
             args=["--no-sandbox", "--enable-unsafe-swiftshader"],
             headless=True,
         )
@@ -61,7 +59,8 @@ async def open_dashboard(
     page.on("pageerror", lambda error: PAGE_ERRORS.append(str(error)))
     await page.goto(f"{service.url}/#token={token}")
     connection = page.get_by_test_id("connection")
-    await expect(connection).to_have_text(re.compile("connected"), timeout=20_000)
+    # "live again" after a pause in telemetry of a busy machine's making
+    await expect(connection).to_have_text(re.compile("connected|live again"), timeout=20_000)
     # Live telemetry: the mode shows, and the mocap lamp turns healthy.
     await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
     await expect(page.locator("#lamp-mocap")).to_have_class(re.compile("good"), timeout=20_000)

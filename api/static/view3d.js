@@ -3,13 +3,16 @@
 // three.js (vendor/three.module.min.js, r170, MIT: vendor/three-LICENSE.txt).
 // A module of its own, fed by app.js's "uavbar:telemetry" events: if WebGL or the library
 // is missing, the view says so and the rest of the page, ABORT first, works as before.
-// Drag to turn, wheel to zoom, double-click for the first view. It draws only when a message
-// arrives or the camera moves, and not at all while it is scrolled out of sight.
+// Drag to turn, wheel to zoom, double-click for the first view. It draws when the camera
+// moves, on telemetry at most TELEMETRY_DRAWS_HZ (without a GPU, WebGL is drawn in software:
+// at 25 Hz it took a core's half, and the page's clicks waited), and not at all while it is
+// scrolled out of sight.
 import * as THREE from "/static/vendor/three.module.min.js";
 
 const COLOURS = { bar: 0xf0a030, uav: 0x4ea1ff, cable: 0x9aa4ad, ref: 0x9be39b, grid: 0x2a333c, major: 0x46525e, box: 0x5c6a78 };
 const HOME = { azimuth: -Math.PI / 3, elevation: Math.PI / 7, zoom: 1 };
 const FOV_DEG = 40;
+const TELEMETRY_DRAWS_HZ = 10;
 
 function label(text, colour = "#8c98a4", height = 0.22) {
   const canvas = document.createElement("canvas");
@@ -169,6 +172,7 @@ function start() {
 
   function draw() {
     pending = false;
+    lastDrawAt = performance.now();
     if (!visible) return;
     fit();
     placeCamera();
@@ -178,6 +182,13 @@ function start() {
   }
 
   const redraw = () => { if (!pending) { pending = true; requestAnimationFrame(draw); } };
+  let lastDrawAt = -Infinity, telemetryTimer = null;
+  const redrawForTelemetry = () => {
+    if (pending || telemetryTimer !== null) return;
+    const wait = lastDrawAt + 1000 / TELEMETRY_DRAWS_HZ - performance.now();
+    if (wait <= 0) redraw();
+    else telemetryTimer = setTimeout(() => { telemetryTimer = null; redraw(); }, wait);
+  };
 
   function setArena(arena) {
     const key = JSON.stringify(arena);
@@ -225,7 +236,7 @@ function start() {
       }
     });
     if (referenceKnown) reference.bar.place(r.bar_ends[0], r.bar_ends[1]);
-    redraw();
+    redrawForTelemetry();
   }
 
   // Where a point of the arena is drawn [CSS pixels from the canvas's top left].
