@@ -51,12 +51,27 @@ class SetpointFields(_Message):
     [0, π/2)], hold time once reached [s, 0–3600], and how long to wait for it to be reached
     before the queue moves on anyway [s, up to 3600] (default: no limit)."""
 
-    bar_position: Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
-    bar_yaw: Yaw = 0.0
-    uav_yaw: Annotated[list[Yaw], Field(min_length=2, max_length=2)] | None = None
-    theta_l: CableAngle = 0.0
-    hold_s: HoldTime = 5.0
-    timeout_s: Timeout | None = None
+    bar_position: Annotated[
+        list[Coordinate],
+        Field(
+            min_length=3, max_length=3, description="the bar's centre (x, y, z) [m], arena frame"
+        ),
+    ]
+    bar_yaw: Annotated[Yaw, Field(description="the bar's yaw [rad]")] = 0.0
+    uav_yaw: Annotated[
+        list[Yaw] | None,
+        Field(
+            min_length=2,
+            max_length=2,
+            description="UAV 1's and UAV 2's yaw [rad] (default: the bar's)",
+        ),
+    ] = None
+    theta_l: Annotated[CableAngle, Field(description="the cable angle θ_l [rad]")] = 0.0
+    hold_s: Annotated[HoldTime, Field(description="how long to hold it once reached [s]")] = 5.0
+    timeout_s: Annotated[
+        Timeout | None,
+        Field(description="how long it may take to be reached [s] (default: no limit)"),
+    ] = None
 
     def to_setpoint(self) -> Setpoint:
         p = self.bar_position

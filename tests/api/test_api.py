@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import re
 
 import pytest
 import websockets
@@ -223,3 +224,24 @@ async def test_openapi_schema_lists_the_routes(api: ApiUnderTest) -> None:
     schema = (await api.http.get("/openapi.json")).json()
     for path in ("/api/status", "/api/arm", "/api/kill", "/api/mode", "/api/setpoints"):
         assert path in schema["paths"]
+
+
+async def test_the_schema_gives_each_setpoint_field_its_unit(api: ApiUnderTest) -> None:
+    """The REST API is in SI units, radians for angles; the schema names each (the CLI and
+    the dashboard take degrees, and say so)."""
+    schema = (await api.http.get("/openapi.json")).json()
+    fields = schema["components"]["schemas"]["SetpointFields"]["properties"]
+    assert set(fields) == {"bar_position", "bar_yaw", "uav_yaw", "theta_l", "hold_s", "timeout_s"}
+    units = {
+        name: re.search(r"\[(m|rad|s)\]", field.get("description", ""))
+        for name, field in fields.items()
+    }
+    assert all(units.values()), {name: fields[name] for name, unit in units.items() if not unit}
+    assert {name: unit.group(1) for name, unit in units.items() if unit} == {
+        "bar_position": "m",
+        "bar_yaw": "rad",
+        "uav_yaw": "rad",
+        "theta_l": "rad",
+        "hold_s": "s",
+        "timeout_s": "s",
+    }
