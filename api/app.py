@@ -19,6 +19,7 @@ import asyncio
 import contextlib
 import json
 import logging
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
@@ -49,6 +50,7 @@ from api.models import (
 from api.world_reset import settle_after_reset
 from controllers.equilibria import EquilibriumError
 from controllers.params import BarSystemParams
+from supervisor import awaiting
 from supervisor.flight.equilibrium_summary import equilibrium_summary
 from supervisor.flight.feasibility import SetpointBounds
 from supervisor.flight.operator_requests import (
@@ -62,6 +64,7 @@ from supervisor.flight.operator_requests import (
     Reply,
     SetpointsQuery,
 )
+from supervisor.flight.operator_requests import Request as FlightRequest
 from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoints
 from supervisor.ipc.client import FlightClient, SubscriptionEndedError
 from supervisor.ipc.world_client import WorldClient
@@ -86,6 +89,8 @@ HTTP_STATUS = {
 TELEMETRY_PATH = "/api/telemetry"
 URGENT_PATHS = frozenset({"/api/abort", "/api/kill"})  # never shed under load (api.guard)
 TELEMETRY_STALE_S = 0.5
+MAX_WAIT_S = 600.0  # of a request's ?wait_s= (a take-off: about 10 s; a long setpoint hold)
+WAIT_INTERVAL_S = 0.04  # the telemetry's period
 TOKEN_MESSAGE_TIMEOUT_S = 5.0
 WS_TOKEN_REQUIRED = 4401  # a private close code (RFC 6455 §7.4.2): "send the token first"
 NOT_EMBEDDED = (
@@ -147,6 +152,45 @@ def _answer(reply: Reply) -> JSONResponse:
         {**reply.data, "accepted": False, "detail": detail},
         status_code=HTTP_STATUS[reply.outcome],
     )
+
+
+def _flight_status(flight: FlightClient) -> dict[str, Any]:
+    """The flight process's latest status, and whether it is stale."""
+    body = dict(flight.latest or {})
+    body["stale"] = flight.telemetry_age_s > TELEMETRY_STALE_S or not flight.connected
+    return body
+
+
+WaitSeconds = Annotated[
+    float | None,
+    Query(
+        gt=0.0,
+        le=MAX_WAIT_S,
+        allow_inf_nan=False,
+        description="wait for the outcome, up to this long [s]: 200 once the system is "
+        "there, 409 with the reason (an abort's notice, PX4's refusal, the timeout) if not; "
+        "`outcome` says which. Without it the answer comes at once.",
+    ),
+]
+
+
+async def _answer_once_settled(
+    flight: FlightClient, request: FlightRequest, goal: awaiting.Goal, wait_s: float | None
+) -> JSONResponse:
+    """The flight process's answer to ``request``; with ``wait_s``, once its outcome is
+    known (the notices since it was sent are the reasons)."""
+    sent_at_s = time.monotonic()
+    reply = await flight.request(request)
+    if wait_s is None or not reply.ok:
+        return _answer(reply)
+    outcome = await awaiting.await_goal_async(
+        goal, lambda: _flight_status(flight), sent_at_s, wait_s, WAIT_INTERVAL_S
+    )
+    body = {"accepted": True, **reply.data}
+    body["outcome"] = {"reached": outcome.reached, "message": outcome.message}
+    if outcome.reached:
+        return JSONResponse(body)
+    return JSONResponse({**body, "detail": outcome.message}, status_code=409)
 
 
 def _operation(access: Access, policy: HttpPolicy, *codes: int) -> dict[str, Any]:
@@ -271,8 +315,7 @@ def _status_routes(
         busy computer did not run it, when its mocap and vehicles paused too)."""
         if flight.latest is None:
             return JSONResponse({"detail": "no telemetry from the flight process yet"}, 503)
-        body = dict(flight.latest)
-        body["stale"] = flight.telemetry_age_s > TELEMETRY_STALE_S or not flight.connected
+        body = _flight_status(flight)
         if processes is not None:
             body["processes"] = processes()
         body["world"] = world.view() if world is not None else {"embedded": False}
@@ -309,20 +352,27 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
     async def operator(kind: OperatorEvent) -> JSONResponse:
         return _answer(await flight.request(ModeRequest(kind=kind)))
 
+    async def awaited(
+        kind: OperatorEvent, goal: awaiting.Goal, wait_s: float | None
+    ) -> JSONResponse:
+        return await _answer_once_settled(flight, ModeRequest(kind=kind), goal, wait_s)
+
     @router.post("/api/arm", **token)
-    async def arm() -> JSONResponse:
-        """Arm both vehicles (motors idle on the ground)."""
-        return await operator("arm")
+    async def arm(wait_s: WaitSeconds = None) -> JSONResponse:
+        """Arm both vehicles (motors idle on the ground); with ``wait_s``, until both PX4s
+        say they are armed."""
+        return await awaited("arm", awaiting.armed, wait_s)
 
     @router.post("/api/takeoff", **token)
-    async def takeoff() -> JSONResponse:
-        """Lift the bar to the take-off height and hover."""
-        return await operator("takeoff")
+    async def takeoff(wait_s: WaitSeconds = None) -> JSONResponse:
+        """Lift the bar to the take-off height and hover; with ``wait_s``, until hovering."""
+        return await awaited("takeoff", awaiting.hovering, wait_s)
 
     @router.post("/api/land", **token)
-    async def land() -> JSONResponse:
-        """Set the bar down, land both UAVs and disarm."""
-        return await operator("land")
+    async def land(wait_s: WaitSeconds = None) -> JSONResponse:
+        """Set the bar down, land both UAVs and disarm; with ``wait_s``, until disarmed on
+        the ground."""
+        return await awaited("land", awaiting.landed, wait_s)
 
     @router.post("/api/abort", **_operation(Access.ABORT, policy, *FLIGHT))
     async def abort(request: Request) -> JSONResponse:
@@ -353,9 +403,12 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
         return await operator("kill")
 
     @router.post("/api/mode", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
-    async def mode(body: ModeBody) -> JSONResponse:
-        """Switch the controller (bumpless in flight)."""
-        return _answer(await flight.request(ControllerRequest(controller=body.controller)))
+    async def mode(body: ModeBody, wait_s: WaitSeconds = None) -> JSONResponse:
+        """Switch the controller (bumpless in flight); with ``wait_s``, until it flies."""
+        switch = ControllerRequest(controller=body.controller)
+        return await _answer_once_settled(
+            flight, switch, awaiting.controller(body.controller), wait_s
+        )
 
     return router
 
@@ -376,7 +429,7 @@ def _setpoint_routes(
         return _answer(await flight.request(SetpointsQuery()))
 
     @router.post("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
-    async def post_setpoints(body: SetpointsBody) -> JSONResponse:
+    async def post_setpoints(body: SetpointsBody, wait_s: WaitSeconds = None) -> JSONResponse:
         """Queue one setpoint or a list of at most 32 (the queue's capacity), all or none.
         A longer list is refused by its length before any entry is read (422). Each is then
         checked against the arena and equilibrium feasibility — θ_l, and each UAV's thrust and
@@ -384,7 +437,8 @@ def _setpoint_routes(
         reason, naming the bound and the excess, when it cannot be flown here, or when the
         queue is full). Checked here first, so that a flood
         of setpoints no vehicle can fly never reaches the flight process; the tick core
-        checks again as the authority for every way in (the simulator's scripts too)."""
+        checks again as the authority for every way in (the simulator's scripts too).
+        With ``wait_s``, until the last one queued has been reached and held."""
         entries = body if isinstance(body, list) else [body]
         try:
             validate_setpoints([e.to_setpoint() for e in entries], params, arena, bounds)
@@ -392,7 +446,8 @@ def _setpoint_routes(
             # Well-formed (the schema holds) but not flyable here: 409, as the queue's
             # refusals; 422 is kept for what the schema itself refuses.
             return JSONResponse({"accepted": False, "detail": str(error)}, 409)
-        return _answer(await flight.request(QueueRequest(setpoints=entries)))
+        flown = awaiting.setpoint_flown(entries[-1].model_dump())
+        return await _answer_once_settled(flight, QueueRequest(setpoints=entries), flown, wait_s)
 
     @router.delete("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT))
     async def delete_setpoints() -> JSONResponse:

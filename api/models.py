@@ -71,14 +71,24 @@ class KillRequest(_Body):
     confirm: Annotated[Literal[True], BeforeValidator(_exactly_true)]
 
 
+class WaitOutcome(BaseModel):
+    """How a request's ``?wait_s=`` ended: the system there, or why not."""
+
+    reached: bool
+    message: str
+
+
 class ErrorBody(BaseModel):
     """Why a request was refused. The flight process's and the world's refusals also say
-    ``accepted: false`` and what they know (the mode, the faults in effect)."""
+    ``accepted: false`` and what they know (the mode, the faults in effect). A request
+    accepted whose wait (``?wait_s=``) ended without the system getting there says
+    ``accepted: true`` and the wait's ``outcome``."""
 
     model_config = ConfigDict(extra="allow")
 
     detail: str
-    accepted: Literal[False] | None = None
+    accepted: bool | None = None
+    outcome: WaitOutcome | None = None
 
 
 class Problem(BaseModel):

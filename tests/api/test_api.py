@@ -245,3 +245,44 @@ async def test_the_schema_gives_each_setpoint_field_its_unit(api: ApiUnderTest) 
         "hold_s": "s",
         "timeout_s": "s",
     }
+
+
+async def test_a_request_with_wait_s_answers_once_the_system_is_there(api: ApiUnderTest) -> None:
+    """The telemetry shows the new controller within a period: 200 with the outcome."""
+    response = await api.post("/api/mode?wait_s=5", {"controller": "decentralized"})
+    assert response.status_code == 200, response.text
+    assert response.json()["outcome"] == {"reached": True, "message": "controller decentralized"}
+
+
+async def test_a_request_with_wait_s_that_never_gets_there_is_409_with_why(
+    api: ApiUnderTest,
+) -> None:
+    """Accepted, but the vehicles (here: never armed by PX4) do not get there in time: 409,
+    ``accepted`` still true, and the wait's reason; the request's answer took the wait."""
+    started = asyncio.get_running_loop().time()
+    response = await api.post("/api/arm?wait_s=0.3")
+    waited_s = asyncio.get_running_loop().time() - started
+    assert response.status_code == 409, response.text
+    body = response.json()
+    assert body["accepted"] is True and body["mode"] == "armed"
+    assert body["outcome"]["reached"] is False
+    assert body["detail"] == body["outcome"]["message"]
+    assert body["detail"].startswith("not there after 0.3 s (mode armed")
+    assert waited_s >= 0.3
+
+
+async def test_a_refused_request_with_wait_s_is_answered_at_once(api: ApiUnderTest) -> None:
+    response = await api.post("/api/takeoff?wait_s=60")
+    assert response.status_code == 409
+    assert "outcome" not in response.json()
+    assert "not allowed in mode 'disarmed'" in response.json()["detail"]
+
+
+@pytest.mark.parametrize("wait_s", ["0", "-1", "nan", "inf", "601", "soon"])
+async def test_a_wait_beyond_its_range_is_422_and_nothing_is_sent(
+    api: ApiUnderTest, wait_s: str
+) -> None:
+    response = await api.post(f"/api/arm?wait_s={wait_s}")
+    assert response.status_code == 422, (wait_s, response.text)
+    assert "wait_s" in response.text
+    assert api.core.modes.mode is Mode.DISARMED

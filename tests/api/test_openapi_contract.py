@@ -6,6 +6,7 @@ test_openapi_contract_beyond_loopback.py)."""
 from __future__ import annotations
 
 import asyncio
+import os
 import sys
 from pathlib import Path
 
@@ -17,6 +18,7 @@ pytest.importorskip("schemathesis")
 pytestmark = pytest.mark.slow
 
 SERVE_TOKEN = "contract-token-0123"
+ROOT = Path(__file__).resolve().parents[2]
 
 
 async def schemathesis(url: str, token: str | None, workdir: Path) -> tuple[int, str]:
@@ -29,9 +31,11 @@ async def schemathesis(url: str, token: str | None, workdir: Path) -> tuple[int,
     arguments += ["--request-timeout", "10"]
     if token is not None:
         arguments += ["-H", f"Authorization: Bearer {token}"]
+    hooks = {"SCHEMATHESIS_HOOKS": "tests.api.schemathesis_hooks", "PYTHONPATH": str(ROOT)}
     process = await asyncio.create_subprocess_exec(
         sys.executable,
         *arguments,
+        env={**os.environ, **hooks},
         cwd=workdir,  # its example database stays in the test's folder
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.STDOUT,

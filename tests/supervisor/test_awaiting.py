@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from supervisor.cli import awaiting
-from supervisor.cli.awaiting import Verdict, await_goal
+from supervisor import awaiting
+from supervisor.awaiting import Verdict, await_goal
 
 
 def status(mode: str, *notices: tuple[float, str], **extra: Any) -> dict[str, Any]:

@@ -1,13 +1,16 @@
-"""``--wait``: poll ``GET /api/status`` until a request's outcome is known.
+"""Waiting for a request's outcome: the CLI's ``--wait`` (polling ``GET /api/status``) and
+the REST API's ``?wait_s=`` (reading the flight process's telemetry) decide alike.
 
 A ``Goal`` reads one status answer and says whether the system is there (``REACHED``),
 can no longer get there (``FAILED``, with the reason: the newest notice since the request,
 such as an abort's or PX4's refusal, else the mode it ended in), or is on its way (None).
-The goals are pure functions of the status; ``await_goal`` is the polling loop.
+The goals and ``judge`` are pure functions of the status; ``await_goal`` and
+``await_goal_async`` are the reading loops.
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Callable
@@ -154,6 +157,44 @@ def setpoint_flown(wanted: dict[str, Any]) -> Goal:
     return _Setpoint(wanted)
 
 
+def judge(
+    goal: Goal, status: Status, elapsed_s: float, stale_for_s: float | None, timeout_s: float
+) -> Outcome | None:
+    """One status, read ``elapsed_s`` after the request: its outcome, or None to read on.
+    ``stale_for_s``: how long the status has been stale (None: it is fresh)."""
+    if stale_for_s is not None and stale_for_s > STALE_LIMIT_S:
+        return Outcome(
+            Verdict.FAILED,
+            f"the flight process has not reported for {STALE_LIMIT_S:.0f} s "
+            "(status stale): outcome unknown",
+        )
+    if stale_for_s is None:
+        outcome = goal(status, elapsed_s)
+        if outcome is not None:
+            return outcome
+    if elapsed_s > timeout_s:
+        return Outcome(
+            Verdict.FAILED,
+            f"not there after {timeout_s:g} s (mode {status.get('mode')}, "
+            f"phase {status.get('phase')})",
+        )
+    return None
+
+
+class _Staleness:
+    """Since when the statuses read have been stale."""
+
+    def __init__(self) -> None:
+        self.since_s: float | None = None
+
+    def stale_for_s(self, status: Status, now_s: float) -> float | None:
+        if not status.get("stale"):
+            self.since_s = None
+            return None
+        self.since_s = now_s if self.since_s is None else self.since_s
+        return now_s - self.since_s
+
+
 def await_goal(
     goal: Goal,
     fetch_status: Callable[[], Status],
@@ -165,28 +206,32 @@ def await_goal(
     """Poll ``fetch_status`` until ``goal`` decides or ``timeout_s`` has passed since the
     request was sent (at ``sent_at_s`` on ``clock``). ``fetch_status`` raises when the
     service cannot be reached (the caller says so)."""
-    stale_since_s: float | None = None
+    staleness = _Staleness()
     while True:
         status = fetch_status()
         now_s = clock()
-        elapsed_s = now_s - sent_at_s
-        if status.get("stale"):
-            stale_since_s = now_s if stale_since_s is None else stale_since_s
-            if now_s - stale_since_s > STALE_LIMIT_S:
-                return Outcome(
-                    Verdict.FAILED,
-                    f"the flight process has not reported for {STALE_LIMIT_S:.0f} s "
-                    "(status stale): outcome unknown",
-                )
-        else:
-            stale_since_s = None
-            outcome = goal(status, elapsed_s)
-            if outcome is not None:
-                return outcome
-        if elapsed_s > timeout_s:
-            return Outcome(
-                Verdict.FAILED,
-                f"not there after {timeout_s:g} s (mode {status.get('mode')}, "
-                f"phase {status.get('phase')})",
-            )
+        stale_for_s = staleness.stale_for_s(status, now_s)
+        outcome = judge(goal, status, now_s - sent_at_s, stale_for_s, timeout_s)
+        if outcome is not None:
+            return outcome
         sleep(POLL_INTERVAL_S)
+
+
+async def await_goal_async(
+    goal: Goal,
+    status_now: Callable[[], Status],
+    sent_at_s: float,
+    timeout_s: float,
+    interval_s: float,
+) -> Outcome:
+    """``await_goal`` in an event loop, reading ``status_now()`` every ``interval_s`` (on
+    ``time.monotonic``)."""
+    staleness = _Staleness()
+    while True:
+        status = status_now()
+        now_s = time.monotonic()
+        stale_for_s = staleness.stale_for_s(status, now_s)
+        outcome = judge(goal, status, now_s - sent_at_s, stale_for_s, timeout_s)
+        if outcome is not None:
+            return outcome
+        await asyncio.sleep(interval_s)
