@@ -313,8 +313,12 @@ class ActiveFault:
         return None if duration is None else self.started_s + duration
 
     def remaining_s(self, now_s: float) -> float | None:
-        ends = self.ends_s
-        return None if ends is None else max(0.0, ends - now_s)
+        """How long it still lasts, within [0, its duration] (``started_s + duration`` less
+        ``now_s`` can round above the duration itself)."""
+        duration = self.fault.duration_s
+        if duration is None:
+            return None
+        return min(duration, max(0.0, self.started_s + duration - now_s))
 
     def view(self, now_s: float) -> dict[str, Any]:
         """As the API shows it (world seconds)."""

@@ -78,11 +78,13 @@ def responses(config: Config, estimates: list[tuple[float, Estimate]]) -> list[l
 async def replayed(recording: Recording) -> list[MocapFrame]:
     async with (
         QtmReplayServer(recording, host="127.0.0.1", port=0) as server,
-        QtmClient("127.0.0.1", server.port) as client,
+        # Room for every frame: this loop, starved for a second on a loaded machine, would
+        # otherwise find only the newest 256 (the flight process's own bound).
+        QtmClient("127.0.0.1", server.port, max_queue=sum(1 for _ in recording.frames())) as client,
     ):
         frames: list[MocapFrame] = []
         async with asyncio.timeout(recording.duration_s + 30.0):
-            while not server.finished.is_set():  # the client keeps the newest 256 frames
+            while not server.finished.is_set():
                 await asyncio.sleep(0.1)
                 frames += client.drain()
             await asyncio.sleep(0.2)  # the last datagrams on their way
