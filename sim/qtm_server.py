@@ -140,6 +140,7 @@ class QtmServer:
         client, with whether it travels over UDP; False drops it — the simulated world's
         fault injection (``sim.faults``). The frame number counts the frame either way."""
         self._published: Mapping[str, BodyPose] = {}
+        self._published_at_s: float | None = None
         self._connections: set[_Connection] = set()
         self._server: asyncio.Server | None = None
         self._udp: asyncio.DatagramTransport | None = None
@@ -211,10 +212,14 @@ class QtmServer:
 
     # --- Frames ----------------------------------------------------------------------------
 
-    def publish(self, bodies: Mapping[str, BodyPose]) -> None:
+    def publish(self, bodies: Mapping[str, BodyPose], at_s: float | None = None) -> None:
         """Push the current poses. With ``rate_hz=None`` this sends a frame now; otherwise
-        the next tick sends them (unless a ``source`` is set, which takes precedence)."""
+        the next tick sends them (unless a ``source`` is set, which takes precedence).
+        ``at_s``: when they were measured, on ``clock`` (default: now); a caller that
+        publishes several frames at once, catching up, stamps each with its own time, as a
+        camera system does."""
         self._published = dict(bodies)
+        self._published_at_s = at_s
         if self.rate_hz is None:
             self._emit_frame()
 
@@ -236,7 +241,10 @@ class QtmServer:
             self._emit_frame()
 
     def _capture(self) -> tuple[int, Mapping[str, BodyPose]]:
-        timestamp_us = round((self._clock() - self._t0_clock) * 1e6)
+        measured_at_s = self._published_at_s
+        if self.source is not None or measured_at_s is None:
+            measured_at_s = self._clock()
+        timestamp_us = round((measured_at_s - self._t0_clock) * 1e6)
         # The source sees exactly the time the packet carries, so a client can recompute it.
         poses = self.source(timestamp_us * 1e-6) if self.source else self._published
         return timestamp_us, poses

@@ -146,7 +146,9 @@ class SimulatedWorld:
         self.plant = Plant(plant_params)
         self.mocap = MocapModel(mocap_params)
         self.vehicles = [vehicles(self.plant, i) for i in (1, 2)]
-        self.qtm = QtmServer(list(body_names), host=qtm_host, port=qtm_port, rate_hz=None)
+        self.qtm = QtmServer(
+            list(body_names), host=qtm_host, port=qtm_port, rate_hz=None, clock=clock
+        )
         self._qtm_names = dict(zip(PLANT_BODIES, body_names, strict=True))
         self._plant_bodies = dict(zip(body_names, PLANT_BODIES, strict=True))
         self.faults = FaultSet(body_names, fault_seed)
@@ -162,6 +164,7 @@ class SimulatedWorld:
         self._sleeper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="world-sleep")
         self._clock = clock
         self._t0 = 0.0
+        self._following_the_clock = False  # run() makes world time the clock's, less _t0
         bar_rest_z_m = float(resting_state(plant_params)[body_slice("bar")][2])
         self.truth = TruthStats(bar_rest_z_m)
         """Cable tension and slack while the bar hangs, the worst tilt (logged every
@@ -218,8 +221,14 @@ class SimulatedWorld:
         if plant.time_s - self._truth_reported_s >= TRUTH_REPORT_PERIOD_S:
             self._truth_reported_s = plant.time_s
             log.info("%s", self.truth.describe())
+        # Following the clock, each frame is stamped when it reached the network (world time
+        # + the world's offset to the clock): after a stall the world catches up in a burst,
+        # and frames stamped as they leave would be 4 ms apart in motion but microseconds
+        # apart in time (the supervisor's filter then saw metres per second that were not).
         for frame in self.mocap.poll(until_s):
-            self.qtm.publish(self.faults.frame(_poses(frame, self._qtm_names)))
+            poses = self.faults.frame(_poses(frame, self._qtm_names))
+            at_s = self._t0 + frame.delivery_time_s if self._following_the_clock else None
+            self.qtm.publish(poses, at_s=at_s)
 
     # ---- faults and reset ---------------------------------------------------------------------
     def _refusal(self, fault: Fault) -> str | None:
@@ -322,6 +331,7 @@ class SimulatedWorld:
         """Follow the wall clock until cancelled. A stall longer than ``MAX_CATCH_UP_S`` is
         not made up: the world slows down rather than lurching."""
         self._t0 = self._clock() - self.plant.time_s
+        self._following_the_clock = True
         gc.freeze()  # what exists now is never scanned again: shorter collections in a frame
         while True:
             target = self.now_s

@@ -183,7 +183,9 @@ def test_the_world_publishes_what_the_faults_make_of_each_frame(
 ) -> None:
     world = world_of()
     published: list[dict[str, BodyPose]] = []
-    monkeypatch.setattr(world.qtm, "publish", lambda poses: published.append(dict(poses)))
+    monkeypatch.setattr(
+        world.qtm, "publish", lambda poses, at_s=None: published.append(dict(poses))
+    )
     run(world, 0.1)
     world.inject(MocapJump("uav1", (0.0, 0.0, 0.5), 0.1))
     world.inject(MocapBodyLost("uav2", 0.1))
