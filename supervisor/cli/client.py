@@ -21,8 +21,8 @@ import sys
 import time
 from typing import Any
 
-from supervisor.app.config_files import TOKEN_ENV
 from supervisor import awaiting
+from supervisor.app.config_files import TOKEN_ENV
 from supervisor.cli.address import CA_FILE_ENV, URL_ENV, ServiceAddress, service_address
 from supervisor.cli.direct import DirectPathError, direct_request
 from supervisor.cli.output import (
