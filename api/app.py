@@ -50,7 +50,7 @@ from api.models import (
 from api.world_reset import settle_after_reset
 from controllers.equilibria import EquilibriumError
 from controllers.params import BarSystemParams
-from supervisor import awaiting
+from supervisor.flight import outcomes
 from supervisor.flight.equilibrium_summary import equilibrium_summary
 from supervisor.flight.feasibility import SetpointBounds
 from supervisor.flight.operator_requests import (
@@ -175,7 +175,7 @@ WaitSeconds = Annotated[
 
 
 async def _answer_once_settled(
-    flight: FlightClient, request: FlightRequest, goal: awaiting.Goal, wait_s: float | None
+    flight: FlightClient, request: FlightRequest, goal: outcomes.Goal, wait_s: float | None
 ) -> JSONResponse:
     """The flight process's answer to ``request``; with ``wait_s``, once its outcome is
     known (the notices since it was sent are the reasons)."""
@@ -183,9 +183,14 @@ async def _answer_once_settled(
     reply = await flight.request(request)
     if wait_s is None or not reply.ok:
         return _answer(reply)
-    outcome = await awaiting.await_goal_async(
-        goal, lambda: _flight_status(flight), sent_at_s, wait_s, WAIT_INTERVAL_S
-    )
+    staleness = outcomes.Staleness()
+    while True:
+        status, now_s = _flight_status(flight), time.monotonic()
+        stale_for_s = staleness.stale_for_s(status, now_s)
+        outcome = outcomes.judge(goal, status, now_s - sent_at_s, stale_for_s, wait_s)
+        if outcome is not None:
+            break
+        await asyncio.sleep(WAIT_INTERVAL_S)
     body = {"accepted": True, **reply.data}
     body["outcome"] = {"reached": outcome.reached, "message": outcome.message}
     if outcome.reached:
@@ -353,7 +358,7 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
         return _answer(await flight.request(ModeRequest(kind=kind)))
 
     async def awaited(
-        kind: OperatorEvent, goal: awaiting.Goal, wait_s: float | None
+        kind: OperatorEvent, goal: outcomes.Goal, wait_s: float | None
     ) -> JSONResponse:
         return await _answer_once_settled(flight, ModeRequest(kind=kind), goal, wait_s)
 
@@ -361,18 +366,18 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
     async def arm(wait_s: WaitSeconds = None) -> JSONResponse:
         """Arm both vehicles (motors idle on the ground); with ``wait_s``, until both PX4s
         say they are armed."""
-        return await awaited("arm", awaiting.armed, wait_s)
+        return await awaited("arm", outcomes.armed, wait_s)
 
     @router.post("/api/takeoff", **token)
     async def takeoff(wait_s: WaitSeconds = None) -> JSONResponse:
         """Lift the bar to the take-off height and hover; with ``wait_s``, until hovering."""
-        return await awaited("takeoff", awaiting.hovering, wait_s)
+        return await awaited("takeoff", outcomes.hovering, wait_s)
 
     @router.post("/api/land", **token)
     async def land(wait_s: WaitSeconds = None) -> JSONResponse:
         """Set the bar down, land both UAVs and disarm; with ``wait_s``, until disarmed on
         the ground."""
-        return await awaited("land", awaiting.landed, wait_s)
+        return await awaited("land", outcomes.landed, wait_s)
 
     @router.post("/api/abort", **_operation(Access.ABORT, policy, *FLIGHT))
     async def abort(request: Request) -> JSONResponse:
@@ -407,7 +412,7 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
         """Switch the controller (bumpless in flight); with ``wait_s``, until it flies."""
         switch = ControllerRequest(controller=body.controller)
         return await _answer_once_settled(
-            flight, switch, awaiting.controller(body.controller), wait_s
+            flight, switch, outcomes.controller(body.controller), wait_s
         )
 
     return router
@@ -446,7 +451,7 @@ def _setpoint_routes(
             # Well-formed (the schema holds) but not flyable here: 409, as the queue's
             # refusals; 422 is kept for what the schema itself refuses.
             return JSONResponse({"accepted": False, "detail": str(error)}, 409)
-        flown = awaiting.setpoint_flown(entries[-1].model_dump())
+        flown = outcomes.setpoint_flown(entries[-1].model_dump())
         return await _answer_once_settled(flight, QueueRequest(setpoints=entries), flown, wait_s)
 
     @router.delete("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT))

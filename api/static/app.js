@@ -200,6 +200,7 @@ function connect() {
 // work behind which clicks, ABORT's included, would wait.
 function renderLatest() {
   state.renderPending = false;
+  if (state.stale) return;  // the stream ended after the message: markStale has drawn that
   render(state.telemetry);
   window.dispatchEvent(new CustomEvent("uavbar:telemetry", { detail: state.telemetry }));
 }

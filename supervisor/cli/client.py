@@ -21,8 +21,8 @@ import sys
 import time
 from typing import Any
 
-from supervisor import awaiting
 from supervisor.app.config_files import TOKEN_ENV
+from supervisor.cli import awaiting
 from supervisor.cli.address import CA_FILE_ENV, URL_ENV, ServiceAddress, service_address
 from supervisor.cli.direct import DirectPathError, direct_request
 from supervisor.cli.output import (
@@ -35,6 +35,7 @@ from supervisor.cli.output import (
 from supervisor.cli.parsing import finite_float, non_negative_float, positive_float
 from supervisor.cli.rest_client import JsonClient, UnreachableError
 from supervisor.cli.usage import EXIT_REFUSED, EXIT_UNREACHABLE, UsageError
+from supervisor.flight import outcomes
 
 SIMPLE_REQUESTS = {
     "arm": "arm both vehicles (PX4's refusal is printed)",
@@ -158,17 +159,17 @@ def _request_for(args: argparse.Namespace) -> tuple[str, str, Any]:
     return "POST", "/api/setpoints", _setpoint_body(args)
 
 
-def _goal(args: argparse.Namespace, body: Any) -> awaiting.Goal:
+def _goal(args: argparse.Namespace, body: Any) -> outcomes.Goal:
     command = args.command
     if command == "arm":
-        return awaiting.armed
+        return outcomes.armed
     if command == "takeoff":
-        return awaiting.hovering
+        return outcomes.hovering
     if command == "land":
-        return awaiting.landed
+        return outcomes.landed
     if command == "mode":
-        return awaiting.controller(args.controller)
-    return awaiting.setpoint_flown(body)
+        return outcomes.controller(args.controller)
+    return outcomes.setpoint_flown(body)
 
 
 def _print_answer(args: argparse.Namespace, answer: Any) -> None:

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from supervisor import awaiting
-from supervisor.awaiting import Verdict, await_goal
+from supervisor.cli.awaiting import await_goal
+from supervisor.flight import outcomes
+from supervisor.flight.outcomes import Verdict
 
 
 def status(mode: str, *notices: tuple[float, str], **extra: Any) -> dict[str, Any]:
@@ -18,44 +19,44 @@ def status(mode: str, *notices: tuple[float, str], **extra: Any) -> dict[str, An
 
 
 def test_takeoff_is_reached_in_hover_and_fails_with_the_abort_s_notice() -> None:
-    assert awaiting.hovering(status("takeoff"), 3.0) is None
-    reached = awaiting.hovering(status("hover"), 8.0)
+    assert outcomes.hovering(status("takeoff"), 3.0) is None
+    reached = outcomes.hovering(status("hover"), 8.0)
     assert reached is not None and reached.reached
     old = (30.0, "abort: vehicle 2 link lost")  # from an earlier flight: not this one's reason
     new = (1.5, "abort: vehicle 1 link lost")
-    failed = awaiting.hovering(status("abort", old, new), 4.0)
+    failed = outcomes.hovering(status("abort", old, new), 4.0)
     assert failed is not None and failed.verdict is Verdict.FAILED
     assert failed.message == "take-off failed: abort: vehicle 1 link lost"
-    without = awaiting.hovering(status("abort", old), 4.0)
+    without = outcomes.hovering(status("abort", old), 4.0)
     assert without is not None and "the system is in mode abort" in without.message
 
 
 def test_land_is_reached_disarmed_on_the_ground_and_fails_killed() -> None:
-    assert awaiting.landed(status("landing"), 2.0) is None
+    assert outcomes.landed(status("landing"), 2.0) is None
     armed_still = {**status("disarmed"), "armed": [False, True]}
-    assert awaiting.landed(armed_still, 2.0) is None  # PX4 has not said so yet
-    landed = awaiting.landed(status("disarmed"), 9.0)
+    assert outcomes.landed(armed_still, 2.0) is None  # PX4 has not said so yet
+    landed = outcomes.landed(status("disarmed"), 9.0)
     assert landed is not None and landed.reached
-    killed = awaiting.landed(status("killed"), 1.0)
+    killed = outcomes.landed(status("killed"), 1.0)
     assert killed is not None and not killed.reached
 
 
 def test_arm_fails_on_a_vehicle_s_notice() -> None:
-    assert awaiting.armed(status("disarmed"), 0.1) is None  # the status not yet updated
-    refused = awaiting.armed(status("disarmed", (0.5, "vehicle: arming refused: no GPS")), 1.0)
+    assert outcomes.armed(status("disarmed"), 0.1) is None  # the status not yet updated
+    refused = outcomes.armed(status("disarmed", (0.5, "vehicle: arming refused: no GPS")), 1.0)
     assert refused is not None and "arming refused: no GPS" in refused.message
 
 
 def test_a_setpoint_is_flown_once_it_has_left_the_queue() -> None:
     wanted = {"bar_position": [0.3, 0.0, 1.1], "hold_s": 1.0}
     shown = {**wanted, "bar_yaw": 0.0, "theta_l": 0.0, "uav_yaw": [0.0, 0.0]}
-    goal = awaiting.setpoint_flown(wanted)
+    goal = outcomes.setpoint_flown(wanted)
     other = {**shown, "bar_position": [0.0, 0.0, 1.0]}
     assert goal(status("tracking", setpoints={"active": other, "queued": [shown]}), 0.2) is None
     assert goal(status("tracking", setpoints={"active": shown, "queued": []}), 2.0) is None
     flown = goal(status("hover", setpoints={"active": None, "queued": []}), 6.0)
     assert flown is not None and flown.reached
-    aborted = awaiting.setpoint_flown(wanted)(status("abort", (0.4, "abort: UAV 1 tilted 50°")), 1)
+    aborted = outcomes.setpoint_flown(wanted)(status("abort", (0.4, "abort: UAV 1 tilted 50°")), 1)
     assert aborted is not None and aborted.message.endswith("abort: UAV 1 tilted 50°")
 
 
@@ -66,12 +67,12 @@ def test_the_wait_gives_up_after_its_timeout_and_on_a_silent_flight_process() ->
         now[0] += seconds
 
     climbing = await_goal(
-        awaiting.hovering, lambda: status("takeoff"), 0.0, 5.0, lambda: now[0], sleep
+        outcomes.hovering, lambda: status("takeoff"), 0.0, 5.0, lambda: now[0], sleep
     )
     assert climbing.verdict is Verdict.FAILED and "not there after 5 s" in climbing.message
     assert 5.0 < now[0] < 5.5
     now[0] = 0.0
     stale = await_goal(
-        awaiting.hovering, lambda: status("hover", stale=True), 0.0, 60.0, lambda: now[0], sleep
+        outcomes.hovering, lambda: status("hover", stale=True), 0.0, 60.0, lambda: now[0], sleep
     )
     assert not stale.reached and "has not reported" in stale.message and now[0] < 4.0

@@ -1,24 +1,21 @@
-"""Waiting for a request's outcome: the CLI's ``--wait`` (polling ``GET /api/status``) and
-the REST API's ``?wait_s=`` (reading the flight process's telemetry) decide alike.
+"""A request's outcome, read from the status: the CLI's ``--wait`` (polling ``GET
+/api/status``, ``supervisor/cli/awaiting.py``) and the REST API's ``?wait_s=`` (reading the
+flight process's telemetry) decide alike.
 
 A ``Goal`` reads one status answer and says whether the system is there (``REACHED``),
 can no longer get there (``FAILED``, with the reason: the newest notice since the request,
 such as an abort's or PX4's refusal, else the mode it ended in), or is on its way (None).
-The goals and ``judge`` are pure functions of the status; ``await_goal`` and
-``await_goal_async`` are the reading loops.
+Pure: ``judge`` and ``Staleness`` take the times as arguments.
 """
 
 from __future__ import annotations
 
-import asyncio
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
 
-POLL_INTERVAL_S = 0.2
 # Mocap or the flight process silent this long while waiting: say so rather than wait on.
 STALE_LIMIT_S = 3.0
 # The poll after which a setpoint never seen in the queue counts as flown (see _Setpoint).
@@ -181,7 +178,7 @@ def judge(
     return None
 
 
-class _Staleness:
+class Staleness:
     """Since when the statuses read have been stale."""
 
     def __init__(self) -> None:
@@ -193,45 +190,3 @@ class _Staleness:
             return None
         self.since_s = now_s if self.since_s is None else self.since_s
         return now_s - self.since_s
-
-
-def await_goal(
-    goal: Goal,
-    fetch_status: Callable[[], Status],
-    sent_at_s: float,
-    timeout_s: float,
-    clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
-) -> Outcome:
-    """Poll ``fetch_status`` until ``goal`` decides or ``timeout_s`` has passed since the
-    request was sent (at ``sent_at_s`` on ``clock``). ``fetch_status`` raises when the
-    service cannot be reached (the caller says so)."""
-    staleness = _Staleness()
-    while True:
-        status = fetch_status()
-        now_s = clock()
-        stale_for_s = staleness.stale_for_s(status, now_s)
-        outcome = judge(goal, status, now_s - sent_at_s, stale_for_s, timeout_s)
-        if outcome is not None:
-            return outcome
-        sleep(POLL_INTERVAL_S)
-
-
-async def await_goal_async(
-    goal: Goal,
-    status_now: Callable[[], Status],
-    sent_at_s: float,
-    timeout_s: float,
-    interval_s: float,
-) -> Outcome:
-    """``await_goal`` in an event loop, reading ``status_now()`` every ``interval_s`` (on
-    ``time.monotonic``)."""
-    staleness = _Staleness()
-    while True:
-        status = status_now()
-        now_s = time.monotonic()
-        stale_for_s = staleness.stale_for_s(status, now_s)
-        outcome = judge(goal, status, now_s - sent_at_s, stale_for_s, timeout_s)
-        if outcome is not None:
-            return outcome
-        await asyncio.sleep(interval_s)
