@@ -254,7 +254,7 @@ def create_app(
     app.include_router(_status_routes(flight, params, bounds, processes, policy, world))
     app.include_router(_operator_routes(flight, policy))
     app.include_router(_setpoint_routes(flight, params, arena, bounds, policy))
-    app.include_router(_telemetry_route(flight, policy))
+    app.include_router(_telemetry_route(flight, policy, world))
     app.include_router(_sim_routes(world, flight, policy))
     if STATIC_DIR.is_dir():
         _dashboard(app)
@@ -524,19 +524,25 @@ def _sim_routes(world: WorldClient | None, flight: FlightClient, policy: HttpPol
     return router
 
 
-def _telemetry_route(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
+def _telemetry_route(
+    flight: FlightClient, policy: HttpPolicy, world: WorldClient | None
+) -> APIRouter:
     router = APIRouter()
     # Every subscriber gets the same message object: it is serialized once, not per client.
     last: dict[str, Any] = {"message": None, "text": ""}
 
     def text_of(message: dict[str, Any]) -> str:
         if message is not last["message"]:
-            last["message"], last["text"] = message, _json_text(message)
+            # The embedded world's own stalls, as the status has them: the page tells a
+            # gap of this computer's making from the lab's.
+            sent = message if world is None else {**message, "world": world.view()}
+            last["message"], last["text"] = message, _json_text(sent)
         return str(last["text"])
 
     @router.websocket(TELEMETRY_PATH)
     async def telemetry(websocket: WebSocket) -> None:
-        """Telemetry messages as JSON, at the flight process's rate (25 Hz). When the API
+        """Telemetry messages as JSON, at the flight process's rate (25 Hz); with an
+        embedded simulated world, each carries ``world`` as the status does. When the API
         listens beyond loopback it takes the token, in the handshake's ``Authorization``
         header or (a browser cannot set one) as the first message, ``{"token": TOKEN}``;
         without it the socket is closed with code 4401."""

@@ -3,6 +3,7 @@ embedded simulator."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 import os
 import re
@@ -267,6 +268,29 @@ async def test_a_refused_token_is_kept_and_said(browser: Browser, tmp_path: Path
         await expect(page.get_by_test_id("token-dialog")).to_be_hidden()
         assert await page.evaluate("sessionStorage.getItem('uavbar-token')") == "not-the-token"
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
+
+
+async def test_a_stall_of_the_simulated_world_is_said_to_be_this_computers(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """The world process held for 0.4 s in a hover, as a busy computer holds it: the mocap
+    gap hands the flight to PX4's landing, and the page says that this computer stalled the
+    simulated world, for how long, that a gap then is not the lab's, and (in the banner)
+    that the stall came just before the hand-over."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        await take_off(page)
+        world = service.child_pid("uavbar-world")
+        os.kill(world, signal.SIGSTOP)
+        await asyncio.sleep(0.4)
+        os.kill(world, signal.SIGCONT)
+        stalls = page.get_by_test_id("world-stalls")
+        at_least_300_ms = re.compile(r"the last for ([3-9]\d\d|\d{4,}) ms .* not the lab's")
+        await expect(stalls).to_have_text(at_least_300_ms, timeout=10_000)
+        await expect(page.get_by_test_id("mode")).to_have_text("px4_landing")
+        banner = page.get_by_test_id("banner-text")
+        await expect(banner).to_contain_text("the simulated world had stalled")
+        assert not PAGE_ERRORS, PAGE_ERRORS
 
 
 @pytest.mark.px4

@@ -11,6 +11,7 @@ const PLOT_SECONDS = 20;
 const ACCEPTED_SHOWN_MS = 4000;  // an "accepted" clears itself; a refusal stays until the next try
 const NOTICE_SHOWN_S = 120;  // older notices stay in the status (and the CLI), not on the page
 const NOTICE_FRESH_S = 30;  // older ones are dimmed
+const STALL_CAUSE_S = 2;  // a world stall this long before a mode began is named with it
 const TICK_WINDOW_S = 10;  // the ticks lamp judges the loop by its last 10 s, not since start
 const TOKEN_KEY = "uavbar-token";
 const WS_TOKEN_REQUIRED = 4401;
@@ -290,6 +291,33 @@ function renderNotices(notices) {
 
 const noticeKind = (message) => message.split(":", 1)[0];
 
+// The embedded simulated world's latest stall (a busy computer held it, and its mocap and
+// vehicles paused with it), while notices are still shown; null: none, or no such world.
+function recentWorldStall(world) {
+  const stalls = world && world.stalls;
+  if (!stalls || !stalls.count || stalls.last_age_s === null) return null;
+  return stalls.last_age_s < NOTICE_SHOWN_S ? stalls : null;
+}
+
+function renderWorldStalls(world) {
+  const stalls = recentWorldStall(world);
+  const times = stalls && stalls.count === 1 ? "once" : `${stalls && stalls.count} times`;
+  setText("world-stalls", stalls
+    ? `This computer stalled the simulated world ${times} (busy): the last for ${fmt(stalls.last_ms, 0)} ms ` +
+      `${ago(stalls.last_age_s)}, the worst ${fmt(stalls.worst_ms, 0)} ms. Its mocap and vehicles paused ` +
+      "with it: a gap then was this computer's, not the lab's."
+    : "");
+}
+
+// A stall of the world shortly before the mode began: the likely cause, said with it.
+function stallBeforeMode(t) {
+  const stalls = recentWorldStall(t.world);
+  if (!stalls || t.mode_for_s === undefined) return null;
+  return stalls.last_age_s <= t.mode_for_s + STALL_CAUSE_S
+    ? `the simulated world had stalled ${fmt(stalls.last_ms, 0)} ms just before (this computer was busy)`
+    : null;
+}
+
 // The notices that put the system in its mode: those no older than the mode itself.
 function modeCauses(t) {
   const since = (t.mode_for_s ?? Infinity) + 0.5;  // the same tick, give or take a message
@@ -310,6 +338,7 @@ function danger(t) {
     parts.push(mode.what);
     const causes = modeCauses(t);
     parts.push(causes.length ? `why: ${causes.join("; ")}` : ASKED_BY[t.mode]);
+    parts.push(stallBeforeMode(t));
   }
   if (faults.length) parts.push(`faults now: ${faults.join("; ")}`);
   return {
@@ -390,6 +419,7 @@ function render(t) {
     button.classList.toggle("selected", button.dataset.controller === t.controller);
   }
   renderNotices(t.notices || []);
+  renderWorldStalls(t.world);
   renderBanner();
   lamp("lamp-mocap", ...mocapLamp(t.mocap));
   t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, ...uavLamp(uav, i + 1)));
