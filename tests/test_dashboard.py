@@ -404,7 +404,9 @@ async def assert_laid_out(page: Page, viewport: ViewportSize) -> None:
             a, b = boxes[first], boxes[second]
             apart = a["x"] + a["width"] <= b["x"] or b["x"] + b["width"] <= a["x"]
             apart |= a["y"] + a["height"] <= b["y"] or b["y"] + b["height"] <= a["y"]
-            assert apart, f"{first} {a} overlaps {second} {b}"
+            if not apart:
+                scrolled = await page.evaluate("window.scrollY")
+                raise AssertionError(f"{first} {a} overlaps {second} {b} (scrolled {scrolled} px)")
     width = await page.evaluate("document.scrollingElement.scrollWidth")
     assert width <= viewport["width"], f"the page scrolls sideways: {width} px wide"
 

@@ -265,10 +265,10 @@ async def test_the_worlds_stalls_and_faults_are_watched_for_the_status(sim_api: 
     watch = asyncio.create_task(sim_api.client.keep_watch(period_s=0.05))
     assert (await sim_api.fault({"kind": "mocap_freeze", "duration_s": 60.0})).status_code == 200
     time.sleep(0.15)  # noqa: ASYNC251 -- on purpose: the world, in this event loop, stalls
-    for _ in range(100):
+    for _ in range(200):  # until a view from after the stall (a busy machine has others)
         await asyncio.sleep(0.05)
         view = sim_api.client.view()
-        if view.get("stalls", {}).get("count"):
+        if view.get("stalls", {}).get("worst_ms", 0.0) >= 100.0 and view.get("faults"):
             break
     watch.cancel()
     assert view["embedded"] and view["reachable"]

@@ -9,7 +9,9 @@ import time
 from typing import Any
 
 import numpy as np
+import pytest
 
+from api import world_reset
 from api.world_reset import settle_after_reset, tracked_at
 from geometry.state import bar_position, uav_position, uav_slices
 from supervisor.app.assembly import flight_core_from_config
@@ -57,7 +59,11 @@ def test_tracked_only_with_fresh_mocap_and_every_body_at_its_place() -> None:
     assert stale["arm_blocked_by"] == "no fresh motion capture of all bodies"
 
 
-async def test_the_reset_answers_once_the_telemetry_tracks_the_resting_pose() -> None:
+async def test_the_reset_answers_once_the_telemetry_tracks_the_resting_pose(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # What is tested is the answer, not the time limit: a busy machine may take seconds here.
+    monkeypatch.setattr(world_reset, "SETTLE_TIMEOUT_S", 60.0)
     resting = resting_estimate(PARAMS)
     moved = resting.x.copy()
     moved[uav_slices(1)[0]][0] += 0.3
@@ -77,7 +83,7 @@ async def test_the_reset_answers_once_the_telemetry_tracks_the_resting_pose() ->
     await publish(Estimate(moved, 0.005, ()), 3)
     assert not settling.done()  # the old pose is no answer
     await publish(resting, 2)
-    assert await asyncio.wait_for(settling, 1.0) == {"tracked": True, "arm_blocked_by": None}
+    assert await asyncio.wait_for(settling, 30.0) == {"tracked": True, "arm_blocked_by": None}
     receiving.cancel()
     for channel in (*flight_side, commands, urgent):
         await channel.close()

@@ -91,10 +91,11 @@ async def test_our_client_reads_a_replay_as_recorded(transport: str) -> None:
     direct = list(recording.frames())
     assert len(frames) == len(direct)
     assert all(same_frame(a, b) for a, b in zip(frames, direct, strict=True))
-    # The recorded timing: the replay's arrival intervals are the recording's.
+    # The recorded timing: the replay's arrival intervals are the recording's (one by
+    # one: a busy machine holding the replay once shifts every later arrival, not them).
     replay_s = np.array([f.receive_time_s for f in frames])
     recorded_s = np.array([f.receive_time_s for f in direct])
-    error_ms = np.abs((replay_s - replay_s[0]) - (recorded_s - recorded_s[0])) * 1e3
+    error_ms = np.abs(np.diff(replay_s) - np.diff(recorded_s)) * 1e3
     assert np.median(error_ms) < 5.0, np.median(error_ms)
 
 
