@@ -46,8 +46,8 @@ def _view_port(service: RunningService) -> int | None:
 
 
 async def subscriber(service: RunningService, stop: asyncio.Event) -> int:
-    """A Foxglove client subscribed to every advertised channel, from when the flight
-    process has said its port; the messages it got."""
+    """A Foxglove client subscribed to every advertised channel, from when ``serve`` has
+    said the view's port; the messages it got."""
     while (port := _view_port(service)) is None:  # noqa: ASYNC110 - serve's output, a list
         await asyncio.sleep(0.1)
     received = 0

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from api.app import create_app
+from api.foxglove_gateway import FoxgloveGateway
 from api.guard import HttpPolicy, http_policy
 from api.server import HttpServer, TlsFiles
 from supervisor.app.child_process import stop_event
@@ -126,6 +127,7 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
         processes=table.current,
     )
     http = HttpServer(app, start.http_socket, api_tls(config))
+    gateway = await _foxglove_gateway(config, flight)
     async with asyncio.TaskGroup() as group:
         server = group.create_task(http.serve())
         links = [group.create_task(flight.stay_connected(start.rendezvous.flight, start.token))]
@@ -139,9 +141,34 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
         await server
         for task in links:
             task.cancel()
+    if gateway is not None:
+        await gateway.close()
     await flight.close()
     if world is not None:
         await world.close()
+
+
+async def _foxglove_gateway(config: Config, flight: FlightClient) -> FoxgloveGateway | None:
+    """The live Foxglove view's public port (``FoxgloveSection``), unless off or taken (the
+    API serves on without it, and says so)."""
+    if not config.foxglove.enabled:
+        return None
+    host, port = config.foxglove.bind_host(config.api.host), config.foxglove.port
+
+    def sdk_port() -> int | None:
+        view = (flight.latest or {}).get("live_view")
+        return int(view["sdk_port"]) if isinstance(view, dict) else None
+
+    gateway = FoxgloveGateway(sdk_port)
+    try:
+        await gateway.start(host, port)
+    except OSError as error:
+        log.warning("Foxglove view off: cannot serve on %s:%d (%s)", host, port, error)
+        return None
+    log.info(
+        "Foxglove view: ws://%s:%d (foxglove.websocket.v1 or foxglove.sdk.v1)", host, gateway.port
+    )
+    return gateway
 
 
 def run_api_process(config: Config, start: ApiStart, parent: Connection) -> None:

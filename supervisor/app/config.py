@@ -574,8 +574,9 @@ class LogSection(_Section):
 
 
 class FoxgloveSection(_Section):
-    """The live Foxglove view: a WebSocket server (subprotocol foxglove.sdk.v1) on the API's
-    host streaming the flight log's channels (docs/flight-logs.md)."""
+    """The live Foxglove view: a WebSocket server (foxglove.websocket.v1 or
+    foxglove.sdk.v1) on the API's host streaming the flight log's channels
+    (docs/flight-logs.md)."""
 
     enabled: bool = False
     """Off unless asked for: the protocol has no token and no origin check, so while it

@@ -115,17 +115,17 @@ async def fly(
 
 
 def _live_view(config: Config) -> FoxgloveLiveView | None:
-    """The Foxglove WebSocket view (``FoxgloveSection.bind_host``), unless off or its port
-    is taken (a view is never worth a flight: the flight process goes on without it)."""
+    """The Foxglove view's server, on a free loopback port (clients come through the API
+    process's gateway on ``foxglove.port``: api/foxglove_gateway.py), unless off or no port
+    is free (a view is never worth a flight: the flight process goes on without it)."""
     if not config.foxglove.enabled:
         return None
-    host, port = config.foxglove.bind_host(config.api.host), config.foxglove.port
     try:
-        view = FoxgloveLiveView(host, port, config.system.to_params().arms_m)
+        view = FoxgloveLiveView("127.0.0.1", 0, config.system.to_params().arms_m)
     except RuntimeError as error:
-        log.warning("Foxglove view off: cannot serve on %s:%d (%s)", host, port, error)
+        log.warning("Foxglove view off: cannot serve on loopback (%s)", error)
         return None
-    log.info("Foxglove view: ws://%s:%d (foxglove.sdk.v1)", host, view.port)
+    log.info("Foxglove view's server: ws://127.0.0.1:%d (foxglove.sdk.v1)", view.port)
     return view
 
 

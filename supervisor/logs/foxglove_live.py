@@ -2,7 +2,8 @@
 (``flight_messages``: the bar, cables, UAVs and reference in 3D, every figure as a plot) as
 the ticks happen. Its subprotocol is ``foxglove.sdk.v1``, the SDK's name for Foxglove's
 ``foxglove.websocket.v1`` (the same messages); a client offering only the old name is
-refused at the handshake, one offering both (as Foxglove does) is served.
+refused at the handshake, so ``serve`` runs it on loopback behind the API process's
+gateway, which takes either (api/foxglove_gateway.py).
 
 The server is ``foxglove-sdk``'s, in Rust on threads of its own: it accepts clients,
 advertises the channels and sends to each subscriber without the Python interpreter, so

@@ -504,6 +504,8 @@ class FlightProcess:
         )
         message["streaming"] = self.streaming
         message["log"] = str(self.driver.log.path) if self.driver.log is not None else None
+        live = self.driver.live
+        message["live_view"] = {"sdk_port": live.port} if live is not None else None
         return message
 
     async def _publish(self, channel: Channel) -> None:

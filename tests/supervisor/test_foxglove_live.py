@@ -1,10 +1,12 @@
 """The live Foxglove view: a WebSocket client (``websockets``, real sockets on loopback)
 speaking Foxglove's protocol is advertised the flight log's channels and receives each tick
-it subscribed to, from the view alone and from ``serve``.
+it subscribed to, from the view alone, through the API process's gateway, and from ``serve``
+during a flight.
 
 foxglove-sdk's server names the protocol ``foxglove.sdk.v1``: Foxglove's
-``foxglove.websocket.v1`` renamed, the same messages; a client offering only the old name
-is refused at the handshake (tested, so that the day the SDK accepts it again is seen)."""
+``foxglove.websocket.v1`` renamed, the same messages; it refuses a client offering only the
+old name at the handshake (tested, so that the day the SDK accepts it again is seen), which
+is why clients come through the gateway (api/foxglove_gateway.py), which takes either."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from typing import Any
 import pytest
 import websockets
 
+from api.foxglove_gateway import TRY_AGAIN_LATER, FoxgloveGateway
 from benchmarks.service import running_service
 from controllers.params import BarSystemParams
 from supervisor.logs.flight_messages import JSON_SCHEMAS, WELL_KNOWN
@@ -111,8 +114,61 @@ async def test_the_old_protocol_name_alone_is_refused(lab_params: BarSystemParam
         view.close()
 
 
+@pytest.mark.parametrize("subprotocol", [OLD_NAME, SUBPROTOCOL])
+async def test_the_gateway_serves_either_name_from_the_view(
+    lab_params: BarSystemParams, subprotocol: websockets.Subprotocol
+) -> None:
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m)
+    gateway = FoxgloveGateway(lambda: view.port)
+    await gateway.start("127.0.0.1", 0)
+    records = flight_records(lab_params, 50)
+    try:
+        async with websockets.connect(
+            f"ws://127.0.0.1:{gateway.port}", subprotocols=[subprotocol]
+        ) as socket:
+            assert socket.subprotocol == subprotocol
+            channels = await advertised(socket)
+            assert set(channels) == set(JSON_SCHEMAS) | set(WELL_KNOWN)
+            state = channels["/uavbar/state"]
+            subscribe = {"op": "subscribe", "subscriptions": [{"id": 3, "channelId": state["id"]}]}
+            await socket.send(json.dumps(subscribe))
+            async with asyncio.timeout(10.0):
+                while True:  # the subscription reaches the view through the gateway
+                    view.append(records[0])
+                    with contextlib.suppress(TimeoutError):
+                        subscription, _, payload = await asyncio.wait_for(message_data(socket), 0.1)
+                        break
+        assert subscription == 3
+        assert json.loads(payload)["t_s"] == records[0].t_s
+    finally:
+        await gateway.close()
+        view.close()
+
+
+async def test_the_gateway_without_a_view_says_try_again_later() -> None:
+    gateway = FoxgloveGateway(lambda: None, view_wait_s=0.3)
+    await gateway.start("127.0.0.1", 0)
+    try:
+        async with websockets.connect(
+            f"ws://127.0.0.1:{gateway.port}", subprotocols=[OLD_NAME]
+        ) as socket:
+            with pytest.raises(websockets.ConnectionClosed) as closed:
+                await asyncio.wait_for(socket.recv(), 10.0)
+        assert closed.value.rcvd is not None
+        assert closed.value.rcvd.code == TRY_AGAIN_LATER
+        assert "no live view" in closed.value.rcvd.reason
+    finally:
+        await gateway.close()
+
+
+async def modes_received(socket: Any, count: int) -> list[str]:
+    return [json.loads((await message_data(socket))[2])["mode"] for _ in range(count)]
+
+
 @pytest.mark.slow
-async def test_serve_streams_the_ticks_to_a_foxglove_client(tmp_path: Path) -> None:
+async def test_serve_streams_a_flight_to_a_foxglove_websocket_v1_client(tmp_path: Path) -> None:
+    """A client offering only ``foxglove.websocket.v1`` (as Lichtblick does) connected to
+    ``serve``'s port: the channels advertised, the modes live on the ground and in a flight."""
     async with running_service(
         TOKEN, tmp_path, ["foxglove.enabled=true", "foxglove.port=0"]
     ) as service:
@@ -124,13 +180,19 @@ async def test_serve_streams_the_ticks_to_a_foxglove_client(tmp_path: Path) -> N
                 ]
                 port = next((int(m.group(1)) for m in found if m), None)
                 await asyncio.sleep(0.1)
-        async with websockets.connect(
-            f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL]
-        ) as socket:
+        async with (
+            websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[OLD_NAME]) as socket,
+            service.client() as http,
+        ):
+            assert socket.subprotocol == OLD_NAME
             channels = await advertised(socket)
             mode = channels["/uavbar/mode"]
             subscribe = {"op": "subscribe", "subscriptions": [{"id": 1, "channelId": mode["id"]}]}
             await socket.send(json.dumps(subscribe))
             async with asyncio.timeout(20.0):
-                modes = [json.loads((await message_data(socket))[2])["mode"] for _ in range(10)]
-    assert set(modes) == {"disarmed"}  # live, while the service waits on the ground
+                on_the_ground = await modes_received(socket, 10)
+            await service.take_off(http)
+            async with asyncio.timeout(30.0):  # past what queued up during the take-off
+                while (await modes_received(socket, 1)) != ["hover"]:
+                    pass
+    assert set(on_the_ground) == {"disarmed"}
