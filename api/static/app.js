@@ -661,8 +661,11 @@ async function showEquilibrium() {
     const response = await fetch(`/api/equilibria?theta_l=${thetaL}`, { headers: authorization(storedToken()) });
     const body = await response.json();
     if (!response.ok) { target.textContent = describe(body.detail); return; }
+    const refusals = body.refusals || [];
     target.textContent = `θf ${deg(body.theta_f)} (Prop. 1); thrusts ${body.thrust.map((f) => fmt(f)).join(" / ")} N; ` +
-      `cable tensions ${body.tension.map((f) => fmt(f)).join(" / ")} N`;
+      `cable tensions ${body.tension.map((f) => fmt(f)).join(" / ")} N` +
+      (refusals.length ? ` — a setpoint here would be refused: ${refusals.join("; ")}` : "");
+    target.classList.toggle("blocked", refusals.length > 0);
   } catch {
     target.textContent = "";
   }
