@@ -48,7 +48,7 @@ from supervisor.flight.estimation import Estimate
 from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 from supervisor.flight.modes import Event, FlightModes, Mode, Transition
 from supervisor.flight.phases import Phase, next_phase
-from supervisor.flight.preflight import resting_pose_problems
+from supervisor.flight.preflight import resting_pose_problems, takeoff_problem
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
 from supervisor.flight.setpoints import (
@@ -220,12 +220,19 @@ class FlightCore:
         return result
 
     def not_ready_to_arm(self) -> str:
-        """Why the system must not arm (empty: it may): every body measured and fresh, and
-        the resting pose the take-off starts from (``supervisor.flight.preflight``)."""
+        """Why the system must not arm (empty: it may): every body measured and fresh, the
+        resting pose the take-off starts from, and the hover it goes to
+        (``supervisor.flight.preflight``)."""
         if not self._mocap_fresh():
             return "no fresh motion capture of all bodies"
         assert self._last_estimate is not None
-        return "; ".join(resting_pose_problems(self._last_estimate.x, self.params))
+        x = self._last_estimate.x
+        problems = resting_pose_problems(x, self.params)
+        if not problems:
+            height_m = self.settings.takeoff_height_m
+            hover = takeoff_problem(x, self.params, height_m, self.arena, self.setpoint_bounds)
+            problems += [hover] if hover is not None else []
+        return "; ".join(problems)
 
     def _mocap_fresh(self) -> bool:
         """Every body measured, none older than the safety monitor's coasting limit: one

@@ -1,7 +1,8 @@
 """Pre-arm checks of the resting pose: before the motors spin, the measured bodies must be
 the system the take-off expects — each UAV standing by its own bar end, the bar lying
 level, the UAVs upright. After an abort that left the bar twisted and a UAV a metre away,
-a take-off would start by dragging the bar. Pure; SI units."""
+a take-off would start by dragging the bar. And the take-off's first setpoint, the hover
+above the resting pose, must be one the setpoint queue would take. Pure; SI units."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ import numpy as np
 from controllers.params import BarSystemParams
 from geometry.arrays import FloatArray
 from geometry.frames import rotation_from_euler_zyx
-from geometry.state import bar_ends, uav_euler, uav_position
+from geometry.state import bar_ends, bar_position, bar_yaw, uav_euler, uav_position, uav_yaws
+from supervisor.flight.feasibility import SetpointBounds
+from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 
 
 @dataclass(frozen=True)
@@ -46,3 +49,24 @@ def resting_pose_problems(
     if rise > limits.bar_end_height_difference_m:
         problems.append(f"the bar is not level (its ends {rise:.2f} m apart in height)")
     return problems
+
+
+def takeoff_problem(
+    x: FloatArray,
+    params: BarSystemParams,
+    height_m: float,
+    arena: Arena,
+    bounds: SetpointBounds,
+) -> str | None:
+    """Why the hover ``height_m`` above the resting pose ``x`` (where a take-off goes, with
+    the bar's and the UAVs' yaws kept) cannot be flown, as a queued setpoint would be
+    refused; None: it can."""
+    p = bar_position(x)
+    hover = Setpoint(
+        (float(p[0]), float(p[1]), float(p[2]) + height_m), bar_yaw(x), uav_yaws(x), 0.0
+    )
+    try:
+        validate_setpoint(hover, params, arena, bounds)
+    except SetpointError as error:
+        return f"the take-off's hover {height_m:.2f} m above cannot be flown: {error}"
+    return None

@@ -17,13 +17,13 @@ from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
 from supervisor.flight.safety import SafetyLimits
 from supervisor.flight.setpoints import Setpoint, SetpointRefusedError
-from tests.conftest import CONFIGS
+from tests.conftest import CONFIGS, resting_estimate
 
 CONFIG = load_config(CONFIGS / "sim.toml")
 
 
 def test_take_off_needs_every_body_measured_and_fresh() -> None:
-    x = bar_equilibrium(CONFIG.system.to_params(), Reference((0.0, 0.0, 1.0))).x
+    x = resting_estimate(CONFIG.system.to_params()).x
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     nan = x.copy()
     nan[12:15] = np.nan  # UAV 1 never seen
@@ -71,19 +71,24 @@ def test_mocap_lost_beyond_the_coast_limit_hands_the_vehicles_to_px4s_landing() 
 
 
 def test_arming_needs_the_resting_pose_a_take_off_starts_from() -> None:
-    """Each UAV by its own bar end, the bar level, the UAVs upright; the refusal says what
-    is wrong, and nothing changes."""
+    """Each UAV by its own bar end, the bar level, the UAVs upright, and the hover the
+    take-off goes to one the setpoint queue would take; the refusal says what is wrong, and
+    nothing changes."""
     params = CONFIG.system.to_params()
-    x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    x = resting_estimate(params).x
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
-    displaced, tilted, tipped = x.copy(), x.copy(), x.copy()
+    displaced, tilted, tipped, on_a_shelf = x.copy(), x.copy(), x.copy(), x.copy()
     displaced[uav_slices(1)[0]][0] += 1.0
     tilted[uav_slices(2)[2]][0] = math.radians(30.0)
     tipped[BAR_PITCH] = math.radians(10.0)
+    for i in (1, 2):  # 1.2 m up: its hover would put the UAVs above the arena's 3 m
+        on_a_shelf[uav_slices(i)[0]][2] += 1.2
+    on_a_shelf[2] += 1.2
     for pose, words in (
         (displaced, "UAV 1 stands 1.00 m from its bar end"),
         (tilted, "UAV 2 is tilted 30°"),
         (tipped, "the bar is not level"),
+        (on_a_shelf, "the take-off's hover 1.00 m above cannot be flown: UAV 1 would be at"),
     ):
         core.tick(0.0, Estimate(pose, 0.005, ()))
         refused = core.request(Event.ARM, 0.0)
@@ -136,7 +141,7 @@ def test_setpoints_are_taken_only_in_a_mode_that_flies_them() -> None:
     x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
     setpoint = Setpoint((0.3, 0.0, 1.0), 0.0, None, 0.0, 1.0)
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
-    core.tick(0.0, Estimate(x, 0.005, ()))
+    core.tick(0.0, resting_estimate(params))
     with pytest.raises(SetpointRefusedError, match="mode 'disarmed': arm first"):
         core.queue_setpoints([setpoint])
     assert core.request(Event.ARM, 0.02).accepted
