@@ -225,7 +225,8 @@ async def run(
 
 TRUTH_LINE = re.compile(
     r"truth: bar hanging ([\d.]+) s, min cable tension (-?[\d.]+) N, slack events (\d+), "
-    r"max UAV tilt ([\d.]+) deg, max descent ([\d.]+) m/s"
+    r"max UAV tilt ([\d.]+) deg, max descent ([\d.]+) m/s above [\d.]+ m "
+    r"\(bar ([\d.]+), uav1 ([\d.]+), uav2 ([\d.]+)\)"
 )
 
 
@@ -234,13 +235,16 @@ def world_truth(output: list[str]) -> dict[str, float]:
     matches = [match for line in output if (match := TRUTH_LINE.search(line))]
     if not matches:
         return {}
-    hanging, tension, slack, tilt, descent = matches[-1].groups()
+    hanging, tension, slack, tilt, descent, bar, uav1, uav2 = matches[-1].groups()
     return {
         "bar_hanging_s": float(hanging),
         "min_tension_hanging_n": float(tension),
         "slack_events": int(slack),
         "max_uav_tilt_deg": float(tilt),
         "max_descent_mps": float(descent),
+        "max_descent_bar_mps": float(bar),
+        "max_descent_uav1_mps": float(uav1),
+        "max_descent_uav2_mps": float(uav2),
     }
 
 

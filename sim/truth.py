@@ -5,12 +5,13 @@ the same figures, so that a flight on real PX4 is judged like a ``simulate`` run
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from sim.plant import Plant
 
 HANGING_CLEARANCE_M = 0.05
 DESCENT_FLOOR_M = 0.2  # descents count above this height (bodies' centres)
+BODIES = ("bar", "uav1", "uav2")
 
 
 @dataclass
@@ -27,6 +28,11 @@ class TruthStats:
     min_tension_airborne_n: float = math.inf
     hanging_s: float = 0.0
     max_descent_mps: float = 0.0
+    descent_by_body_mps: dict[str, float] = field(
+        default_factory=lambda: dict.fromkeys(BODIES, 0.0)
+    )
+    """The fastest descent of each body (``max_descent_mps`` is the fastest of them): after
+    a lost link, the lost UAV comes down with its PX4's failsafe, the other with the MPC."""
     _slack: tuple[bool, bool] = (False, False)
     _last_hanging_s: float | None = None
 
@@ -35,10 +41,12 @@ class TruthStats:
         cables = plant.cables()
         self.min_tension_n = min(self.min_tension_n, *cables.tension_n)
         if airborne:
-            for name in ("bar", "uav1", "uav2"):
+            for name in BODIES:
                 body = plant.body(name)
                 if body.position_m[2] > DESCENT_FLOOR_M:
-                    self.max_descent_mps = max(self.max_descent_mps, -float(body.velocity_mps[2]))
+                    descent = max(self.descent_by_body_mps[name], -float(body.velocity_mps[2]))
+                    self.descent_by_body_mps[name] = descent
+                    self.max_descent_mps = max(self.max_descent_mps, descent)
         hanging = plant.body("bar").position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
         if not airborne or not hanging:
             self._slack = cables.slack
@@ -65,5 +73,7 @@ class TruthStats:
             f"truth: bar hanging {self.hanging_s:.1f} s, min cable tension "
             f"{self.min_tension_airborne_n:.2f} N, slack events {self.slack_events}, "
             f"max UAV tilt {self.max_tilt_deg:.1f} deg, "
-            f"max descent {self.max_descent_mps:.2f} m/s above {DESCENT_FLOOR_M} m"
+            f"max descent {self.max_descent_mps:.2f} m/s above {DESCENT_FLOOR_M} m ("
+            + ", ".join(f"{name} {v:.2f}" for name, v in self.descent_by_body_mps.items())
+            + ")"
         )

@@ -165,4 +165,5 @@ async def test_one_vehicle_lost_the_other_sets_the_bar_down_and_both_end_disarme
     assert bar_ends(states[-1], params.arms_m)[1][2] < 0.1  # and its end is down
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth
-    assert truth["max_descent_mps"] <= 1.0, truth
+    assert truth["max_descent_mps"] <= 1.0, truth  # UAV 1: its PX4's failsafe landing
+    assert truth["max_descent_uav2_mps"] <= 0.5, truth  # what the supervisor flies

@@ -52,3 +52,8 @@ def test_the_benchmark_reads_back_what_the_world_logs() -> None:
     assert figures["bar_hanging_s"] == pytest.approx(0.2, abs=0.05)
     assert figures["min_tension_hanging_n"] == pytest.approx(min(tensions), abs=0.005)
     assert figures["slack_events"] == 0
+    for name, descent in truth.descent_by_body_mps.items():
+        assert figures[f"max_descent_{name}_mps"] == pytest.approx(descent, abs=0.005)
+    assert figures["max_descent_mps"] == pytest.approx(
+        max(truth.descent_by_body_mps.values()), abs=0.005
+    )
