@@ -508,6 +508,7 @@ class Px4Model:
         self._hold_yaw = 0.0
         self._rtl_landing = False
         self._last_step_s: float | None = None
+        self._logged_mode: Mode | None = None
         self._next_commander_s = 0.0
         self._reported: tuple[ArmingCheck, ...] | None = None
         self.rates = RateController(p.inertia_kgm2, p.torque_max_nm)
@@ -813,6 +814,9 @@ class Px4Model:
             self._next_commander_s = (math.floor(now_s / COMMANDER_PERIOD_S) + 1) * (
                 COMMANDER_PERIOD_S
             )
+        if self.nav_mode != self._logged_mode:  # when each change took effect, in world time
+            self._logged_mode = self.nav_mode
+            log.info("PX4 %d: mode %s at %.3f s", self.system_id, self.mode_name, now_s)
         if not self.armed:
             return 0.0, np.zeros(3)
         p = self.params

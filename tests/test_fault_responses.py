@@ -26,6 +26,7 @@ from tests.test_service import TOKEN, flight_logs, ready
 pytestmark = pytest.mark.slow
 
 TICK_MS = 20.0
+AUTO_LAND = re.compile(r"PX4 (\d): mode AUTO\.LAND at ([\d.]+) s")
 
 
 async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_px4(
@@ -42,7 +43,7 @@ async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_
         status = await service.status(http)
         assert status["mode"] == "hover" and status["streaming"] and not status["notices"]
 
-        await fault(http, kind="mocap_silent", duration_s=5.0)
+        [silent] = (await fault(http, kind="mocap_silent", duration_s=5.0))["faults"]
         status = await service.wait_for(
             http, lambda s: s["mode"] == "px4_landing", 5.0, "the hand-over to PX4"
         )
@@ -54,6 +55,13 @@ async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_
             2.0,
             "both PX4s landing",
         )
+        # In world time, from the silence to each simulated PX4's AUTO.LAND (its own log).
+        landing_s = {
+            int(m[1]): float(m[2]) for line in service.output if (m := AUTO_LAND.search(line))
+        }
+        assert set(landing_s) == {1, 2}, landing_s
+        limit_s = SafetyLimits().mocap_coast_s + 0.1
+        assert max(landing_s.values()) - silent["started_s"] <= limit_s, (landing_s, silent)
         status = await service.wait_for(
             http, lambda s: s["mode"] == "disarmed", 60.0, "landed and disarmed by PX4"
         )
