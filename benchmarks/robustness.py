@@ -198,28 +198,29 @@ def paper_integral_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     return _flights(scenario, variants)
 
 
-def theta_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
-    """From hover, θ_l ramps to 70° (held 10 s) and back (held 5 s); ``lag °``: the
-    largest gap between the reference's θ_l and the estimate's mean cable angle."""
-    scenario = shortened(
-        _scenario(
-            {
-                "name": "theta_l 70",
-                "start": "hover",
-                "step": [
-                    {
-                        "bar_position": [0.0, 0.0, 1.0],
-                        "theta_l_deg": 70.0,
-                        "hold_s": 10.0,
-                        "timeout_s": 30.0,
-                    },
-                    {"bar_position": [0.0, 0.0, 1.0], "hold_s": 5.0, "timeout_s": 30.0},
-                ],
-            }
-        ),
-        seconds,
+def theta_scenario() -> Scenario:
+    """From hover, θ_l ramps to 70° (held 10 s) and back (held 5 s)."""
+    return _scenario(
+        {
+            "name": "theta_l 70",
+            "start": "hover",
+            "step": [
+                {
+                    "bar_position": [0.0, 0.0, 1.0],
+                    "theta_l_deg": 70.0,
+                    "hold_s": 10.0,
+                    "timeout_s": 30.0,
+                },
+                {"bar_position": [0.0, 0.0, 1.0], "hold_s": 5.0, "timeout_s": 30.0},
+            ],
+        }
     )
-    return _flights(scenario, {"as is": []})
+
+
+def theta_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """``theta_scenario``; ``lag °``: the largest gap between the reference's θ_l and the
+    estimate's mean cable angle."""
+    return _flights(shortened(theta_scenario(), seconds), {"as is": []})
 
 
 REMEDIES = [
