@@ -157,12 +157,14 @@ def shortened(scenario: Scenario, seconds: float | None) -> Scenario:
 
 
 def latency_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
-    """The paper's sequence at 45 ms of mocap latency, without and with compensation."""
+    """The paper's sequence at 45 ms of mocap latency, without and with compensation, and
+    at 50 ms compensated."""
     scenario = shortened(load_scenario("paper"), seconds)
     latency = "sim.mocap.latency_s=0.045"
     variants = {
         "45 ms, no compensation": [latency],
         "45 ms, compensated": [latency, "mpc.delay_s=0.045"],
+        "50 ms, compensated": ["sim.mocap.latency_s=0.05", "mpc.delay_s=0.05"],
     }
     return _flights(scenario, variants)
 
@@ -266,7 +268,49 @@ def _flights(scenario: Scenario, variants: dict[str, list[str]]) -> dict[str, di
     return table
 
 
+def default_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """The decentralized MPC as shipped (the setup's own settings, the reference lead
+    included) against the centralized one, in one run: the paper's sequence and a 120 s
+    hover. ``x std mm``: the std of the bar's x-error; ``x std ×``: the decentralized
+    MPC's over the centralized MPC's in the same flight. "done" means no forced decision,
+    a swing hand-over included."""
+    hover = _scenario(
+        {"name": "hover 120 s", "start": "hover", "step": [{"action": "hover", "hold_s": 120.0}]}
+    )
+    scenarios = {"paper's sequence": load_scenario("paper"), "120 s hover": hover}
+    table: dict[str, dict[str, Figures]] = {}
+    for label, scenario in scenarios.items():
+        x_std_mm = {}
+        for controller in CONTROLLERS:
+            figures, recorder = fly(shortened(scenario, seconds), controller, [])
+            x_std_mm[controller] = 1e3 * float(np.array(recorder.errors)[:, 0].std())
+            figures.extra["x std mm"] = x_std_mm[controller]
+            table.setdefault(controller, {})[label] = figures
+            print(f"  flown: {controller}, {label}", file=sys.stderr, flush=True)
+        ratio = x_std_mm["decentralized"] / x_std_mm["centralized"]
+        table["decentralized"][label].extra["x std ×"] = ratio
+    return table
+
+
+def push_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """From hover, a steady 1 N push along x on the bar from 2 s on, the setpoint held 30 s
+    (``steady mm``: the bar's mean position error over the last 5 s), without and with the
+    integral action."""
+    scenario = _scenario(
+        {
+            "name": "push 1 N",
+            "start": "hover",
+            "load": [{"body": "bar", "force_n": [1.0, 0.0, 0.0], "start_s": 2.0}],
+            "step": [{"action": "hover", "hold_s": 30.0}],
+        }
+    )
+    variants = {"no integral": [], "integral": [f"mpc.integral_gain_per_s={INTEGRAL_GAIN}"]}
+    return _flights(shortened(scenario, seconds), variants)
+
+
 CASES = {
+    "default": default_case,
+    "push": push_case,
     "combined": combined_case,
     "noise": noise_case,
     "latency": latency_case,
@@ -284,7 +328,7 @@ def _print(table: dict[str, dict[str, Figures]]) -> None:
     print(header)
     for controller, rows in table.items():
         for label, f in rows.items():
-            extra = ", ".join(f"{k} {v:.1f}" for k, v in f.extra.items())
+            extra = ", ".join(f"{k} {v:.2f}" for k, v in f.extra.items())
             notes = "; ".join(f.notices)[:120]
             print(
                 f"{controller:<14} {label:<30} {'yes' if f.completed else 'NO':<5} "
