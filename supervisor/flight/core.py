@@ -68,8 +68,8 @@ CONTROLLERS = ("centralized", "decentralized")
 TAKES_SETPOINTS = frozenset({Mode.ARMED, Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING})
 NOTICES_KEPT = 20
 # Set-down while the other bar end is lower (falling with the lost UAV's failsafe landing,
-# it reaches the ground first): its impact jolts the bar, which at 0.4-0.5 m/s took the
-# connected UAV past the 0.5 m/s landing bound (0.50-0.52 m/s in the simulator; 0.47 at 0.3).
+# it reaches the ground first): its impact jolts the bar, which at 0.4-0.45 m/s took the
+# connected UAV to the 0.5 m/s landing bound and past it (0.49-0.52 m/s; 0.47 at 0.3).
 SET_DOWN_BEHIND_MPS = 0.3
 SET_DOWN_LEVEL_M = 0.1  # the connected UAV's bar end higher than this: behind
 GROUND_CLEARANCE_M = 0.05  # the bar this far above its resting height hangs clear of the ground
