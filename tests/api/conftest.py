@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import math
 import shutil
 import socket
@@ -68,9 +69,9 @@ async def serve_api(
     async def publish() -> None:
         vehicle = VehicleView(connected=True, armed=False, px4_mode="POSCTL")
         mocap = MocapView(connected=True, rate_hz=100.0, frames=0, dropped=0)
-        while True:
+        for count in itertools.count(1):  # numbered, so that a skipped message shows
             message = build_telemetry(
-                core, None, None, (vehicle, vehicle), mocap, {"count": 0}, time.monotonic()
+                core, None, None, (vehicle, vehicle), mocap, {"count": count}, time.monotonic()
             )
             flight_side[0].send(TelemetryMessage(status=message))
             await asyncio.sleep(0.04)

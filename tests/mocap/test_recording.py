@@ -195,11 +195,13 @@ async def test_the_cli_records_and_replays(tmp_path: Path) -> None:
     first = await asyncio.wait_for(replay.stdout.readline(), 30.0)
     assert f"on 127.0.0.1:{port}" in first.decode()
     recorded = [f.frame_number for f in recording.frames()]
-    async with QtmClient(LOCALHOST, port) as client:
+    # Over the TCP connection: on a loaded machine the last frame did not arrive over UDP
+    # within 5 s once (CI); the UDP path is tested in-process above.
+    async with QtmClient(LOCALHOST, port, transport="tcp") as client:
         rest, _ = await asyncio.wait_for(replay.communicate(), 30.0)
         frames = client.drain()
-        # The last datagrams may still be on their way when the command has ended.
-        async with asyncio.timeout(5.0):
+        # The last frames may still be on their way when the command has ended.
+        async with asyncio.timeout(10.0):
             while not frames or frames[-1].frame_number != recorded[-1]:
                 await asyncio.sleep(0.05)
                 frames += client.drain()
