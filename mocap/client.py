@@ -28,14 +28,16 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import math
 import socket
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from types import TracebackType
-from typing import Final, Literal, Protocol, Self
+from typing import Any, Final, Literal, Protocol, Self
 
 from mocap.qtm_protocol import (
     GREETING,
@@ -61,6 +63,7 @@ from mocap.qtm_protocol import (
     parse_6d_parameters,
     stream_frames_command,
 )
+from mocap.stream_recorder import StreamRecorder, StreamSession
 
 __all__ = [
     "BodyPose",
@@ -71,6 +74,8 @@ __all__ = [
     "QtmClient",
     "QtmServerError",
 ]
+
+log = logging.getLogger(__name__)
 
 _FRAME_NUMBER_MODULUS: Final = 2**32
 MIN_PROTOCOL_VERSION: Final[ProtocolVersion] = (1, 8)
@@ -166,6 +171,12 @@ class MocapSource(Protocol):
         """Call ``listener`` (on the event loop) whenever a frame is accepted; None: stop."""
         ...
 
+    def record(self, path: Path | None) -> dict[str, Any] | None:
+        """Record the stream as received into ``path`` (a QTM recording); None: stop. The
+        receiving sequence where the recording starts (``FrameReceiver.sequence``), or None
+        when it starts with the next session."""
+        ...
+
 
 class FrameReceiver:
     """Sans-IO receiving side of the client: datagram bytes (or TCP packets) and receive
@@ -215,6 +226,9 @@ class FrameReceiver:
         self._jumps_in_a_row = 0
         self.consecutive_mismatches = 0
         self.last_receive_time_s: float | None = None
+        self.tap: Callable[[bytes, float], None] | None = None
+        """Given every datagram of the stream (from its port) as received, before it is
+        decoded: a ``StreamRecorder``'s ``packet``."""
         self.counts: dict[str, int] = dict.fromkeys(
             (
                 "datagrams",
@@ -263,6 +277,24 @@ class FrameReceiver:
         """Frame number of the newest accepted frame of the current stream."""
         return self._last_frame_number
 
+    def sequence(self) -> dict[str, Any]:
+        """Where the stream's sequence stands, as JSON values: a receiver resumed from it
+        takes or refuses the next datagrams as this one would."""
+        return {
+            "last_frame_number": self._last_frame_number,
+            "last_frame_time_s": self._last_frame_time_s,
+            "in_a_row": [self._backwards_in_a_row, self._jumps_in_a_row],
+            "consecutive_mismatches": self.consecutive_mismatches,
+        }
+
+    def resume(self, sequence: dict[str, Any]) -> None:
+        """Continue the sequence ``sequence`` describes."""
+        number = sequence["last_frame_number"]
+        self._last_frame_number = None if number is None else int(number)
+        self._last_frame_time_s = float(sequence["last_frame_time_s"])
+        self._backwards_in_a_row, self._jumps_in_a_row = (int(n) for n in sequence["in_a_row"])
+        self.consecutive_mismatches = int(sequence["consecutive_mismatches"])
+
     def count_foreign(self) -> None:
         """A datagram from a host other than the server's arrived (and was dropped)."""
         self.counts["foreign_datagrams"] += 1
@@ -309,6 +341,8 @@ class FrameReceiver:
             return None
         counts["datagrams"] += 1
         self.last_receive_time_s = now_s
+        if self.tap is not None:
+            self.tap(data, now_s)
         try:
             packet: Packet = decode_datagram(data)
         except QtmProtocolError:
@@ -473,6 +507,9 @@ class QtmClient:
         self._last_error: str | None = None
         self._last_datagram_s = -math.inf  # loop time, for the keep-alive only
         self._streamed = False
+        self._stream_session: StreamSession | None = None
+        self._recording_path: Path | None = None
+        self._recorder: StreamRecorder | None = None
         self.last_event: int | None = None
         """The last Event packet's id seen on the command channel."""
 
@@ -510,6 +547,43 @@ class QtmClient:
         (keep it short); None removes it."""
         self._frame_listener = listener
 
+    def record(self, path: Path | None) -> dict[str, Any] | None:
+        """Record the stream as received into ``path`` (a QTM recording, which ``mocap
+        replay`` serves), from now, or from the next session while none streams; None
+        stops and closes the file. Over TCP the frames are no datagrams: nothing is
+        recorded. Returns the receiving sequence where the recording starts
+        (``FrameReceiver.sequence``), or None when it does not start now."""
+        if self._recorder is not None:
+            self.receiver.tap = None
+            self._recorder.close()
+            self._recorder = None
+        self._recording_path = path
+        self._start_recording()
+        return self.receiver.sequence() if self._recorder is not None else None
+
+    def _start_recording(self) -> None:
+        path, session = self._recording_path, self._stream_session
+        if path is None or session is None or self._recorder is not None:
+            return
+        if self.transport == "tcp":
+            log.warning("mocap over TCP: %s not recorded (only UDP datagrams are)", path)
+            self._recording_path = None
+            return
+        self._recorder = StreamRecorder(path, session, self._clock())
+        self.receiver.tap = self._recorder.packet
+
+    def _new_session(self, session: StreamSession) -> None:
+        """A session set up: its recording starts, or goes on while the stream is the same."""
+        recorder = self._recorder
+        if recorder is not None and (
+            recorder.session.body_names,
+            recorder.session.component,
+        ) != (session.body_names, session.component):
+            log.warning("the mocap's bodies changed: %s ends here", recorder.path)
+            self.record(None)
+        self._stream_session = session
+        self._start_recording()
+
     # --- Lifecycle -------------------------------------------------------------------------
 
     async def __aenter__(self) -> Self:
@@ -525,6 +599,7 @@ class QtmClient:
         task, self._task = self._task, None
         if task is not None:
             await cancel_for_good(task)
+        self.record(None)
 
     @property
     def connected(self) -> bool:
@@ -586,6 +661,15 @@ class QtmClient:
             if not isinstance(reply, XmlPacket):
                 raise QtmServerError(f"GetParameters 6D answered with {reply!r}")
             parameters = parse_6d_parameters(reply.text)
+            self._new_session(
+                StreamSession(
+                    source=f"{self.host}:{self.port}",
+                    protocol_version=format_version(self._protocol_version),
+                    component=self.component,
+                    body_names=tuple(parameters.names),
+                    parameters_xml=reply.text,
+                )
+            )
             local_host: str = writer.get_extra_info("sockname")[0]
             server_host: str = writer.get_extra_info("peername")[0]
             loop = asyncio.get_running_loop()

@@ -43,7 +43,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -190,6 +190,13 @@ class _ConstantVelocityAxes:
     def predicted_value_variance(self, h: float) -> float:
         return self.extrapolated_variance(h) + self.q * h**3 / 3.0
 
+    def snapshot(self) -> dict[str, Any]:
+        return {"mean": self.mean.tolist(), "p": [self.p00, self.p01, self.p11]}
+
+    def restore(self, snapshot: Mapping[str, Any]) -> None:
+        self.mean = np.array(snapshot["mean"], dtype=float).reshape(2, 3)
+        self.p00, self.p01, self.p11 = (float(v) for v in snapshot["p"])
+
     def extrapolated_variance(self, h: float) -> float:
         """The value's variance h ahead from the estimate's own uncertainty alone (no
         process noise: the innovation gate bounds the acceleration itself)."""
@@ -233,6 +240,41 @@ class RigidBodyFilter:
     def initialized(self) -> bool:
         """True once a tracked sample has been used."""
         return self._translation is not None
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything the filter's future output depends on, as JSON values (exact:
+        ``restore`` on a filter of the same config continues bit for bit)."""
+        axes = (self._translation, self._rotation)
+        return {
+            "axes": None if None in axes else [a.snapshot() for a in axes],  # type: ignore[union-attr]
+            "q": self._q.tolist(),
+            "last_measurement_s": self._last_measurement_s,
+            "last_sample_s": self._last_sample_s,
+            "tracked": self._tracked,
+            "refused": dict(self.refused),
+            "refused_in_a_row": self.refused_in_a_row,
+            "last_refusal": self.last_refusal,
+            "counts": [self.updates, self.out_of_order, self.untracked_samples, self.resets],
+        }
+
+    def restore(self, snapshot: Mapping[str, Any]) -> None:
+        """Continue from ``snapshot`` (``snapshot``'s, taken of a filter of this config)."""
+        if snapshot["axes"] is None:
+            self._translation = self._rotation = None
+        else:
+            self._translation, self._rotation = self._new_axes()
+            self._translation.restore(snapshot["axes"][0])
+            self._rotation.restore(snapshot["axes"][1])
+        self._q = np.array(snapshot["q"], dtype=float)
+        self._last_measurement_s = float(snapshot["last_measurement_s"])
+        self._last_sample_s = float(snapshot["last_sample_s"])
+        self._tracked = bool(snapshot["tracked"])
+        self.refused = {reason: int(n) for reason, n in snapshot["refused"].items()}
+        self.refused_in_a_row = int(snapshot["refused_in_a_row"])
+        self.last_refusal = str(snapshot["last_refusal"])
+        self.updates, self.out_of_order, self.untracked_samples, self.resets = (
+            int(n) for n in snapshot["counts"]
+        )
 
     def update(self, pose: BodyPose, t_s: float) -> bool:
         """Fuse one sample taken at ``t_s`` [s]; returns whether it was used."""
@@ -340,15 +382,21 @@ class RigidBodyFilter:
         spread_m = math.sqrt(axes.predicted_value_variance(h) + axes.r)
         return miss_m > self.config.gate_sigmas * spread_m
 
-    def _initialize(self, pose: BodyPose, t_s: float) -> None:
+    def _new_axes(self) -> tuple[_ConstantVelocityAxes, _ConstantVelocityAxes]:
+        """Fresh translation and rotation filters, as the config tunes them."""
         c = self.config
-        self._translation = _ConstantVelocityAxes(
-            c.position_accel_psd, c.position_noise_m, c.initial_velocity_std_mps
+        return (
+            _ConstantVelocityAxes(
+                c.position_accel_psd, c.position_noise_m, c.initial_velocity_std_mps
+            ),
+            _ConstantVelocityAxes(
+                c.angular_accel_psd, c.attitude_noise_rad, c.initial_rate_std_radps
+            ),
         )
+
+    def _initialize(self, pose: BodyPose, t_s: float) -> None:
+        self._translation, self._rotation = self._new_axes()
         self._translation.mean[0] = pose.position_m
-        self._rotation = _ConstantVelocityAxes(
-            c.angular_accel_psd, c.attitude_noise_rad, c.initial_rate_std_radps
-        )
         self._q = np.array(pose.quaternion, dtype=float)
         self._last_measurement_s = t_s
 
@@ -416,6 +464,14 @@ class CaptureClock:
         self._last_receive_s = receive_time_s
         return capture_s + self._offset_s
 
+    def snapshot(self) -> list[float | None]:
+        return [self._offset_s, self._last_capture_s, self._last_receive_s]
+
+    def restore(self, snapshot: list[float | None]) -> None:
+        offset, last_capture, last_receive = snapshot
+        self._offset_s = None if offset is None else float(offset)
+        self._last_capture_s, self._last_receive_s = float(last_capture), float(last_receive)  # type: ignore[arg-type]
+
 
 class MocapFusion:
     """One ``RigidBodyFilter`` per body name, fed whole ``MocapFrame``s (pure).
@@ -437,6 +493,29 @@ class MocapFusion:
         self.repeated_frames = 0
         """Frames refused as repeated."""
         self._previous: dict[str, bytes] = {}  # each body's last tracked pose, as bytes
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything the fusion's future estimates depend on, as JSON values: a fusion of
+        the same config restored from it and fed the same frames gives the same estimates
+        bit for bit (a flight's mocap replayed from where its recording starts:
+        supervisor/logs/mocap_replay.py)."""
+        return {
+            "clock": self.clock.snapshot(),
+            "refuse_repeats": self.refuse_repeats,
+            "repeated_frames": self.repeated_frames,
+            "previous": {name: key.hex() for name, key in self._previous.items()},
+            "filters": {name: f.snapshot() for name, f in self.filters.items()},
+        }
+
+    def restore(self, snapshot: Mapping[str, Any]) -> None:
+        """Continue from ``snapshot`` (taken of a fusion of this config)."""
+        self.clock.restore(snapshot["clock"])
+        self.refuse_repeats = bool(snapshot["refuse_repeats"])
+        self.repeated_frames = int(snapshot["repeated_frames"])
+        self._previous = {name: bytes.fromhex(key) for name, key in snapshot["previous"].items()}
+        self.filters = {}
+        for name, state in snapshot["filters"].items():
+            self._filter(name).restore(state)
 
     def sample_time_s(self, frame: MocapFrame) -> float:
         """The time [s] ``update`` assigns to ``frame``."""

@@ -111,14 +111,27 @@ def _header(line: str, path: Path) -> dict[str, Any]:
     return header
 
 
-def read_recording(path: Path) -> Recording:
-    """Read a recording. Raises ``ValueError`` for a file that is not one, or a packet that
-    does not decode, or arrival times that go backwards."""
+def _complete_lines(path: Path) -> list[str]:
+    """The file's lines; of a file cut short (its writer killed: ``StreamRecorder``), the
+    lines before the cut."""
+    lines: list[str] = []
     try:
         with gzip.open(path, "rt", encoding="utf-8") as handle:
-            lines = handle.read().splitlines()
-    except (gzip.BadGzipFile, EOFError, UnicodeDecodeError) as error:
+            for line in handle:
+                lines.append(line)
+    except EOFError:
+        if lines and not lines[-1].endswith("\n"):
+            lines.pop()
+    except (gzip.BadGzipFile, UnicodeDecodeError) as error:
         raise ValueError(f"{path}: not a QTM recording ({error})") from error
+    return [line.rstrip("\n") for line in lines]
+
+
+def read_recording(path: Path) -> Recording:
+    """Read a recording. Raises ``ValueError`` for a file that is not one, or a packet that
+    does not decode, or arrival times that go backwards. A file cut short is read up to its
+    last complete packet."""
+    lines = _complete_lines(path)
     if not lines:
         raise ValueError(f"{path}: empty")
     header = _header(lines[0], path)

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import asyncio
 import re
+import subprocess
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -16,9 +19,18 @@ import pytest
 from benchmarks.service import running_service
 from benchmarks.tick import world_truth
 from geometry.state import uav_position
+from supervisor.app.assembly import (
+    body_names_from_config,
+    flight_core_from_config,
+    fusion_from_config,
+)
+from supervisor.app.config import load_config
+from supervisor.app.config_files import DEFAULT_SETUP
 from supervisor.cli.output import format_status
-from supervisor.flight.safety import SafetyLimits
+from supervisor.flight.modes import Mode
+from supervisor.flight.safety import Response, SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
+from supervisor.logs.mocap_replay import check_flight, describe, flight_recording
 from tests.test_fault_responses import TICK_MS
 from tests.test_faults_e2e import fault
 from tests.test_service import TOKEN, flight_logs
@@ -84,3 +96,37 @@ async def test_a_lost_frozen_or_jumping_mocap_hands_over_to_px4_at_its_limit(
         assert np.max(steps) < 0.02, (i, np.max(steps))
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert_the_flights_mocap_replays_as_flown(path)
+
+
+def assert_the_flights_mocap_replays_as_flown(path: Path) -> None:
+    """The mocap the flight process recorded during the flight, replayed on the flight's
+    own clock (supervisor/logs/mocap_replay.py), gives the estimate the flight used at every
+    tick, to 1e-9, and the safety monitors answer the replayed estimates as they answered
+    live: the hand-over to PX4 at the same tick. ``uavbar-supervisor mocap check`` says so."""
+    config = load_config(DEFAULT_SETUP)
+    log = read_flight_log(path)
+    estimates, comparison = check_flight(
+        log, fusion_from_config(config), body_names_from_config(config), tolerance=1e-9
+    )
+    assert comparison.same, describe(path, comparison)
+    assert flight_recording(log).duration_s > 10.0  # from the arm, through the take-off
+    safety = flight_core_from_config(config, clock=time.perf_counter).safety
+    handed_over = [
+        k
+        for k in range(1, len(estimates))
+        if any(
+            fault.response is Response.PX4_LAND
+            for fault in safety.check(
+                float(log.t_s[k]), estimates[k], Mode(log.modes[k - 1]), None, (True, True)
+            )
+        )
+    ]
+    assert handed_over and handed_over[0] == log.modes.index("px4_landing")
+    said = subprocess.run(
+        [sys.executable, "-m", "supervisor.cli.main", "mocap", "check", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert said.returncode == 0 and "the same as logged" in said.stdout, said

@@ -11,6 +11,7 @@ import socket
 import time
 from collections.abc import Callable
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 from mocap.client import MocapSource, MocapStats
@@ -66,6 +67,10 @@ class PlausibleSource:
     def on_frame(self, listener: Callable[[], None] | None) -> None:
         """Call ``listener`` whenever the source accepts a frame."""
         self.source.on_frame(listener)
+
+    def record(self, path: Path | None) -> dict[str, Any] | None:
+        """Record the source's stream."""
+        return self.source.record(path)
 
     def _take(self) -> None:
         for frame in self.source.drain():

@@ -238,6 +238,23 @@ def _mocap(args: argparse.Namespace) -> int:
     return run_replay(args.file, args.host, args.port, args.loop, _say)
 
 
+def _mocap_check(args: argparse.Namespace) -> int:
+    from supervisor.app.assembly import body_names_from_config, fusion_from_config
+    from supervisor.logs.flight_log import read_flight_log
+    from supervisor.logs.mocap_replay import check_flight, describe
+
+    config = _config(args)
+    try:
+        log = read_flight_log(args.log)
+        _, comparison = check_flight(
+            log, fusion_from_config(config), body_names_from_config(config), args.tolerance
+        )
+    except (OSError, ValueError) as error:
+        raise UsageError(str(error)) from error
+    print(describe(args.log, comparison))
+    return 0 if comparison.same else 1
+
+
 def _say(line: str) -> None:
     print(line, flush=True)
 
@@ -378,7 +395,8 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         "UDP or TCP frames, the recorded timing) for the supervisor or Qualisys' SDK.",
         epilog="examples:\n  uavbar-supervisor mocap record --host 192.168.1.10 --port 22223 "
         "--duration 20 --out hover.qtm.gz\n"
-        "  uavbar-supervisor mocap replay hover.qtm.gz --port 22223 --loop",
+        "  uavbar-supervisor mocap replay hover.qtm.gz --port 22223 --loop\n"
+        "  uavbar-supervisor mocap check flight-logs/flight-20261203-101500.mcap",
     )
     mocap_actions = mocap.add_subparsers(dest="action", required=True, metavar="ACTION")
     record = mocap_actions.add_parser("record", help="record a stream into a file")
@@ -395,6 +413,20 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
     replay.add_argument("--host", default="127.0.0.1", help="the address to serve on")
     replay.add_argument("--loop", action="store_true", help="start over at the end, until stopped")
     replay.set_defaults(handler=_mocap)
+    check = mocap_actions.add_parser(
+        "check",
+        help="replay a flight's own mocap recording and compare the estimates with its log",
+        description="Replay the mocap the flight process recorded during a flight "
+        "(flight-….qtm.gz beside the log) on the flight's own clock through today's "
+        "receiver and fusion, and compare the estimate at every tick with the log's "
+        "(exit 1 if any differs by more than --tolerance). --config: the flight's setup.",
+    )
+    check.add_argument("log", type=Path, metavar="LOG", help="a flight log (.mcap or .jsonl)")
+    check.add_argument(
+        "--tolerance", type=float, default=1e-9, help="largest difference taken as the same"
+    )
+    _add_config_options(check)
+    check.set_defaults(handler=_mocap_check)
 
     config = commands.add_parser(
         "config",

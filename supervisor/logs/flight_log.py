@@ -34,7 +34,8 @@ SUFFIXES: dict[str, LogFormat] = {".jsonl": "jsonl", ".mcap": "mcap"}
 _TICK_FIELDS = tuple(f.name for f in fields(TickRecord))
 
 
-def _new_log_path(folder: Path, started: datetime, extension: str = ".jsonl") -> Path:
+def new_log_path(folder: Path, started: datetime, extension: str = ".jsonl") -> Path:
+    """A file in ``folder`` named by ``started`` that does not exist yet."""
     folder.mkdir(parents=True, exist_ok=True)
     stem = f"flight-{started:%Y%m%d-%H%M%S}"
     path = folder / f"{stem}{extension}"
@@ -43,6 +44,12 @@ def _new_log_path(folder: Path, started: datetime, extension: str = ".jsonl") ->
         path = folder / f"{stem}-{suffix}{extension}"
         suffix += 1
     return path
+
+
+def mocap_recording_path(log_path: Path) -> Path:
+    """Where the flight process records its mocap input during the flight ``log_path``
+    logs: beside it, ``flight-….qtm.gz`` (supervisor/logs/mocap_replay.py replays it)."""
+    return log_path.with_name(f"{log_path.stem}.qtm.gz")
 
 
 class FlightLogSink(Protocol):
@@ -71,7 +78,7 @@ def open_flight_log(
             )
         log_format, path = SUFFIXES[destination.suffix], destination
     else:
-        path = _new_log_path(destination, started, f".{log_format}")
+        path = new_log_path(destination, started, f".{log_format}")
     if log_format == "mcap":
         from supervisor.logs.mcap_log import McapFlightLogWriter
 
@@ -94,7 +101,7 @@ class FlightLogWriter:
             destination.parent.mkdir(parents=True, exist_ok=True)
             path, mode = destination, "w"
         else:
-            path, mode = _new_log_path(destination, started), "x"
+            path, mode = new_log_path(destination, started), "x"
         self.path = path
         self._file: IO[str] = path.open(mode, encoding="utf-8")
         self._last_sync_s = -math.inf

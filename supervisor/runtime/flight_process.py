@@ -22,6 +22,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Coroutine, Mapping
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,12 @@ from supervisor.flight.telemetry import MocapView, build_telemetry
 from supervisor.ipc.channel import Channel, ChannelClosedError, ChannelServer
 from supervisor.ipc.messages import ReplyMessage, TelemetryMessage
 from supervisor.ipc.server import HELLO_TIMEOUT_S, Admission, admit, refusal, serve_requests
-from supervisor.logs.flight_log import LogFormat, open_flight_log
+from supervisor.logs.flight_log import (
+    LogFormat,
+    mocap_recording_path,
+    new_log_path,
+    open_flight_log,
+)
 from supervisor.runtime.phase_lock import MocapPhaseLock
 from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
 from supervisor.runtime.tick_driver import TickDriver
@@ -262,6 +268,7 @@ class FlightProcess:
             return
         before = self.core.modes.mode
         self._hand_over_vehicles_out_of_offboard(started)
+        repeats_refused = self.driver.fusion.refuse_repeats
         self._fuse(self.mocap.drain())
         newest = self._newest_frame if self._frames_since_tick else None
         self._count_frames(self._frames_since_tick, started)
@@ -298,6 +305,7 @@ class FlightProcess:
             mocap_wait_ms=wait_ms,
             skipped=timing.skipped,
             mpc_prepared=self.core.mpc_was_prepared,
+            repeats_refused=repeats_refused,
         )
 
     def _count_frames(self, new_frames: int, now_s: float) -> None:
@@ -466,17 +474,35 @@ class FlightProcess:
             )
         reply = handle_request(self.core, request, self.clock())
         if reply.ok and self.log_folder is not None:
-            self._close_log()
-            header = {
-                "setup": self.settings.setup_name,
-                "controller": self.core.controller,
-                "arms_m": list(self.core.params.arms_m),
-            }
-            self.driver.log = open_flight_log(self.log_folder, header, self.settings.log_format)
+            self._open_log(self.log_folder)
         return reply
+
+    def _open_log(self, folder: Path) -> None:
+        """A new flight log, and beside it the recording of the mocap as received from now
+        on; the log's header holds where the fusion and the receiver stand as the recording
+        starts, so that the flight's estimates can be replayed from it exactly
+        (supervisor/logs/mocap_replay.py). Nothing is waiting unfused when the recording
+        starts, and nothing arrives until this returns (one turn of the loop)."""
+        self._close_log()
+        self._fuse(self.mocap.drain())
+        path = new_log_path(folder, datetime.now(UTC), f".{self.settings.log_format}")
+        sequence = self.mocap.record(mocap_recording_path(path))
+        header: dict[str, Any] = {
+            "setup": self.settings.setup_name,
+            "controller": self.core.controller,
+            "arms_m": list(self.core.params.arms_m),
+        }
+        if sequence is not None:
+            header["mocap_recording"] = {
+                "file": mocap_recording_path(path).name,
+                "receiver": sequence,
+                "fusion": self.driver.fusion.snapshot(),
+            }
+        self.driver.log = open_flight_log(path, header)
 
     def _close_log(self) -> None:
         if self.driver.log is not None:
+            self.mocap.record(None)
             self.driver.log.close()
             self.driver.log = None
 

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
+import json
 import math
 from collections.abc import AsyncIterator, Callable, Mapping
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,6 +32,8 @@ from mocap.qtm_protocol import (
     encode_packet,
     packet_from_poses,
 )
+from mocap.recording import read_recording
+from mocap.stream_recorder import StreamRecorder, StreamSession
 from sim.qtm_server import QtmServer
 
 NAMES = ("uav1", "uav2", "bar")
@@ -398,3 +403,74 @@ def test_only_the_servers_stream_port_is_heard() -> None:
     assert configured.receive_datagram(data(1), 0.0, 6000) is not None
     configured.reset(NAMES, ComponentType.SIX_D)
     assert configured.server_port == 6000
+
+
+def test_a_resumed_receiver_takes_and_refuses_as_the_original() -> None:
+    original = FrameReceiver(NAMES, restart_after_backwards=3)
+    for n in (10, 11, 13, 9):  # a gap and one behind: state in every counter of the sequence
+        original.receive_datagram(data(n), n * 0.01)
+    resumed = FrameReceiver(NAMES, restart_after_backwards=3)
+    resumed.resume(json.loads(json.dumps(original.sequence())))
+    for n in (8, 7, 14, 14, 2000, 15):
+        a = original.receive_datagram(data(n), n * 0.01)
+        b = resumed.receive_datagram(data(n), n * 0.01)
+        assert (a is None) == (b is None), n
+        assert original.last_frame_number == resumed.last_frame_number
+    assert original.sequence() == resumed.sequence()
+
+
+def test_the_tap_hears_every_datagram_of_the_stream_before_it_is_decoded() -> None:
+    receiver = FrameReceiver(NAMES)
+    heard: list[tuple[bytes, float]] = []
+    receiver.tap = lambda datagram, t_s: heard.append((datagram, t_s))
+    receiver.receive_datagram(data(1), 0.01, 6000)
+    receiver.receive_datagram(b"junk", 0.02, 6000)  # the stream's, though malformed
+    receiver.receive_datagram(data(2), 0.03, 7000)  # another port's: not the stream
+    assert heard == [(data(1), 0.01), (b"junk", 0.02)]
+
+
+async def test_the_client_records_the_stream_as_it_receives_it(tmp_path: Path) -> None:
+    """From ``record(path)`` to ``record(None)``: every datagram the client took from the
+    stream, with the receive time its frames carry; the sequence returned is where the
+    receiver stood as the recording began."""
+    times = itertools.count(1000.0, 0.001)
+    async with (
+        QtmServer(NAMES, source, port=0, rate_hz=200.0) as server,
+        QtmClient(LOCALHOST, server.port, clock=lambda: next(times)) as client,
+    ):
+        await asyncio.wait_for(client.wait_frame(), 5.0)
+        client.drain()
+        address = f"{LOCALHOST}:{server.port}"
+        sequence = client.record(tmp_path / "r.qtm.gz")
+        assert sequence is not None and sequence["last_frame_number"] is not None
+        received: list[MocapFrame] = []
+        async with asyncio.timeout(10.0):
+            while len(received) < 40:
+                await client.wait_frame()
+                received += client.drain()
+        client.record(None)
+        received += client.drain()
+    recording = read_recording(tmp_path / "r.qtm.gz")
+    assert recording.body_names == NAMES and recording.source == address
+    frames = list(recording.frames())
+    assert frames[0].frame_number == sequence["last_frame_number"] + 1
+    assert [f.frame_number for f in frames] == [f.frame_number for f in received]
+    for got, kept in zip(received, frames, strict=True):
+        assert kept.receive_time_s + recording.clock_start_s == got.receive_time_s
+
+
+def test_a_recording_cut_short_reads_up_to_its_last_flush(tmp_path: Path) -> None:
+    """A flight process killed while recording leaves a gzip stream without its end:
+    read up to the last batch the recorder wrote."""
+    session = StreamSession("qtm:22223", "1.25", ComponentType.SIX_D, NAMES, "<xml/>")
+    recorder = StreamRecorder(tmp_path / "r.qtm.gz", session, 100.0)
+    for n in range(1, 51):
+        recorder.packet(data(n), 100.0 + n * 0.01)
+    recorder._write_pending()  # the thread's flush, now
+    recorder.packet(data(51), 100.51)
+    cut = (tmp_path / "r.qtm.gz").read_bytes()  # as the disk held it at the kill
+    recorder.close()
+    (tmp_path / "cut.qtm.gz").write_bytes(cut)
+    whole, kept = read_recording(tmp_path / "r.qtm.gz"), read_recording(tmp_path / "cut.qtm.gz")
+    assert len(whole.packets) == 51 and kept.packets == whole.packets[:50]
+    assert kept.packets[-1].arrival_s == pytest.approx(0.5)
