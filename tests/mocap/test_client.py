@@ -460,17 +460,15 @@ async def test_the_client_records_the_stream_as_it_receives_it(tmp_path: Path) -
 
 
 def test_a_recording_cut_short_reads_up_to_its_last_flush(tmp_path: Path) -> None:
-    """A flight process killed while recording leaves a gzip stream without its end:
-    read up to the last batch the recorder wrote."""
+    """A flight process killed while recording leaves a gzip stream without its end: read
+    up to the last flush (every half second of receive time)."""
     session = StreamSession("qtm:22223", "1.25", ComponentType.SIX_D, NAMES, "<xml/>")
     recorder = StreamRecorder(tmp_path / "r.qtm.gz", session, 100.0)
-    for n in range(1, 51):
+    for n in range(1, 71):  # flushed at 100.5 s, with the 50th
         recorder.packet(data(n), 100.0 + n * 0.01)
-    recorder._write_pending()  # the thread's flush, now
-    recorder.packet(data(51), 100.51)
     cut = (tmp_path / "r.qtm.gz").read_bytes()  # as the disk held it at the kill
     recorder.close()
     (tmp_path / "cut.qtm.gz").write_bytes(cut)
     whole, kept = read_recording(tmp_path / "r.qtm.gz"), read_recording(tmp_path / "cut.qtm.gz")
-    assert len(whole.packets) == 51 and kept.packets == whole.packets[:50]
+    assert len(whole.packets) == 70 and kept.packets == whole.packets[:50]
     assert kept.packets[-1].arrival_s == pytest.approx(0.5)
