@@ -18,6 +18,7 @@ from typing import Any
 import httpx
 
 START_TIMEOUT_S = 120.0
+CHILDREN = ("world", "relay", "flight", "api")  # serve's processes, uavbar-NAME
 
 
 ENDS = frozenset({"hover", "abort", "px4_landing", "killed", "disarmed"})  # of a take-off

@@ -142,6 +142,7 @@ class QtmServer:
         self._published: Mapping[str, BodyPose] = {}
         self._published_at_s: float | None = None
         self._connections: set[_Connection] = set()
+        self._handlers: set[asyncio.Task[None]] = set()
         self._server: asyncio.Server | None = None
         self._udp: asyncio.DatagramTransport | None = None
         self._ticker: asyncio.Task[None] | None = None
@@ -169,6 +170,10 @@ class QtmServer:
             self._ticker = None
         for connection in list(self._connections):
             connection.writer.close()
+        if self._handlers:
+            # Each handler ends on its closed connection; one left running would be
+            # cancelled at the loop's end and logged as an error (Python 3.11's streams).
+            await asyncio.wait(self._handlers, timeout=1.0)
         if self._server is not None:
             self._server.close()
             await self._server.wait_closed()
@@ -303,6 +308,9 @@ class QtmServer:
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         peer = writer.get_extra_info("peername")
         connection = _Connection(writer, str(peer[0]) if peer else self.host)
+        handler = asyncio.current_task()
+        assert handler is not None
+        self._handlers.add(handler)
         try:
             if len(self._connections) >= self.max_clients:
                 connection.send(CommandPacket(MAX_CLIENTS_MESSAGE))
@@ -319,6 +327,7 @@ class QtmServer:
         except ConnectionError:
             pass
         finally:
+            self._handlers.discard(handler)
             self._connections.discard(connection)
             writer.close()
             with contextlib.suppress(OSError):

@@ -15,7 +15,7 @@ import httpx
 import pytest
 import websockets
 
-from benchmarks.service import RunningService, all_connected, running_service
+from benchmarks.service import CHILDREN, RunningService, all_connected, running_service
 
 TOKEN = "cli-e2e-token-0123456789"
 ROOT = Path(__file__).resolve().parent.parent
@@ -47,9 +47,6 @@ async def telemetry_messages(service: RunningService, opened: asyncio.Event) -> 
         async for _ in ws:
             count += 1
     return count
-
-
-CHILDREN = ("world", "relay", "flight", "api")
 
 
 def alive(pid: int) -> bool:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import math
+import os
+import signal
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -12,7 +14,7 @@ import httpx
 import numpy as np
 import pytest
 
-from benchmarks.service import RunningService, all_connected, running_service
+from benchmarks.service import CHILDREN, RunningService, all_connected, running_service
 from controllers.params import BarSystemParams
 from geometry.state import P_B, bar_ends, uav_position
 from sim.px4_firmware import FirmwareError, resolve_px4_dir
@@ -164,6 +166,16 @@ async def test_abort_mid_flight_lands_and_disarms(tmp_path: Path) -> None:
         assert status["bar"]["position"][2] < 0.05
         assert all(uav["position"][2] < 0.15 for uav in status["uavs"])
         assert status["setpoints"] == {"active": None, "queued": []}
+        # Stopped as systemd stops a service: SIGTERM to every process of it at once.
+        children = [service.child_pid(f"uavbar-{name}") for name in CHILDREN]
+        service.process.send_signal(signal.SIGTERM)
+        for pid in children:
+            os.kill(pid, signal.SIGTERM)
+        async with asyncio.timeout(60.0):
+            assert await service.process.wait() == 0
+    said = "\n".join(service.output)
+    assert said.rstrip().endswith("stopped")
+    assert "Traceback" not in said and "ERROR" not in said, said[-3000:]
 
 
 @pytest.mark.slow
