@@ -301,12 +301,15 @@ function recentWorldStall(world) {
 
 function renderWorldStalls(world) {
   const stalls = recentWorldStall(world);
-  const times = stalls && stalls.count === 1 ? "once" : `${stalls && stalls.count} times`;
-  setText("world-stalls", stalls
-    ? `This computer stalled the simulated world ${times} (busy): the last for ${fmt(stalls.last_ms, 0)} ms ` +
-      `${ago(stalls.last_age_s)}, the worst ${fmt(stalls.worst_ms, 0)} ms. Its mocap and vehicles paused ` +
-      "with it: a gap then was this computer's, not the lab's."
-    : "");
+  if (!stalls) {
+    setText("world-stalls", "");
+    return;
+  }
+  const times = stalls.count === 1 ? "once" : `${stalls.count} times`;
+  setText("world-stalls",
+    `This computer stalled the simulated world ${times} (busy): the last for ${fmt(stalls.last_ms, 0)} ms ` +
+    `${ago(stalls.last_age_s)}, the worst ${fmt(stalls.worst_ms, 0)} ms. Its mocap and vehicles paused ` +
+    "with it: a gap then was this computer's, not the lab's.");
 }
 
 // A stall of the world shortly before the mode began: the likely cause, said with it.

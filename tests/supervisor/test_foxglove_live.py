@@ -44,6 +44,17 @@ async def advertised(socket: Any) -> dict[str, dict[str, Any]]:
     return channels
 
 
+async def subscribe_to_state(socket: Any, subscription: int) -> dict[str, Any]:
+    """Read the advertisement (every channel of the log), subscribe to the state's as
+    ``subscription``; the channels by topic."""
+    channels = await advertised(socket)
+    assert set(channels) == set(JSON_SCHEMAS) | set(WELL_KNOWN)
+    state = channels["/uavbar/state"]["id"]
+    request = {"op": "subscribe", "subscriptions": [{"id": subscription, "channelId": state}]}
+    await socket.send(json.dumps(request))
+    return channels
+
+
 async def message_data(socket: Any) -> tuple[int, int, bytes]:
     """The next binary Message Data frame: (subscription id, log time [ns], payload)."""
     while True:
@@ -63,13 +74,10 @@ async def test_a_client_is_advertised_the_channels_and_gets_the_ticks(
             f"ws://127.0.0.1:{view.port}", subprotocols=[SUBPROTOCOL]
         ) as socket:
             assert socket.subprotocol == SUBPROTOCOL
-            channels = await advertised(socket)
-            assert set(channels) == set(JSON_SCHEMAS) | set(WELL_KNOWN)
+            channels = await subscribe_to_state(socket, 7)
             state = channels["/uavbar/state"]
             assert (state["encoding"], state["schemaName"]) == ("json", "uavbar.BarSystemState")
             assert channels["/tf"]["schemaName"] == "foxglove.FrameTransforms"
-            subscribe = {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": state["id"]}]}
-            await socket.send(json.dumps(subscribe))
             received: list[tuple[int, int, bytes]] = []
             async with asyncio.timeout(10.0):
                 for record in records:
@@ -127,11 +135,7 @@ async def test_the_gateway_serves_either_name_from_the_view(
             f"ws://127.0.0.1:{gateway.port}", subprotocols=[subprotocol]
         ) as socket:
             assert socket.subprotocol == subprotocol
-            channels = await advertised(socket)
-            assert set(channels) == set(JSON_SCHEMAS) | set(WELL_KNOWN)
-            state = channels["/uavbar/state"]
-            subscribe = {"op": "subscribe", "subscriptions": [{"id": 3, "channelId": state["id"]}]}
-            await socket.send(json.dumps(subscribe))
+            await subscribe_to_state(socket, 3)
             async with asyncio.timeout(10.0):
                 while True:  # the subscription reaches the view through the gateway
                     view.append(records[0])
