@@ -104,6 +104,9 @@ async def fly(
             loop.add_signal_handler(signal.SIGINT, lambda: None)  # serve decides
             loop.add_reader(parent.fileno(), process.stop)  # serve is gone
             process.driver.live = _live_view(config)
+            # Real-time only now that the MPC is built: seconds of set-up at SCHED_FIFO
+            # would hold a core from everything below it, another serve's world included.
+            log.info("flight process: %s", raise_priority())
             try:
                 await process.run(start.listener, start.token)
             finally:
@@ -136,5 +139,4 @@ def run_flight_process(
     single_threaded_blas()
     title_process("flight")
     with queued_logging():
-        log.info("flight process: %s", raise_priority())
         asyncio.run(fly(config, start, world, parent))
