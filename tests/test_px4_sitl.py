@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from benchmarks.service import RunningService, running_service
+from benchmarks.tick import world_truth
 from geometry.frames import rotation_from_quaternion
 from mocap.client import QtmClient
 from sim.px4_firmware import OFFBOARD_LOCAL_PORT, resolve_px4_dir
@@ -31,6 +32,7 @@ from tests.test_service import TOKEN, ready, require_px4
 pytestmark = [pytest.mark.px4, pytest.mark.slow]
 
 OFFBOARD_LOSS_TIMEOUT_S = 0.5  # vehicles.offboard_loss_timeout_s, written as COM_OF_LOSS_T
+MAV_MODE_FLAG_SAFETY_ARMED = 128
 GCS_PORT = 14550  # PX4 SITL's ground-station link, every instance
 GCS_LOCAL_PORT = 18570  # PX4's end of that link: 18570 + instance
 
@@ -41,6 +43,8 @@ class Px4Watch:
 
     modes: list[tuple[float, str]] = field(default_factory=list)
     events: list[tuple[float, str]] = field(default_factory=list)
+    armed_modes: list[tuple[float, str]] = field(default_factory=list)
+    """The mode of each heartbeat sent while armed."""
 
 
 async def watch_px4s(catalog: EventCatalog, watches: dict[int, Px4Watch], until: float) -> None:
@@ -67,6 +71,8 @@ async def watch_px4s(catalog: EventCatalog, watches: dict[int, Px4Watch], until:
                 kind = message.get_type()
                 if kind in ("HEARTBEAT", "CURRENT_MODE"):
                     watch.modes.append((now, px4_mode_name(message.custom_mode)))
+                if kind == "HEARTBEAT" and message.base_mode & MAV_MODE_FLAG_SAFETY_ARMED:
+                    watch.armed_modes.append((now, px4_mode_name(message.custom_mode)))
                 elif kind == "EVENT":
                     watch.events.append((now, catalog.text(message.id, bytes(message.arguments))))
     finally:
@@ -126,6 +132,62 @@ async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) ->
     assert status["processes"]["flight"]["restarts"] == 1
     said = " ".join(n["message"] for n in status["notices"])
     assert "the flight process died (killed by SIGKILL)" in said, said
+
+
+@pytest.mark.px4_flight
+@pytest.mark.parametrize("freeze_s", [0.3, 1.0, 5.0])  # issue 17's durations
+async def test_a_frozen_flight_process_on_real_px4_never_flips_a_uav(
+    tmp_path: Path, freeze_s: float
+) -> None:
+    """SIGSTOP the flight process mid-hover. Below COM_OF_LOSS_T PX4 keeps flying the held
+    rate setpoint and the hover goes on; beyond it each PX4's failsafe lands (its event,
+    AUTO.LAND), never goes back to offboard, and the resumed supervisor hands over and
+    follows the landing. No UAV tilts beyond 30°, nothing falls faster than 1 m/s (truth)."""
+    require_px4()
+    catalog = EventCatalog.load(resolve_px4_dir(None) / "etc" / "extras" / "all_events.json.xz")
+    overrides = [
+        'sim.vehicles="px4_sitl"',
+        f"vehicles.offboard_loss_timeout_s={OFFBOARD_LOSS_TIMEOUT_S}",
+    ]
+    async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
+        await service.take_off(http)
+        await asyncio.sleep(3.0)
+        watches = {1: Px4Watch(), 2: Px4Watch()}
+        listener = asyncio.create_task(watch_px4s(catalog, watches, time.monotonic() + 30.0))
+        await asyncio.sleep(1.0)
+        flight = service.child_pid("uavbar-flight")
+        os.kill(flight, signal.SIGSTOP)
+        stopped = time.monotonic()
+        await asyncio.sleep(freeze_s)
+        os.kill(flight, signal.SIGCONT)
+        if freeze_s < OFFBOARD_LOSS_TIMEOUT_S:
+            await asyncio.sleep(3.0)
+            status = await service.status(http)
+            assert status["mode"] == "hover" and status["streaming"], status["notices"]
+            assert (await http.post("/api/land")).status_code == 200
+        else:
+            status = await service.wait_for(
+                http, lambda s: s["mode"] in ("px4_landing", "disarmed"), 5.0, "handed over"
+            )
+            assert not status["streaming"]
+        await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
+        listener.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await listener
+    for i, watch in watches.items():
+        failsafe = [t - stopped for t, text in watch.events if "Failsafe activated" in text]
+        # Disarmed on the ground, PX4 shows the mode it was asked for again: not flown.
+        after = [mode for t, mode in watch.armed_modes if t > stopped]
+        if freeze_s < OFFBOARD_LOSS_TIMEOUT_S:
+            assert not failsafe, (i, watch.events)
+            continue
+        assert failsafe and failsafe[0] <= OFFBOARD_LOSS_TIMEOUT_S + 0.2, (i, watch.events)
+        assert "AUTO.LAND" in after, (i, watch.modes)
+        landing = after.index("AUTO.LAND")
+        assert "OFFBOARD" not in after[landing:], (i, after)  # nothing took it back
+    truth = world_truth(service.output)
+    assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert truth["max_descent_mps"] <= 1.0, truth
 
 
 def _param_set(name: str, value: int) -> list[bytes]:
