@@ -472,3 +472,15 @@ def test_a_recording_cut_short_reads_up_to_its_last_flush(tmp_path: Path) -> Non
     whole, kept = read_recording(tmp_path / "r.qtm.gz"), read_recording(tmp_path / "cut.qtm.gz")
     assert len(whole.packets) == 70 and kept.packets == whole.packets[:50]
     assert kept.packets[-1].arrival_s == pytest.approx(0.5)
+
+
+async def test_over_tcp_nothing_is_recorded_and_the_caller_is_told(tmp_path: Path) -> None:
+    async with (
+        QtmServer(NAMES, source, port=0, rate_hz=200.0) as server,
+        QtmClient(LOCALHOST, server.port, transport="tcp") as client,
+    ):
+        await asyncio.wait_for(client.wait_frame(), 5.0)
+        assert client.record(tmp_path / "r.qtm.gz") is None
+        await client.wait_frame()
+        client.record(None)
+    assert not (tmp_path / "r.qtm.gz").exists()
