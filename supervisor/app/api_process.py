@@ -26,12 +26,14 @@ from supervisor.ipc.client import FlightClient
 from supervisor.ipc.rendezvous import Rendezvous
 from supervisor.ipc.world_client import WorldClient
 from supervisor.logs.logging_setup import configure_logging
-from supervisor.runtime.cpu import title_process
+from supervisor.runtime.cpu import can_raise_priority, title_process
 
 log = logging.getLogger(__name__)
 
 # The flight process and the world it flies come first on a busy machine: requests and
-# WebSocket clients may wait, ticks and mocap frames may not.
+# WebSocket clients may wait, ticks and mocap frames may not. Where they run at real-time
+# priority (or a lower niceness) they come first anyway, and a niced API would only make
+# an abort wait for whatever else the machine runs: then the API is not niced.
 API_NICENESS = 5
 GO = "go"  # serve → API process: start serving (a spare waits for it)
 READY = "ready"  # API process → serve: serving
@@ -175,5 +177,6 @@ def run_api_process(config: Config, start: ApiStart, parent: Connection) -> None
     """Child-process entry of ``serve``."""
     configure_logging()
     title_process("spare")  # until told GO (ps: uavbar-supervisor spare)
-    os.nice(API_NICENESS)
+    if not can_raise_priority():
+        os.nice(API_NICENESS)
     asyncio.run(serve_api(config, start, parent))

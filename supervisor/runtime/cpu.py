@@ -11,11 +11,15 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import os
+import re
+import resource
+from pathlib import Path
 
 import setproctitle
 from threadpoolctl import threadpool_limits
 
 REALTIME_PRIORITY = 10
+CAP_SYS_NICE = 23
 PR_SET_NAME = 15
 
 
@@ -34,6 +38,19 @@ def raise_priority(priority: int = REALTIME_PRIORITY) -> str:
         return "niceness -5"
     except (PermissionError, OSError):
         return "normal priority (no permission for more)"
+
+
+def can_raise_priority() -> bool:
+    """Whether ``raise_priority`` gets more than normal priority in this process's place:
+    root or CAP_SYS_NICE (real-time or a lower niceness), or a real-time priority limit."""
+    if resource.getrlimit(resource.RLIMIT_RTPRIO)[0] > 0:
+        return True
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        return os.geteuid() == 0
+    match = re.search(r"^CapEff:\s*([0-9a-fA-F]+)$", status, re.MULTILINE)
+    return bool(match and int(match.group(1), 16) >> CAP_SYS_NICE & 1)
 
 
 def single_threaded_blas() -> None:
