@@ -126,6 +126,10 @@ class MpcSettings:
     rate_filter_weight: float = 0.0
     """The model's weight in the UAVs' body-rate estimates, in [0, 1)
     (``controllers.rate_filter``); 0 takes the fused rates as they come."""
+    rate_crossover_s: float = 0.0
+    """The time constant [s] below which the UAVs' body rates come from the attitude
+    estimate's change over each tick, not the fused rates (``RateCrossover``); 0 takes
+    the fused rates as they come."""
     integral_gain_per_s: float = 0.0
     """The gain of the integral action on the held reference's error [1/s]
     (``controllers.integral_action``); 0 is the paper's MPC, which leaves model errors as

@@ -220,6 +220,8 @@ class MpcSection(_Section):
     delay_s: Annotated[float, Field(ge=0.0, le=0.2, allow_inf_nan=False)] = 0.0
     # The model's weight in the UAVs' body-rate estimates (controllers/rate_filter.py).
     rate_filter_weight: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.0
+    # The UAVs' slow body rates from the attitude's change per tick (controllers/rate_filter.py).
+    rate_crossover_s: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
     # The integral action on the held reference's error (controllers/integral_action.py).
     integral_gain_per_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.0
     centralized: CentralizedWeights
@@ -249,6 +251,7 @@ class MpcSection(_Section):
             delay_s=self.delay_s,
             integral_gain_per_s=self.integral_gain_per_s,
             rate_filter_weight=self.rate_filter_weight,
+            rate_crossover_s=self.rate_crossover_s,
             reference_lead=ReferenceLead(*self.decentralized.reference_lead_s)
             if controller == "decentralized"
             else ReferenceLead(),

@@ -22,7 +22,7 @@ from controllers.equilibria import Reference, bar_equilibrium
 from controllers.integral_action import ReferenceIntegrator
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
 from controllers.params import BarSystemParams, Clock, MpcSettings
-from controllers.rate_filter import RateFilter
+from controllers.rate_filter import RateCrossover, RateFilter
 from controllers.uav_pd import UavPdGains, uav_pd_control
 from geometry.arrays import FloatArray
 from geometry.frames import rotation_from_euler_zyx
@@ -185,6 +185,7 @@ class FlightCore:
         self._last_u = np.zeros(BAR_INPUTS)
         self._delay = DelayPredictor(params, mpc_settings["centralized"].delay_s)
         self._rate_filter = RateFilter(self._delay, mpc_settings["centralized"].rate_filter_weight)
+        self._rate_crossover = RateCrossover(mpc_settings["centralized"].rate_crossover_s)
         self._mpc_state: FloatArray | None = None  # the state the last MPC step started from
         self._integral = ReferenceIntegrator(mpc_settings["centralized"].integral_gain_per_s)
         self._blend_from: FloatArray | None = None
@@ -497,6 +498,7 @@ class FlightCore:
                 c.reset()
             self._delay.reset()
             self._rate_filter.reset()
+            self._rate_crossover.reset()
             self._integral.reset()
 
     def _enter_phase(self, phase: Phase) -> None:
@@ -598,10 +600,12 @@ class FlightCore:
         # The estimate is the state the mocap latency ago; the MPC plans from now on.
         if self._model_predicts(x):
             measured_s = now_s - self._delay.delay_s
-            filtered = self._rate_filter.filtered(x, measured_s)
+            corrected = self._rate_crossover.corrected(x, measured_s)
+            filtered = self._rate_filter.filtered(corrected, measured_s)
             self._mpc_state = self._delay.predict(filtered, now_s)
         else:
             self._rate_filter.reset()
+            self._rate_crossover.reset()
             self._mpc_state = x
         shifted = self._integral.shifted(reference, x, now_s)
         plan = controller.step(self._mpc_state, shifted, now_s)

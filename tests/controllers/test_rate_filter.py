@@ -10,7 +10,9 @@ import pytest
 from controllers.delay import DelayPredictor
 from controllers.equilibria import Reference, bar_equilibrium
 from controllers.params import BarSystemParams
-from controllers.rate_filter import RATES, RateFilter
+from controllers.rate_filter import RATES, RateCrossover, RateFilter
+from geometry.frames import euler_zyx_from_rotation, rotation_from_euler_zyx
+from geometry.state import uav_slices
 
 TICK_S = 0.02
 
@@ -71,3 +73,52 @@ def test_a_weight_outside_zero_to_one_is_refused(
 ) -> None:
     with pytest.raises(ValueError, match="model weight"):
         RateFilter(DelayPredictor(lab_params, 0.0), weight)
+
+
+def _turning(k: int) -> np.ndarray:
+    """A 36-state whose UAVs turn at steady body rates (1: about x, 2: about y and z)."""
+    x = np.zeros(36)
+    for i, rates in ((1, np.array([0.3, 0.0, 0.0])), (2, np.array([0.0, -0.2, 0.5]))):
+        angle = np.linalg.norm(rates) * k * TICK_S
+        axis = rates / np.linalg.norm(rates)
+        K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        R = rotation_from_euler_zyx(0.1, -0.05, 3.0) @ (
+            np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+        )
+        x[uav_slices(i)[2]] = euler_zyx_from_rotation(R)
+        x[uav_slices(i)[3]] = rates
+    return x
+
+
+def test_the_crossover_passes_steady_rates_and_removes_a_slow_rate_error() -> None:
+    """Steady body rates (yaw crossing ±π included) pass unchanged; a constant error on
+    the fused rates, which the attitudes do not show, decays with the time constant."""
+    crossover = RateCrossover(0.05)
+    for k in range(10):
+        x = _turning(k)
+        assert np.allclose(crossover.corrected(x, k * TICK_S), x, atol=1e-9)
+    crossover.reset()
+    bias = 0.02
+    for k in range(30):
+        x = _turning(k)
+        biased = x.copy()
+        biased[RATES] += bias
+        out = crossover.corrected(biased, k * TICK_S)
+    assert np.abs(out[RATES] - x[RATES]).max() < 1e-3 * bias  # (1 - 0.02/0.07)^29 ≈ 6e-5
+    others = [j for j in range(36) if j not in RATES]
+    assert np.array_equal(out[others], biased[others])
+
+
+def test_the_crossover_off_passes_and_a_gap_restarts() -> None:
+    x = _turning(0)
+    assert np.array_equal(RateCrossover(0.0).corrected(x + 0.01, 0.0), x + 0.01)
+    crossover = RateCrossover(0.05)
+    crossover.corrected(_turning(0), 0.0)
+    later = _turning(1) + 0.01
+    assert np.array_equal(crossover.corrected(later, 5.0), later)  # nothing to difference
+
+
+@pytest.mark.parametrize("time_constant", [-0.1, math.nan])
+def test_a_negative_crossover_is_refused(time_constant: float) -> None:
+    with pytest.raises(ValueError, match="time constant"):
+        RateCrossover(time_constant)
