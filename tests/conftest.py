@@ -68,8 +68,8 @@ RERUN_REASON_LINES = 25  # of the first failure's report: its error and where
 def _on_the_wall_clock(item: pytest.Item) -> bool:
     path = Path(item.path)
     module = f"tests/{path.relative_to(TESTS).as_posix()}"
-    real_px4 = item.get_closest_marker("px4") is not None
-    return path.parent == TESTS or module in WALL_CLOCK_MODULES or real_px4
+    marked = any(item.get_closest_marker(name) is not None for name in ("px4", "wall_clock"))
+    return path.parent == TESTS or module in WALL_CLOCK_MODULES or marked
 
 
 # Before xdist's own hook, which turns the marker into the group it schedules by: hooks of

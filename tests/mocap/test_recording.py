@@ -84,6 +84,9 @@ async def replayed_to_our_client(
     return frames, server
 
 
+# Its timing is the point: measured one at a time with the end-to-end tests, not beside
+# them (a loaded run once held the replay for 8 ms a frame).
+@pytest.mark.wall_clock
 @pytest.mark.parametrize("transport", ["udp", "tcp"])
 async def test_our_client_reads_a_replay_as_recorded(transport: str) -> None:
     recording = await recorded(1.0)
