@@ -78,25 +78,53 @@ class Recording:
                 yield frame_from_packet(decoded, self.body_names, packet.arrival_s, self.component)
 
 
-def write_recording(recording: Recording, path: Path) -> None:
-    """Write ``recording`` to ``path`` (gzip JSON Lines; created or replaced)."""
+def header_line(
+    source: str,
+    protocol_version: str,
+    component: ComponentType,
+    body_names: tuple[str, ...],
+    parameters_xml: str,
+    started: str,
+    clock_start_s: float,
+) -> str:
+    """A recording's first line: where the stream came from and what was negotiated."""
     header = {
         "format": FORMAT,
         "version": VERSION,
-        "source": recording.source,
-        "protocol_version": recording.protocol_version,
-        "component": COMPONENT_NAMES[recording.component],
-        "body_names": list(recording.body_names),
-        "parameters_xml": recording.parameters_xml,
-        "started": recording.started,
-        "clock_start_s": recording.clock_start_s,
+        "source": source,
+        "protocol_version": protocol_version,
+        "component": COMPONENT_NAMES[component],
+        "body_names": list(body_names),
+        "parameters_xml": parameters_xml,
+        "started": started,
+        "clock_start_s": clock_start_s,
     }
+    return json.dumps(header) + "\n"
+
+
+def packet_line(arrival_s: float, data: bytes) -> str:
+    """One packet's line: its arrival time [s] since the recording started, and the packet."""
+    return json.dumps({"t_s": arrival_s, "packet": base64.b64encode(data).decode()}) + "\n"
+
+
+def write_recording(recording: Recording, path: Path) -> None:
+    """Write ``recording`` to ``path`` (gzip JSON Lines; created or replaced)."""
+    r = recording
     path.parent.mkdir(parents=True, exist_ok=True)
     with gzip.open(path, "wt", encoding="utf-8") as handle:
-        handle.write(json.dumps(header) + "\n")
-        for packet in recording.packets:
-            data = base64.b64encode(packet.data).decode()
-            handle.write(json.dumps({"t_s": packet.arrival_s, "packet": data}) + "\n")
+        handle.write(
+            header_line(
+                r.source,
+                r.protocol_version,
+                r.component,
+                r.body_names,
+                r.parameters_xml,
+                r.started,
+                r.clock_start_s,
+            )
+        )
+        for packet in r.packets:
+            handle.write(packet_line(packet.arrival_s, packet.data))
 
 
 def _header(line: str, path: Path) -> dict[str, Any]:

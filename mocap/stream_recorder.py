@@ -13,15 +13,13 @@ what is complete).
 
 from __future__ import annotations
 
-import base64
 import gzip
-import json
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from mocap.qtm_protocol import COMPONENT_NAMES, ComponentType
-from mocap.recording import FORMAT, VERSION
+from mocap.qtm_protocol import ComponentType
+from mocap.recording import header_line, packet_line
 
 FLUSH_PERIOD_S = 0.5
 
@@ -46,31 +44,25 @@ class StreamRecorder:
         self.path = path
         self.session = session
         self.clock_start_s = clock_start_s
-        self.packets = 0
         self._flushed_s = clock_start_s
         path.parent.mkdir(parents=True, exist_ok=True)
         self._handle = gzip.open(path, "wt", encoding="utf-8")  # noqa: SIM115 (closed by close)
-        header = {
-            "format": FORMAT,
-            "version": VERSION,
-            "source": session.source,
-            "protocol_version": session.protocol_version,
-            "component": COMPONENT_NAMES[session.component],
-            "body_names": list(session.body_names),
-            "parameters_xml": session.parameters_xml,
-            "started": datetime.now(UTC).isoformat(),
-            "clock_start_s": clock_start_s,
-        }
-        self._handle.write(json.dumps(header) + "\n")
+        self._handle.write(
+            header_line(
+                session.source,
+                session.protocol_version,
+                session.component,
+                session.body_names,
+                session.parameters_xml,
+                datetime.now(UTC).isoformat(),
+                clock_start_s,
+            )
+        )
         self._handle.flush()
 
     def packet(self, data: bytes, receive_time_s: float) -> None:
         """One datagram as received at ``receive_time_s``."""
-        packet = base64.b64encode(data).decode()
-        self._handle.write(
-            json.dumps({"t_s": receive_time_s - self.clock_start_s, "packet": packet}) + "\n"
-        )
-        self.packets += 1
+        self._handle.write(packet_line(receive_time_s - self.clock_start_s, data))
         if receive_time_s - self._flushed_s >= FLUSH_PERIOD_S:
             self.flush(receive_time_s)
 

@@ -5,9 +5,7 @@ view of the flight (sim/truth.py: worst tilt, fastest descent) is read from its 
 from __future__ import annotations
 
 import asyncio
-import os
 import re
-import signal
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +18,7 @@ from supervisor.app.config import CONFIG_DIR, load_config
 from supervisor.flight.safety import SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_faults_e2e import fault
-from tests.test_px4_sitl import OFFBOARD_LOSS_TIMEOUT_S
+from tests.test_px4_sitl import OFFBOARD_LOSS_TIMEOUT_S, freeze_flight_process
 from tests.test_service import TOKEN, flight_logs, ready
 
 pytestmark = pytest.mark.slow
@@ -88,20 +86,8 @@ async def test_a_frozen_flight_process_never_flips_a_uav_nor_commands_one_in_fai
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
         await service.take_off(http)
         await asyncio.sleep(2.0)
-        flight = service.child_pid("uavbar-flight")
-        os.kill(flight, signal.SIGSTOP)
-        await asyncio.sleep(freeze_s)
-        os.kill(flight, signal.SIGCONT)
-        if freeze_s < OFFBOARD_LOSS_TIMEOUT_S:
-            await asyncio.sleep(3.0)
-            status = await service.status(http)
-            assert status["mode"] == "hover" and status["streaming"], status["notices"]
-            assert (await http.post("/api/land")).status_code == 200
-        else:
-            status = await service.wait_for(
-                http, lambda s: s["mode"] in ("px4_landing", "disarmed"), 5.0, "handed over"
-            )
-            assert not status["streaming"]
+        status = await freeze_flight_process(service, http, freeze_s)
+        if freeze_s >= OFFBOARD_LOSS_TIMEOUT_S:
             # Frozen as long as PX4's offboard-loss timeout: every PX4 is in its failsafe,
             # whatever it last reported, and is handed over before anything is sent.
             said = " ".join(n["message"] for n in status["notices"])

@@ -14,7 +14,9 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+import httpx
 import numpy as np
 import pytest
 
@@ -35,6 +37,17 @@ OFFBOARD_LOSS_TIMEOUT_S = 0.5  # vehicles.offboard_loss_timeout_s, written as CO
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 GCS_PORT = 14550  # PX4 SITL's ground-station link, every instance
 GCS_LOCAL_PORT = 18570  # PX4's end of that link: 18570 + instance
+
+
+FAILSAFE_OVERRIDES = [
+    'sim.vehicles="px4_sitl"',
+    f"vehicles.offboard_loss_timeout_s={OFFBOARD_LOSS_TIMEOUT_S}",
+]
+
+
+def px4_event_catalog() -> EventCatalog:
+    """The firmware's own event texts, to read its EVENT messages."""
+    return EventCatalog.load(resolve_px4_dir(None) / "etc" / "extras" / "all_events.json.xz")
 
 
 @dataclass
@@ -79,6 +92,29 @@ async def watch_px4s(catalog: EventCatalog, watches: dict[int, Px4Watch], until:
         sock.close()
 
 
+async def freeze_flight_process(
+    service: RunningService, http: httpx.AsyncClient, freeze_s: float
+) -> dict[str, Any]:
+    """SIGSTOP the flight process for ``freeze_s``, then: below PX4's offboard-loss timeout
+    the hover goes on streaming (then a landing is asked for); beyond it the system is
+    handed to PX4 and streams nothing. The status that showed it."""
+    flight = service.child_pid("uavbar-flight")
+    os.kill(flight, signal.SIGSTOP)
+    await asyncio.sleep(freeze_s)
+    os.kill(flight, signal.SIGCONT)
+    if freeze_s < OFFBOARD_LOSS_TIMEOUT_S:
+        await asyncio.sleep(3.0)
+        status = await service.status(http)
+        assert status["mode"] == "hover" and status["streaming"], status["notices"]
+        assert (await http.post("/api/land")).status_code == 200
+        return status
+    status = await service.wait_for(
+        http, lambda s: s["mode"] in ("px4_landing", "disarmed"), 5.0, "handed over"
+    )
+    assert not status["streaming"]
+    return status
+
+
 def tilt_deg(quaternion: np.ndarray) -> float:
     return math.degrees(
         math.acos(float(np.clip(rotation_from_quaternion(quaternion)[2, 2], -1, 1)))
@@ -91,12 +127,11 @@ async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) ->
     + 0.2 s (its failsafe event), lands (AUTO.LAND) with no UAV tilting beyond 30°, and the
     API stays up and says why; serve starts the flight process again."""
     require_px4()
-    catalog = EventCatalog.load(resolve_px4_dir(None) / "etc" / "extras" / "all_events.json.xz")
-    overrides = [
-        'sim.vehicles="px4_sitl"',
-        f"vehicles.offboard_loss_timeout_s={OFFBOARD_LOSS_TIMEOUT_S}",
-    ]
-    async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
+    catalog = px4_event_catalog()
+    async with (
+        running_service(TOKEN, tmp_path, FAILSAFE_OVERRIDES) as service,
+        service.client() as http,
+    ):
         world = next(line for line in service.output if "simulated world: QTM" in line)
         qtm_host, qtm_port = re.search(r"QTM (\S+):(\d+)", world).groups()  # type: ignore[union-attr]
         await service.take_off(http)
@@ -144,32 +179,18 @@ async def test_a_frozen_flight_process_on_real_px4_never_flips_a_uav(
     AUTO.LAND), never goes back to offboard, and the resumed supervisor hands over and
     follows the landing. No UAV tilts beyond 30°, nothing falls faster than 1 m/s (truth)."""
     require_px4()
-    catalog = EventCatalog.load(resolve_px4_dir(None) / "etc" / "extras" / "all_events.json.xz")
-    overrides = [
-        'sim.vehicles="px4_sitl"',
-        f"vehicles.offboard_loss_timeout_s={OFFBOARD_LOSS_TIMEOUT_S}",
-    ]
-    async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
+    catalog = px4_event_catalog()
+    async with (
+        running_service(TOKEN, tmp_path, FAILSAFE_OVERRIDES) as service,
+        service.client() as http,
+    ):
         await service.take_off(http)
         await asyncio.sleep(3.0)
         watches = {1: Px4Watch(), 2: Px4Watch()}
         listener = asyncio.create_task(watch_px4s(catalog, watches, time.monotonic() + 30.0))
         await asyncio.sleep(1.0)
-        flight = service.child_pid("uavbar-flight")
-        os.kill(flight, signal.SIGSTOP)
         stopped = time.monotonic()
-        await asyncio.sleep(freeze_s)
-        os.kill(flight, signal.SIGCONT)
-        if freeze_s < OFFBOARD_LOSS_TIMEOUT_S:
-            await asyncio.sleep(3.0)
-            status = await service.status(http)
-            assert status["mode"] == "hover" and status["streaming"], status["notices"]
-            assert (await http.post("/api/land")).status_code == 200
-        else:
-            status = await service.wait_for(
-                http, lambda s: s["mode"] in ("px4_landing", "disarmed"), 5.0, "handed over"
-            )
-            assert not status["streaming"]
+        await freeze_flight_process(service, http, freeze_s)
         await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
         listener.cancel()
         with contextlib.suppress(asyncio.CancelledError):
