@@ -60,7 +60,10 @@ from supervisor.runtime.cpu import raise_priority, single_threaded_blas, title_p
 
 log = logging.getLogger(__name__)
 
-WORLD_PRIORITY = 5  # SCHED_FIFO, below the flight process's REALTIME_PRIORITY
+# The world's frames and PX4's sensor samples are punctual: a late one is a real gap to
+# whoever reads it. SCHED_FIFO below the flight process, whose ticks the simulated world
+# must never delay.
+WORLD_PRIORITY = 5
 
 
 def build_world(
@@ -194,11 +197,17 @@ async def run_world(
     on_ready: Callable[[dict[str, Any]], None],
     stop: asyncio.Event,
     listener: socket.socket | None = None,
+    priority: int | None = None,
 ) -> None:
     """Start the world, report its addresses, run it until ``stop`` is set (answering every
-    connection of the world channel to ``listener``, when given, meanwhile)."""
+    connection of the world channel to ``listener``, when given, meanwhile). With
+    ``priority``, the process takes that real-time priority once the world has started:
+    its start (the plant's compilation, PX4's boot) takes seconds of CPU that must not hold
+    a core from another ``serve``'s punctual processes."""
     world = build_world(config, qtm_port, vehicle_local_ports)
     addresses = await world.start()
+    if priority is not None:
+        log.info("world process: %s", raise_priority(priority))
     try:
         on_ready(
             {
@@ -232,15 +241,11 @@ def run_world_process(
     configure_logging()
     single_threaded_blas()
     title_process("world")
-    # The world's frames and PX4's sensor samples are punctual: a late one is a real gap to
-    # whoever reads it (PX4 children inherit this). Below the flight process, whose ticks
-    # the simulated world must never delay.
-    log.info("world process: %s", raise_priority(WORLD_PRIORITY))
 
     async def main() -> None:
         async with stop_event(ready) as stop:
             try:
-                await run_world(config, 0, (0, 0), ready.send, stop, listener)
+                await run_world(config, 0, (0, 0), ready.send, stop, listener, WORLD_PRIORITY)
             except Exception as error:
                 ready.send({"error": repr(error)})
                 raise
