@@ -43,7 +43,7 @@ browser:
 		echo "chromium is not installed: the dashboard browser tests will be skipped"
 
 # One pytest worker per core; the tests on the wall clock (serve, real PX4, the browser)
-# run one at a time in one worker (tests/conftest.py), the rest beside them.
+# run in two lanes, at most two at once (tests/conftest.py), the rest beside them.
 test: lint browser
 	$(BIN)/pytest -n auto --dist loadgroup
 

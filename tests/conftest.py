@@ -51,35 +51,48 @@ def resting_estimate(params: BarSystemParams) -> Estimate:
     return Estimate(x, 0.005, ())
 
 
-# Tests on the wall clock (serve and its real-time processes, real PX4, a browser): one at a
-# time, in one xdist group, so that only the rest of the suite shares the machine with them
-# (`make test` runs pytest-xdist with --dist loadgroup). End-to-end modules are the ones at
-# the top of tests/.
+# Tests on the wall clock (serve and its real-time processes, real PX4, a browser) run in two
+# lanes, each an xdist group that one worker takes in turn: at most two of them at once,
+# whatever the number of workers (`make test` runs pytest-xdist with --dist loadgroup). One
+# lane took 23 minutes of the suite's 23 on 2 cores; once the world and the flight process
+# took real-time priority only after their set-up, two `serve`s at once kept their ticks
+# and frames (docs/safety.md: the hovers beside the suite), and two lanes take 16. The
+# second lane (the browser, the OpenAPI contract, the wheel, signing) is about as long as
+# the first. End-to-end modules are the ones at the top of tests/.
 WALL_CLOCK_MODULES = {
     "tests/api/test_openapi_contract.py",
     "tests/sim/test_px4_mavsdk.py",
     "tests/supervisor/test_mavlink_px4.py",
     "tests/supervisor/test_foxglove_live.py",
 }
+SECOND_LANE_MODULES = {
+    "tests/test_dashboard.py",
+    "tests/api/test_openapi_contract.py",
+    "tests/test_wheel.py",
+    "tests/test_service_signing.py",
+}
 TESTS = Path(__file__).parent
 RERUN_REASON_LINES = 25  # of the first failure's report: its error and where
 
 
+def _module(item: pytest.Item) -> str:
+    return f"tests/{Path(item.path).relative_to(TESTS).as_posix()}"
+
+
 def _on_the_wall_clock(item: pytest.Item) -> bool:
-    path = Path(item.path)
-    module = f"tests/{path.relative_to(TESTS).as_posix()}"
     marked = any(item.get_closest_marker(name) is not None for name in ("px4", "wall_clock"))
-    return path.parent == TESTS or module in WALL_CLOCK_MODULES or marked
+    return Path(item.path).parent == TESTS or _module(item) in WALL_CLOCK_MODULES or marked
 
 
 # Before xdist's own hook, which turns the marker into the group it schedules by: hooks of
-# plugins registered later run first, and without tryfirst the marker came too late (both
-# workers then ran serve-based tests at once and starved each other).
+# plugins registered later run first, and without tryfirst the marker came too late (every
+# worker then ran serve-based tests at once).
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if _on_the_wall_clock(item):
-            item.add_marker(pytest.mark.xdist_group("wall_clock"))
+            lane = 2 if _module(item) in SECOND_LANE_MODULES else 1
+            item.add_marker(pytest.mark.xdist_group(f"wall_clock_{lane}"))
             # Run once more after a failure (pytest-rerunfailures; the summary counts reruns):
             # with the simulated QTM on this same computer, a loaded CI VM delays its frames
             # by 100 ms at times, which the supervisor rightly answers as blind (PX4 lands).
@@ -88,8 +101,8 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Under ``--dist loadgroup`` every wall-clock test must carry its group in its id (what
-    xdist schedules by): otherwise the workers run ``serve``-based tests at once, which
-    starve each other on two cores and fail as flaky."""
+    xdist schedules by): otherwise every worker may run a ``serve``-based test at once,
+    which on a machine with more cores than lanes starve each other and fail as flaky."""
     if not session.config.getoption("loadgroup", default=False):
         return
     ungrouped = [i.nodeid for i in session.items if _on_the_wall_clock(i) and "@" not in i.nodeid]
