@@ -48,7 +48,7 @@ from supervisor.flight.estimation import Estimate
 from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 from supervisor.flight.modes import Event, FlightModes, Mode, Transition
 from supervisor.flight.phases import Phase, next_phase
-from supervisor.flight.preflight import resting_pose_problems, takeoff_problem
+from supervisor.flight.preflight import resting_limits, resting_pose_problems, takeoff_problem
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
 from supervisor.flight.setpoints import (
@@ -231,7 +231,8 @@ class FlightCore:
             return "no fresh motion capture of all bodies"
         assert self._last_estimate is not None
         x = self._last_estimate.x
-        problems = resting_pose_problems(x, self.params)
+        limits = resting_limits(self.settings.landing_clearance_m)
+        problems = resting_pose_problems(x, self.params, limits)
         if not problems:
             height_m = self.settings.takeoff_height_m
             hover = takeoff_problem(x, self.params, height_m, self.arena, self.setpoint_bounds)

@@ -19,17 +19,29 @@ from supervisor.flight.feasibility import SetpointBounds
 from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 
 
+# Where a UAV comes to rest beyond where its landing aimed (drift in the last centimetres,
+# ground contact): a landing's own result must pass the next flight's pre-arm check.
+LANDED_SPREAD_M = 0.15
+
+
 @dataclass(frozen=True)
 class RestingLimits:
     """How far the measured pose may be from the resting pose a take-off starts from."""
 
-    uav_from_bar_end_m: float = 0.25  # horizontal, UAV centre to its cable's bar end
+    uav_from_bar_end_m: float  # horizontal, UAV centre to its cable's bar end
     bar_end_height_difference_m: float = 0.1
     uav_tilt_rad: float = math.radians(15.0)
 
 
+def resting_limits(landing_clearance_m: float) -> RestingLimits:
+    """The resting pose a take-off accepts: where a landing leaves the UAVs, each
+    ``landing_clearance_m`` outward of its bar end, with ``LANDED_SPREAD_M`` to spare (one
+    number for both, so that every landing leaves the system ready for the next flight)."""
+    return RestingLimits(uav_from_bar_end_m=landing_clearance_m + LANDED_SPREAD_M)
+
+
 def resting_pose_problems(
-    x: FloatArray, params: BarSystemParams, limits: RestingLimits = RestingLimits()
+    x: FloatArray, params: BarSystemParams, limits: RestingLimits
 ) -> list[str]:
     """What is wrong with the resting pose ``x`` (the 36-state), in words; empty: ready."""
     problems = []

@@ -50,10 +50,10 @@ def test_tracked_only_with_fresh_mocap_and_every_body_at_its_place() -> None:
     status = telemetry_of(resting)
     assert tracked_at(status, at_rest) and status["arm_blocked_by"] is None
     moved = resting.x.copy()
-    moved[uav_slices(2)[0]][1] += 0.3  # the old, landed pose
+    moved[uav_slices(2)[0]][1] += 0.6  # pushed aside, farther than a landing leaves it
     status = telemetry_of(Estimate(moved, 0.005, ()))
     assert not tracked_at(status, at_rest)
-    assert "UAV 2 stands 0.30 m from its bar end" in status["arm_blocked_by"]
+    assert "UAV 2 stands 0.60 m from its bar end" in status["arm_blocked_by"]
     stale = telemetry_of(Estimate(resting.x, 0.5, ("bar",)))
     assert not tracked_at(stale, at_rest)
     assert stale["arm_blocked_by"] == "no fresh motion capture of all bodies"

@@ -66,6 +66,38 @@ def test_takeoff_and_landing_end_disarmed_on_the_ground(sim_config: Config, tmp_
     assert np.all(np.asarray(log.inputs[-1]) == 0.0)
 
 
+@pytest.mark.parametrize("controller", ["centralized", "decentralized"])
+def test_flights_in_a_row_need_nobody_to_move_anything(
+    sim_config: Config, tmp_path: Path, controller: str
+) -> None:
+    """Land, abort, land: each arm is accepted from where the flight before left the UAVs
+    (each landing moves them ``landing_clearance_m`` outward of their bar ends)."""
+    result = run_scenario(
+        sim_config,
+        load_scenario("flights-in-a-row"),
+        controller,
+        log_path=tmp_path / "flight.jsonl",
+    )
+    assert result.completed, result.messages
+    assert result.truth.slack_events == 0
+    assert result.truth.min_tension_airborne_n > 1.0
+    assert result.truth.max_tilt_deg < 20.0
+    assert result.log_path is not None
+    log = read_flight_log(result.log_path)
+    modes = [mode for mode, _ in itertools.groupby(log.modes)]
+    assert modes.count("takeoff") == 3 and modes.count("abort") == 1, modes
+    # Between flights the UAVs stood farther from their bar ends than the first take-off's.
+    arms = sim_config.system.to_params().arms_m
+    starts = [i for i, (a, b) in enumerate(itertools.pairwise(log.modes)) if b == "takeoff" != a]
+    offsets = [
+        float(
+            np.linalg.norm((uav_position(log.state[i], 1) - bar_ends(log.state[i], arms)[0])[0:2])
+        )
+        for i in starts
+    ]
+    assert offsets[0] < 0.1 and min(offsets[1:]) > 0.2, offsets
+
+
 def test_the_same_seed_flies_the_same_flight(sim_config: Config, short_scenario: Path) -> None:
     scenario = load_scenario(str(short_scenario))
     paths = []
