@@ -50,6 +50,7 @@ from supervisor.flight.modes import Event, FlightModes, Mode, Transition
 from supervisor.flight.phases import Phase, next_phase
 from supervisor.flight.preflight import resting_limits, resting_pose_problems, takeoff_problem
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
+from supervisor.flight.refusals import Request, refusal
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
 from supervisor.flight.setpoints import (
     Arena,
@@ -214,12 +215,14 @@ class FlightCore:
                 "cannot take off without fresh motion capture of all bodies",
             )
         if event is Event.ARM and self.modes.mode is Mode.DISARMED:
-            refusal = self.not_ready_to_arm()
-            if refusal:
-                return Transition(False, self.modes.mode, f"cannot arm: {refusal}")
+            problems = self.not_ready_to_arm()
+            if problems:
+                return Transition(False, self.modes.mode, f"cannot arm: {problems}")
         before = self.modes.mode
         result = self.modes.handle(event, now_s)
-        if result.accepted and result.mode is not before:
+        if not result.accepted:
+            return Transition(False, before, refusal(before, Request(event.value)))
+        if result.mode is not before:
             self._entered(result.mode, now_s)
         return result
 
@@ -292,8 +295,7 @@ class FlightCore:
         feasibility, ``setpoint_bounds`` (raises ``SetpointError`` naming which one)."""
         mode = self.modes.mode
         if mode not in TAKES_SETPOINTS:
-            hint = "arm first" if mode is Mode.DISARMED else "nothing is flown until armed again"
-            raise SetpointRefusedError(f"setpoints are not taken in mode '{mode.value}': {hint}")
+            raise SetpointRefusedError(refusal(mode, Request.SETPOINT))
         self.queue.check_room(len(setpoints))
         validate_setpoints(setpoints, self.params, self.arena, self.setpoint_bounds)
         self.queue.extend(setpoints)

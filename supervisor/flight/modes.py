@@ -94,13 +94,6 @@ TRANSITIONS: dict[tuple[Mode, Event], Mode] = {
     (Mode.KILLED, Event.FAULT): Mode.KILLED,
 }
 
-_HINTS = {
-    Event.TAKEOFF: "arm first",
-    Event.LAND: "only an airborne system can land",
-    Event.DISARM: "land first (or kill in an emergency)",
-    Event.ARM: "only a disarmed system can be armed",
-}
-
 
 @dataclass(frozen=True)
 class Transition:
@@ -128,10 +121,7 @@ class FlightModes:
         else:
             target = TRANSITIONS.get((self.mode, event))
         if target is None:
-            hint = _HINTS.get(event)
-            reason = f"'{event.value}' is not allowed in mode '{self.mode.value}'" + (
-                f": {hint}" if hint else ""
-            )
+            reason = f"'{event.value}' is not allowed in mode '{self.mode.value}'"
             return Transition(False, self.mode, reason)
         if target is not self.mode:
             self.mode = target

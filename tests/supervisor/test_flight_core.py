@@ -142,7 +142,9 @@ def test_setpoints_are_taken_only_in_a_mode_that_flies_them() -> None:
     setpoint = Setpoint((0.3, 0.0, 1.0), 0.0, None, 0.0, 1.0)
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     core.tick(0.0, resting_estimate(params))
-    with pytest.raises(SetpointRefusedError, match="mode 'disarmed': arm first"):
+    with pytest.raises(
+        SetpointRefusedError, match=r"mode 'disarmed' \(disarmed on the ground\): arm first"
+    ):
         core.queue_setpoints([setpoint])
     assert core.request(Event.ARM, 0.02).accepted
     core.queue_setpoints([setpoint])
