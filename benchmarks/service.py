@@ -37,6 +37,11 @@ def all_connected(status: dict[str, Any]) -> bool:
     )
 
 
+def ready_to_arm(status: dict[str, Any]) -> bool:
+    """Nothing would refuse an arm now (``arm_blocked_by`` null)."""
+    return status["arm_blocked_by"] is None
+
+
 @dataclass
 class RunningService:
     """A started ``serve``: its base URL, token, and the process."""
@@ -76,7 +81,7 @@ class RunningService:
         failure, or a second one, is raised with the supervisor's notice."""
         retries_left = 1 if again_after_world_stall else 0
         while True:
-            await self.wait_for(http, all_connected, 60.0, "healthy mocap and both links")
+            await self.wait_for(http, ready_to_arm, 60.0, "nothing to block an arm")
             stalls_before = world_stalls(await self.status(http))
             for step in ("arm", "takeoff"):
                 response = await http.post(f"/api/{step}")

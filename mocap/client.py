@@ -177,6 +177,10 @@ class MocapSource(Protocol):
         when it starts with the next session."""
         ...
 
+    def recording_failure(self) -> OSError | None:
+        """The write error that ended the recording by itself (a full disk), else None."""
+        ...
+
 
 class FrameReceiver:
     """Sans-IO receiving side of the client: datagram bytes (or TCP packets) and receive
@@ -560,6 +564,10 @@ class QtmClient:
         self._recording_path = path
         self._start_recording()
         return self.receiver.sequence() if self._recorder is not None else None
+
+    def recording_failure(self) -> OSError | None:
+        """The write error that ended the recording by itself (a full disk), else None."""
+        return self._recorder.failure if self._recorder is not None else None
 
     def _start_recording(self) -> None:
         path, session = self._recording_path, self._stream_session

@@ -9,10 +9,15 @@ GIL against the tick for up to the interpreter's switch interval. Every
 ``FLUSH_PERIOD_S`` of receive time the stream is sync-flushed to the OS (about 80 µs), so
 a killed process leaves a file that reads up to the last flush (``read_recording`` keeps
 what is complete).
+
+Recording is best-effort: a write error (a full disk) ends the recording, never the
+receiving. The first error is kept as ``failure`` for the owner to report, and nothing more
+is written.
 """
 
 from __future__ import annotations
 
+import contextlib
 import gzip
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -38,39 +43,70 @@ class StreamSession:
 
 class StreamRecorder:
     """Appends every datagram given to ``packet`` to ``path``, timed from ``clock_start_s``
-    (on the receive times' clock)."""
+    (on the receive times' clock), until closed or a write fails (``failure``)."""
 
     def __init__(self, path: Path, session: StreamSession, clock_start_s: float) -> None:
         self.path = path
         self.session = session
         self.clock_start_s = clock_start_s
+        self.failure: OSError | None = None
         self._flushed_s = clock_start_s
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self._handle = gzip.open(path, "wt", encoding="utf-8")  # noqa: SIM115 (closed by close)
-        self._handle.write(
-            header_line(
-                session.source,
-                session.protocol_version,
-                session.component,
-                session.body_names,
-                session.parameters_xml,
-                datetime.now(UTC).isoformat(),
-                clock_start_s,
+        self._handle: gzip.GzipFile | None = None
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            # Binary: its close releases the file even when the last write fails.
+            self._handle = gzip.open(path, "wb")  # noqa: SIM115 (closed by close)
+            self._write(
+                header_line(
+                    session.source,
+                    session.protocol_version,
+                    session.component,
+                    session.body_names,
+                    session.parameters_xml,
+                    datetime.now(UTC).isoformat(),
+                    clock_start_s,
+                )
             )
-        )
-        self._handle.flush()
+            self._handle.flush()
+        except OSError as error:
+            self._fail(error)
 
     def packet(self, data: bytes, receive_time_s: float) -> None:
         """One datagram as received at ``receive_time_s``."""
-        self._handle.write(packet_line(receive_time_s - self.clock_start_s, data))
-        if receive_time_s - self._flushed_s >= FLUSH_PERIOD_S:
-            self.flush(receive_time_s)
+        if self._handle is None:
+            return
+        try:
+            self._write(packet_line(receive_time_s - self.clock_start_s, data))
+            if receive_time_s - self._flushed_s >= FLUSH_PERIOD_S:
+                self.flush(receive_time_s)
+        except OSError as error:
+            self._fail(error)
 
     def flush(self, now_s: float) -> None:
-        """Hand what was written to the OS, readable (a gzip sync flush)."""
-        self._handle.flush()
+        """Hand what was written to the OS, readable (a gzip sync flush); raises ``OSError``
+        when the write fails."""
+        if self._handle is not None:
+            self._handle.flush()
         self._flushed_s = now_s
 
     def close(self) -> None:
         """Write what is left and close the file."""
-        self._handle.close()
+        handle, self._handle = self._handle, None
+        if handle is None:
+            return
+        try:
+            handle.close()
+        except OSError as error:
+            self._fail(error)
+
+    def _write(self, line: str) -> None:
+        assert self._handle is not None
+        self._handle.write(line.encode())
+
+    def _fail(self, error: OSError) -> None:
+        """Stop for good on the first write error; the file keeps what was flushed."""
+        self.failure = self.failure or error
+        handle, self._handle = self._handle, None
+        if handle is not None:
+            with contextlib.suppress(OSError):
+                handle.close()

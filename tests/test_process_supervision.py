@@ -11,6 +11,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -84,9 +85,9 @@ async def test_a_killed_flight_process_leaves_the_vehicles_to_px4_and_arming_wai
     tmp_path: Path,
 ) -> None:
     """SIGKILL the flight process mid-hover: each PX4's offboard-loss failsafe lands its
-    UAV; the API stays up, ``serve`` starts the flight process again, which says why and
-    refuses to arm while a vehicle is still armed; once both have landed and disarmed,
-    arming is accepted again."""
+    UAV; the API stays up, ``serve`` starts the flight process again, which says why, shows
+    the vehicles as PX4's (``px4_landing``, never ``disarmed``) and refuses to arm until
+    both are heard landed and disarmed; then arming is accepted again."""
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
         await service.take_off(http)
         # From 1.6 m rather than 1 m: PX4's landing lasts longer than a restart of the flight
@@ -96,34 +97,39 @@ async def test_a_killed_flight_process_leaves_the_vehicles_to_px4_and_arming_wai
         await service.wait_for(http, reached(high), 40.0, "the bar at 1.6 m")
         await asyncio.sleep(2.0)
         os.kill(service.child_pid("uavbar-flight"), signal.SIGKILL)
-        status = await service.wait_for(
-            http,
-            lambda s: (
+
+        def back_never_saying_ground(s: dict[str, Any]) -> bool:
+            assert s["mode"] != "disarmed" and s["phase"] != "ground", (s["mode"], s["armed"])
+            return (
                 s["processes"]["flight"]["restarts"] == 1
                 and not s["stale"]
-                and all(u["px4_mode"] != "unknown" for u in s["uavs"])
-            ),  # a heartbeat heard
-            30.0,
-            "the flight process back",
+                and all(u["px4_mode"] != "unknown" for u in s["uavs"])  # a heartbeat heard
+            )
+
+        status = await service.wait_for(
+            http, back_never_saying_ground, 30.0, "the flight process back"
         )
         said = " ".join(n["message"] for n in status["notices"])
         assert "the flight process died (killed by SIGKILL)" in said, said
         refusals = 0
-        while any(status["armed"]) or status["mode"] != "disarmed":
-            assert status["mode"] == "disarmed", status["mode"]  # it flies nothing
-            assert not status["streaming"]
+        while status["mode"] != "disarmed":
+            # Never safer than the truth: PX4's, until both are heard disarmed.
+            assert status["mode"] == "px4_landing" and status["phase"] == "px4", status
+            assert not status["streaming"]  # it flies nothing
+            assert status["arm_blocked_by"], status
             refused = await http.post("/api/arm")
-            if refused.status_code == 200 and refusals:
-                break  # both disarmed between the status read and the request
+            if refused.status_code == 200:
+                break  # both heard disarmed between the status read and the request
             assert refused.status_code == 409, refused.text
-            # PX4 reports its failsafe landing up to a heartbeat late: any mode will do.
-            assert "is armed already (PX4 in " in refused.text, refused.text
+            assert "wait until both PX4s have landed and disarmed" in refused.text, refused.text
             refusals += 1
-            await asyncio.sleep(0.5)
+            await asyncio.sleep(0.2)
             status = await service.status(http)
         else:
-            assert refusals > 0, "the vehicles had disarmed before the flight process was back"
+            assert status["armed"] == [False, False], status
+            assert all(u["connected"] for u in status["uavs"]), status["uavs"]
             assert (await http.post("/api/arm")).status_code == 200
+        assert refusals > 0, "the vehicles had disarmed before the flight process was back"
         status = await service.status(http)
         assert all(u["position"][2] < 0.2 for u in status["uavs"]), status["uavs"]
         assert (await http.post("/api/disarm")).status_code == 200

@@ -28,7 +28,7 @@ const tickHistory = [];  // [page time s, tick count, missed deadlines], the las
 // What each mode that is not normal flight means, in words; level "bad" or "warn".
 const DANGER_MODES = {
   abort: { level: "bad", title: "ABORT", what: "coordinated landing: the bar is set down, then the vehicles disarm" },
-  px4_landing: { level: "bad", title: "PX4 LANDING", what: "each PX4 lands on its own; the supervisor sends nothing" },
+  px4_landing: { level: "bad", title: "PX4 LANDING", what: "the vehicles are PX4's until both are heard landed and disarmed (each lands on its own); the supervisor sends nothing" },
   killed: { level: "bad", title: "KILLED", what: "the motors were stopped" },
   landing: { level: "warn", title: "LANDING", what: "the bar is set down, then the vehicles disarm" },
 };
@@ -428,8 +428,11 @@ function render(t) {
   t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, ...uavLamp(uav, i + 1)));
   const tick = t.tick || {};
   lamp("lamp-tick", ...tickLamp(tick));
-  setText("arm-blocked", t.arm_blocked_by ? `Arm would be refused now: ${t.arm_blocked_by}` : "");
+  // In flight, arming is refused for being in flight: said only where arming is the question.
+  const armQuestion = ["disarmed", "px4_landing", "killed"].includes(t.mode) && t.arm_blocked_by;
+  setText("arm-blocked", armQuestion ? `Arm would be refused now: ${t.arm_blocked_by}` : "");
   document.getElementById("arm").classList.toggle("blocked", Boolean(t.arm_blocked_by));
+  setText("log-stopped", t.log_stopped ? `Flight log: ${t.log_stopped}` : "");
   // Greyed: what comes from a source that is not live (the mocap's estimate, a lost link).
   greyed(".mocap-value", !t.mocap.healthy);
   setText("bar-position", vec(t.bar.position));

@@ -72,6 +72,10 @@ class PlausibleSource:
         """Record the source's stream."""
         return self.source.record(path)
 
+    def recording_failure(self) -> OSError | None:
+        """The write error that ended the source's recording, else None."""
+        return self.source.recording_failure()
+
     def _take(self) -> None:
         for frame in self.source.drain():
             self._latest = self.fusion.plausible(frame)

@@ -104,6 +104,7 @@ class NoticeKind(StrEnum):
     VEHICLE = "vehicle"  # a vehicle refused what the supervisor asked (its own reason)
     BLIND = "blind"  # the mocap was lost: the vehicles were handed to PX4's own landing
     PROCESS = "process"  # serve restarted the flight process (it had died)
+    LOG = "log"  # the flight log stopped by itself (a write error); the flight goes on
 
 
 @dataclass(frozen=True)
@@ -217,7 +218,7 @@ class FlightCore:
         if event is Event.ARM and self.modes.mode is Mode.DISARMED:
             problems = self.not_ready_to_arm()
             if problems:
-                return Transition(False, self.modes.mode, f"cannot arm: {problems}")
+                return Transition(False, self.modes.mode, "cannot arm: " + "; ".join(problems))
         before = self.modes.mode
         result = self.modes.handle(event, now_s)
         if not result.accepted:
@@ -226,12 +227,12 @@ class FlightCore:
             self._entered(result.mode, now_s)
         return result
 
-    def not_ready_to_arm(self) -> str:
+    def not_ready_to_arm(self) -> list[str]:
         """Why the system must not arm (empty: it may): every body measured and fresh, the
         resting pose the take-off starts from, and the hover it goes to
-        (``supervisor.flight.preflight``)."""
+        (``supervisor.flight.preflight``), each with what to do."""
         if not self._mocap_fresh():
-            return "no fresh motion capture of all bodies"
+            return ["no fresh motion capture of all bodies: check that QTM tracks each body"]
         assert self._last_estimate is not None
         x = self._last_estimate.x
         limits = resting_limits(self.settings.landing_clearance_m)
@@ -240,7 +241,7 @@ class FlightCore:
             height_m = self.settings.takeoff_height_m
             hover = takeoff_problem(x, self.params, height_m, self.arena, self.setpoint_bounds)
             problems += [hover] if hover is not None else []
-        return "; ".join(problems)
+        return problems
 
     def _mocap_fresh(self) -> bool:
         """Every body measured, none older than the safety monitor's coasting limit: one
@@ -318,6 +319,16 @@ class FlightCore:
         return Notice(
             NoticeKind.BLIND, f"{why}: no longer streaming, each PX4 lands on its own (AUTO.LAND)"
         )
+
+    def await_vehicles(self, now_s: float) -> None:
+        """Begin with the vehicles in PX4's hands (``px4_landing``) until both are heard
+        disarmed (``vehicles_landed``): a flight process may start while they fly in their
+        failsafe landing (the one before it died), and until a heartbeat says otherwise the
+        status must not say they are disarmed on the ground. Only on the ground."""
+        if self.modes.mode is Mode.DISARMED:
+            self.modes = FlightModes(Mode.PX4_LANDING)
+            self.modes.changed_at_s = now_s
+            self._entered(Mode.PX4_LANDING, now_s)
 
     def vehicles_landed(self, now_s: float) -> None:
         """Both PX4s have landed and disarmed on their own: a PX4 landing is over."""

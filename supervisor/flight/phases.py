@@ -9,7 +9,8 @@
 * ``set_down`` — one vehicle's link lost with the bar hanging: the connected UAV's own
   (decentralized) MPC sets its bar end down while the lost one is left to its PX4's
   failsafe landing; then ``descend``.
-* ``px4`` — blind: each PX4 lands on its own (AUTO.LAND); the supervisor sends nothing.
+* ``px4`` — blind: each PX4 lands on its own (AUTO.LAND); the supervisor sends nothing. A
+  flight process also starts here, until both vehicles are heard disarmed.
 
 A landing or abort that starts while the UAVs still fly alone (``climb``) goes straight to
 ``descend``: the bar has not been lifted. A change outside ``PHASE_TRANSITIONS`` is a bug of
@@ -64,6 +65,7 @@ PHASE_TRANSITIONS: frozenset[tuple[Phase, Phase]] = frozenset(
         (Phase.SET_DOWN, Phase.DESCEND),
         *((phase, Phase.GROUND) for phase in _AIRBORNE),  # landed, or killed
         *((phase, Phase.PX4) for phase in _AIRBORNE),  # blind
+        (Phase.GROUND, Phase.PX4),  # a flight process starting: the vehicles not yet heard
         *((phase, phase) for phase in Phase),  # e.g. an abort during a landing
     }
 )

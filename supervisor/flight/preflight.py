@@ -18,7 +18,6 @@ from geometry.state import bar_ends, bar_position, bar_yaw, uav_euler, uav_posit
 from supervisor.flight.feasibility import SetpointBounds
 from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 
-
 # Where a UAV comes to rest beyond where its landing aimed (drift in the last centimetres,
 # ground contact): a landing's own result must pass the next flight's pre-arm check.
 LANDED_SPREAD_M = 0.15
@@ -51,15 +50,17 @@ def resting_pose_problems(
         if offset > limits.uav_from_bar_end_m:
             problems.append(
                 f"UAV {i} stands {offset:.2f} m from its bar end "
-                f"(at most {limits.uav_from_bar_end_m:.2f} m)"
+                f"(at most {limits.uav_from_bar_end_m:.2f} m): stand it by its bar end"
             )
         z_axis_z = float(rotation_from_euler_zyx(*uav_euler(x, i))[2, 2])
         tilt = math.acos(max(-1.0, min(1.0, z_axis_z)))
         if tilt > limits.uav_tilt_rad:
-            problems.append(f"UAV {i} is tilted {math.degrees(tilt):.0f}°")
+            problems.append(f"UAV {i} is tilted {math.degrees(tilt):.0f}°: set it upright")
     rise = abs(float(ends[0][2] - ends[1][2]))
     if rise > limits.bar_end_height_difference_m:
-        problems.append(f"the bar is not level (its ends {rise:.2f} m apart in height)")
+        problems.append(
+            f"the bar is not level (its ends {rise:.2f} m apart in height): lay it flat"
+        )
     return problems
 
 

@@ -25,9 +25,9 @@ from geometry.state import (
     uav_euler,
     uav_position,
 )
+from supervisor.flight.arming import arm_blockers
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
-from supervisor.flight.modes import Mode
 from supervisor.flight.operator_requests import setpoint_json
 from supervisor.vehicles.types import VehicleView
 
@@ -56,8 +56,10 @@ def build_telemetry(
     mocap: MocapView,
     tick_summary: dict[str, float | int],
     now_s: float,
+    log_problem: str | None = None,
 ) -> dict[str, Any]:
-    """The status/telemetry message at ``now_s`` (monotonic seconds of the flight process)."""
+    """The status/telemetry message at ``now_s`` (monotonic seconds of the flight process);
+    ``log_problem``: why no flight log could be written now (it blocks arming)."""
     x = estimate.x if estimate is not None else np.full(BAR_STATES, math.nan)
     reference = last_tick.reference if last_tick is not None else None
     plan = last_tick.plan if last_tick is not None else None
@@ -84,9 +86,7 @@ def build_telemetry(
         "phase": core.phase,
         "controller": core.controller,
         "armed": [v.armed for v in vehicles],
-        "arm_blocked_by": (core.not_ready_to_arm() or None)
-        if core.modes.mode is Mode.DISARMED
-        else None,
+        "arm_blocked_by": "; ".join(arm_blockers(core, vehicles, log_problem)) or None,
         "arena": {"min": list(core.arena.min_m), "max": list(core.arena.max_m)},
         "bar": {
             "position": _floats(bar_position(x)),

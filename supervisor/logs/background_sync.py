@@ -7,6 +7,7 @@ survives a killed process) and asks this thread to sync (what survives a power c
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 from pathlib import Path
@@ -31,11 +32,18 @@ class BackgroundSync:
             self._wanted.clear()
             if self._stopping:
                 return
-            os.fsync(self._fd)
+            with contextlib.suppress(OSError):  # the writer's own writes report the disk
+                os.fsync(self._fd)
 
     def close(self) -> None:
+        """Stop the thread, sync once more and release the file (raises ``OSError`` when
+        that last sync fails; the file is released all the same). Once only."""
+        if self._stopping:
+            return
         self._stopping = True
         self._wanted.set()
         self._thread.join()
-        os.fsync(self._fd)
-        os.close(self._fd)
+        try:
+            os.fsync(self._fd)
+        finally:
+            os.close(self._fd)

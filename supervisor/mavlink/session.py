@@ -441,7 +441,9 @@ class VehicleSession:
         return px4_mode_name(self.custom_mode)
 
     def view(self, now_s: float) -> VehicleView:
-        connected = self.connected(now_s)
+        # Before its first heartbeat a vehicle's arming state is not known: not connected
+        # for whoever reads the view (the status, the arming), however much else it sent.
+        connected = self.connected(now_s) and math.isfinite(self._last_heartbeat_s)
         return VehicleView(
             connected=connected,
             armed=self.armed and connected,

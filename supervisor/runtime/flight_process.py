@@ -14,6 +14,7 @@ disarmed; when the control loop stops, setpoints stop.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import logging
 import math
@@ -30,8 +31,9 @@ import numpy as np
 
 from mocap.client import MocapSource
 from mocap.qtm_protocol import MocapFrame
+from supervisor.flight.arming import arm_blockers
 from supervisor.flight.core import FlightCore, Notice, NoticeKind, TickResult
-from supervisor.flight.modes import TRANSITIONS, Event, Mode
+from supervisor.flight.modes import Event, Mode
 from supervisor.flight.operator_requests import (
     ModeRequest,
     Outcome,
@@ -43,12 +45,13 @@ from supervisor.flight.telemetry import MocapView, build_telemetry
 from supervisor.ipc.channel import Channel, ChannelClosedError, ChannelServer
 from supervisor.ipc.messages import ReplyMessage, TelemetryMessage
 from supervisor.ipc.server import HELLO_TIMEOUT_S, Admission, admit, refusal, serve_requests
+from supervisor.logs.best_effort import BestEffortLog, write_error_words
 from supervisor.logs.flight_log import (
     LogFormat,
     mocap_recording_path,
     new_log_path,
-    open_flight_log,
 )
+from supervisor.logs.free_space import FreeSpaceFloor
 from supervisor.runtime.phase_lock import MocapPhaseLock
 from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
 from supervisor.runtime.tick_driver import TickDriver
@@ -72,6 +75,7 @@ FULL_COLLECTION_TICKS = 250  # a full garbage collection every 5 s, between two 
 # was stalled. The frames that came meanwhile are read before anything is decided: a
 # 100 ms stall of a busy computer otherwise looked like 100 ms of lost mocap.
 RESUME_GAP_S = 0.06
+LOG_SPACE_PERIOD_S = 2.0
 RESUME_READ_S = 0.06  # then this long to read the backlog (frames arrive one per read)
 PX4_OF_LOSS_T_S = 1.0  # COM_OF_LOSS_T's default, when the setup does not set it
 OFFBOARD_LOSS_MARGIN_S = 0.05
@@ -91,6 +95,7 @@ class FlightSettings:
     # PX4 parameters every vehicle must hold before it may arm (its offboard-loss failsafe:
     # COM_OF_LOSS_T, COM_OBL_RC_ACT), read back from each vehicle at every arm.
     failsafe_parameters: Mapping[str, float] = field(default_factory=dict)
+    min_free_log_mb: float = 0.0  # arming is refused with less free in the log folder
 
 
 def _percentiles(values: deque[float]) -> tuple[float, float]:
@@ -119,6 +124,13 @@ class FlightProcess:
         self.mocap = mocap
         self.links = links
         self.log_folder = log_folder
+        self._log_space = (
+            FreeSpaceFloor(log_folder, settings.min_free_log_mb) if log_folder else None
+        )
+        self._log_problem: str | None = None  # why no log could be written, last looked
+        self.log_stopped: str | None = None
+        """Why the last flight's log stopped by itself (a write error), for the status."""
+        self._flight_log: BestEffortLog | None = None
         self.clock = clock
         self.proof_of_life_s = proof_of_life_s
         self.driver = driver
@@ -130,6 +142,7 @@ class FlightProcess:
         self._stopping = asyncio.Event()
         self._on_ground = asyncio.Event()
         self._sequences: set[asyncio.Task[None]] = set()
+        self._telemetry_channels: set[Channel] = set()
         self._mocap_rate = (0, clock(), 0.0)  # frames, since, rate
         self._frames_since_tick = 0
         self._last_tick_s = math.inf  # the start of the last tick (none yet)
@@ -145,18 +158,28 @@ class FlightProcess:
     async def run(self, listener: socket.socket, token: str) -> None:
         """Fly until ``stop``, answering every connection to ``listener`` that presents
         ``token`` (or asks only to abort) meanwhile."""
+        self.core.await_vehicles(self.clock())
         server = ChannelServer()
         await server.start(listener, Channel, lambda c: self._connection(c, token))
         try:
             async with asyncio.TaskGroup() as group:
                 control = group.create_task(self._control_loop(), name="control-loop")
+                watch = group.create_task(self._watch_log_space(), name="log-space")
                 await self._stopping.wait()
                 await self._land_if_airborne()
                 control.cancel()
+                watch.cancel()
         finally:
             await server.close()
             self.streaming = False
             self._close_log()
+
+    async def _watch_log_space(self) -> None:
+        """Look at the log folder's free space every ``LOG_SPACE_PERIOD_S`` (in a thread:
+        a statvfs of a stuck network folder must not hold the loop), for the status."""
+        while self._log_space is not None:
+            self._log_problem = await asyncio.to_thread(self._log_space.problem)
+            await asyncio.sleep(LOG_SPACE_PERIOD_S)
 
     async def _connection(self, channel: Channel, token: str) -> None:
         """One connection: its hello, then its requests (and, for the API's commands
@@ -173,16 +196,16 @@ class FlightProcess:
                 log.warning("connection refused: %s", admission)
                 return
             log.info("%s connection opened", admission.role)
-            publisher = (
-                asyncio.create_task(self._publish(channel))
-                if admission.role == "commands"
-                else None
-            )
+            publisher = None
+            if admission.role == "commands":
+                publisher = asyncio.create_task(self._publish(channel))
+                self._telemetry_channels.add(channel)
             try:
                 await serve_requests(channel, lambda r: self._admitted(admission, r))
             finally:
                 if publisher is not None:
                     publisher.cancel()
+                self._telemetry_channels.discard(channel)
                 log.info("%s connection closed", admission.role)
         except (ChannelClosedError, TimeoutError):
             return
@@ -191,7 +214,14 @@ class FlightProcess:
         refused = refusal(admission, request)
         if refused is not None:
             return Reply(outcome=Outcome.REFUSED, reason=refused)
-        return await self.handle(request)
+        reply = await self.handle(request)
+        # The status the request left, ahead of its reply on the API's commands connection:
+        # a status read, or a ``wait_s``, after the reply never sees the state before it.
+        status = TelemetryMessage(status=self.telemetry())
+        for channel in self._telemetry_channels:
+            with contextlib.suppress(ChannelClosedError):
+                channel.send(status)
+        return reply
 
     def stop(self) -> None:
         """Land (if airborne), disarm, then return from ``run``."""
@@ -307,6 +337,7 @@ class FlightProcess:
             mpc_prepared=self.core.mpc_was_prepared,
             repeats_refused=repeats_refused,
         )
+        self._stop_log_after_write_error(started)
 
     def _count_frames(self, new_frames: int, now_s: float) -> None:
         frames, since, rate = self._mocap_rate
@@ -441,25 +472,18 @@ class FlightProcess:
         return reply
 
     async def _arm(self, request: ModeRequest) -> Reply:
-        if (self.core.modes.mode, Event.ARM) not in TRANSITIONS or self.core.not_ready_to_arm():
-            # The table's or the pre-arm checks' refusal, before any vehicle is armed.
-            return handle_request(self.core, request, self.clock())
-        # Armed although the supervisor is on the ground: in PX4's own failsafe landing
-        # (after a flight process died) or armed by someone else; not the supervisor's to fly.
+        if self._log_space is not None:
+            self._log_problem = await asyncio.to_thread(self._log_space.problem)
         views = [link.view() for link in self.links]
-        failures = [
-            f"UAV {i}'s arming state is not known yet (no heartbeat): try again in a second"
-            for i, view in enumerate(views, start=1)
-            if view.px4_mode == "unknown"
-        ] + [
-            f"UAV {i} is armed already (PX4 in {view.px4_mode}): wait until it has landed and "
-            "disarmed"
-            for i, view in enumerate(views, start=1)
-            if view.armed
-        ]
+        blockers = arm_blockers(self.core, views, self._log_problem)
+        if blockers:  # before any vehicle is armed
+            return Reply(
+                outcome=Outcome.REFUSED,
+                reason="cannot arm: " + "; ".join(blockers),
+                data={"mode": self.core.modes.mode.value},
+            )
         expected = self.settings.failsafe_parameters
-        if expected and not failures:
-            failures = await check_failsafe_parameters(self.links, expected)
+        failures = await check_failsafe_parameters(self.links, expected) if expected else []
         if not failures:
             self.streaming = True  # idle setpoints: PX4's proof of life before offboard
             failures = await arm_for_offboard(self.links, self.proof_of_life_s)
@@ -484,6 +508,7 @@ class FlightProcess:
         (supervisor/logs/mocap_replay.py). Nothing is waiting unfused when the recording
         starts, and nothing arrives until this returns (one turn of the loop)."""
         self._close_log()
+        self.log_stopped = None
         self._fuse(self.mocap.drain())
         path = new_log_path(folder, datetime.now(UTC), f".{self.settings.log_format}")
         sequence = self.mocap.record(mocap_recording_path(path))
@@ -498,13 +523,31 @@ class FlightProcess:
                 "receiver": sequence,
                 "fusion": self.driver.fusion.snapshot(),
             }
-        self.driver.log = open_flight_log(path, header)
+        self._flight_log = self.driver.log = BestEffortLog(path, header)
+        log.info("flight log %s", path)
+        self._stop_log_after_write_error(self.clock())
 
     def _close_log(self) -> None:
-        if self.driver.log is not None:
+        if self._flight_log is not None:
             self.mocap.record(None)
-            self.driver.log.close()
-            self.driver.log = None
+            self._flight_log.close()
+            self._flight_log = self.driver.log = None
+
+    def _stop_log_after_write_error(self, now_s: float) -> None:
+        """A write error of the log or the mocap recording (a full disk) ends both, said in
+        a notice and the status; the flight goes on: logging is best-effort."""
+        flight_log = self._flight_log
+        if flight_log is None:
+            return
+        failure = flight_log.failure or self.mocap.recording_failure()
+        if failure is None:
+            return
+        self._close_log()
+        words = write_error_words(failure, flight_log.path.parent)
+        self.log_stopped = f"{words}: no longer recording"
+        log.error("%s (%s): the flight goes on", self.log_stopped, flight_log.path)
+        text = f"{self.log_stopped} ({flight_log.path.name}); the flight goes on"
+        self.core.notices.append((now_s, Notice(NoticeKind.LOG, text)))
 
     # ---- telemetry ----------------------------------------------------------------------------
     def telemetry(self) -> dict[str, Any]:
@@ -527,9 +570,11 @@ class FlightProcess:
             mocap,
             summary,
             self.clock(),
+            self._log_problem,
         )
         message["streaming"] = self.streaming
-        message["log"] = str(self.driver.log.path) if self.driver.log is not None else None
+        message["log"] = str(self._flight_log.path) if self._flight_log is not None else None
+        message["log_stopped"] = self.log_stopped
         live = self.driver.live
         message["live_view"] = {"sdk_port": live.port} if live is not None else None
         return message

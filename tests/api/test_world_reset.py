@@ -56,7 +56,7 @@ def test_tracked_only_with_fresh_mocap_and_every_body_at_its_place() -> None:
     assert "UAV 2 stands 0.60 m from its bar end" in status["arm_blocked_by"]
     stale = telemetry_of(Estimate(resting.x, 0.5, ("bar",)))
     assert not tracked_at(stale, at_rest)
-    assert stale["arm_blocked_by"] == "no fresh motion capture of all bodies"
+    assert stale["arm_blocked_by"].startswith("no fresh motion capture of all bodies")
 
 
 async def test_the_reset_answers_once_the_telemetry_tracks_the_resting_pose(

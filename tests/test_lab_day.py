@@ -1,0 +1,135 @@
+"""A lab's day on one ``serve`` of the embedded simulator, over HTTP: flights in a row with
+nothing moved between them, an arm the moment nothing blocks it, and a log disk that fills
+up in flight."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from benchmarks.service import RunningService, running_service
+from supervisor.logs.flight_log import read_flight_log
+
+TOKEN = "lab-day-token-0123456789"
+NEXT_ARM_WITHIN_S = 20.0
+DISARMED_WITHIN_S = 90.0
+
+
+async def arm_the_moment_nothing_blocks_it(http: httpx.AsyncClient) -> dict[str, Any]:
+    """Poll the status fast and arm at the first answer whose ``arm_blocked_by`` is null:
+    that arm must be taken."""
+    deadline = time.monotonic() + NEXT_ARM_WITHIN_S
+    status: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        response = await http.get("/api/status")  # 503 until the flight process speaks
+        status = response.json() if response.status_code == 200 else {}
+        if status and status["arm_blocked_by"] is None:
+            armed = await http.post("/api/arm")
+            assert armed.status_code == 200, (armed.text, status["mode"], status["uavs"])
+            assert armed.json()["mode"] == "armed"
+            return status
+        await asyncio.sleep(0.02)
+    raise AssertionError(f"arm still blocked after {NEXT_ARM_WITHIN_S} s: {status}")
+
+
+async def take_off_at_once(http: httpx.AsyncClient) -> None:
+    """Take-off sent right after the arm's answer, waiting for the hover: the status the
+    wait reads is the one the arm left."""
+    response = await http.post("/api/takeoff?wait_s=40", timeout=50.0)
+    assert response.status_code == 200, response.text
+    assert response.json()["outcome"]["reached"]
+
+
+async def disarmed(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+    return await service.wait_for(
+        http,
+        lambda s: s["mode"] == "disarmed" and s["armed"] == [False, False],
+        DISARMED_WITHIN_S,
+        "landed and disarmed",
+    )
+
+
+@pytest.mark.slow
+async def test_land_abort_land_in_a_row_with_nothing_moved(tmp_path: Path) -> None:
+    """From serve's start: arm the moment nothing blocks it, take off at once; land, then
+    the same with an abort, then again a landing. No reset, nothing moved, and the status
+    never says disarmed while a vehicle is armed."""
+    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
+        for ending in ("land", "abort", "land"):
+            ready = await arm_the_moment_nothing_blocks_it(http)
+            assert ready["mode"] == "disarmed"
+            await take_off_at_once(http)
+            status = await service.status(http)
+            assert status["mode"] == "hover", status["notices"][-1:]
+            assert (await http.post(f"/api/{ending}")).status_code == 200
+            status = await disarmed(service, http)
+    flown = flights_flown(tmp_path)
+    assert [("abort" in modes, "landing" in modes) for modes in flown] == [
+        (False, True),
+        (True, False),
+        (False, True),
+    ], flown
+
+
+def flights_flown(folder: Path) -> list[set[str]]:
+    """The modes of each flight log in ``folder``, oldest first."""
+    return [set(read_flight_log(path).modes) for path in sorted(folder.glob("flight-*.mcap"))]
+
+
+@pytest.fixture
+def tiny_log_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 1 MiB tmpfs, nearly full (what is left fills within seconds of flight)."""
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root (CI runs as root)")
+    folder = tmp_path / f"tiny-{uuid.uuid4().hex[:8]}"
+    folder.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1M", "tmpfs", str(folder)], check=True)
+    try:
+        free_bytes = os.statvfs(folder).f_bavail * os.statvfs(folder).f_frsize
+        (folder / "filler").write_bytes(b"\0" * (free_bytes - 160_000))
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], check=False)
+
+
+@pytest.mark.slow
+async def test_a_log_disk_that_fills_in_flight_stops_the_log_not_the_flight(
+    tiny_log_disk: Path,
+) -> None:
+    overrides = ["log.min_free_mb=0.1"]
+    async with (
+        running_service(TOKEN, tiny_log_disk, overrides) as service,
+        service.client() as http,
+    ):
+        await service.take_off(http)
+        pids = {name: p["pid"] for name, p in (await service.status(http))["processes"].items()}
+        status = await service.wait_for(
+            http, lambda s: s["log_stopped"] is not None, 60.0, "the log to stop"
+        )
+        assert status["log_stopped"].startswith("log disk full"), status["log_stopped"]
+        assert status["log"] is None
+        assert any(n["message"].startswith("log: log disk full") for n in status["notices"])
+        await asyncio.sleep(3.0)  # the hover goes on without its log
+        status = await service.status(http)
+        assert status["mode"] == "hover" and status["mocap"]["healthy"], status["notices"]
+        after = {name: p["pid"] for name, p in status["processes"].items()}
+        assert after == pids  # no process died or restarted
+        landed = await http.post("/api/land?wait_s=90", timeout=100.0)
+        assert landed.status_code == 200, landed.text
+        blocked = await service.wait_for(
+            http, lambda s: "MB free" in (s["arm_blocked_by"] or ""), 10.0, "arming blocked"
+        )
+        assert "MB free (at least 0.1 MB" in blocked["arm_blocked_by"]
+        refused = await http.post("/api/arm")
+        assert refused.status_code == 409 and "MB free" in refused.text
+    said = "\n".join(service.output)
+    assert "Traceback" not in said, said[-3000:]
