@@ -52,7 +52,8 @@ async def subscriber(service: RunningService, stop: asyncio.Event) -> int:
         await asyncio.sleep(0.1)
     received = 0
     protocol = websockets.Subprotocol("foxglove.sdk.v1")
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[protocol]) as socket:
+    url = f"ws://127.0.0.1:{port}/?token={service.token}"
+    async with websockets.connect(url, subprotocols=[protocol]) as socket:
         while not stop.is_set():
             try:
                 message = await asyncio.wait_for(socket.recv(), 0.5)

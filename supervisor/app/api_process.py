@@ -129,7 +129,7 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
         processes=table.current,
     )
     http = HttpServer(app, start.http_socket, api_tls(config))
-    gateway = await _foxglove_gateway(config, flight)
+    gateway = await _foxglove_gateway(config, flight, start.token)
     async with asyncio.TaskGroup() as group:
         server = group.create_task(http.serve())
         links = [group.create_task(flight.stay_connected(start.rendezvous.flight, start.token))]
@@ -150,9 +150,11 @@ async def _serve(config: Config, start: ApiStart, table: ProcessTable, stop: asy
         await world.close()
 
 
-async def _foxglove_gateway(config: Config, flight: FlightClient) -> FoxgloveGateway | None:
-    """The live Foxglove view's public port (``FoxgloveSection``), unless off or taken (the
-    API serves on without it, and says so)."""
+async def _foxglove_gateway(
+    config: Config, flight: FlightClient, token: str
+) -> FoxgloveGateway | None:
+    """The live Foxglove view's public port (``FoxgloveSection``) for clients with the API
+    ``token``, unless off or taken (the API serves on without it, and says so)."""
     if not config.foxglove.enabled:
         return None
     host, port = config.foxglove.bind_host(config.api.host), config.foxglove.port
@@ -161,14 +163,17 @@ async def _foxglove_gateway(config: Config, flight: FlightClient) -> FoxgloveGat
         view = (flight.latest or {}).get("live_view")
         return int(view["sdk_port"]) if isinstance(view, dict) else None
 
-    gateway = FoxgloveGateway(sdk_port)
+    gateway = FoxgloveGateway(sdk_port, api_policy(config, token))
     try:
         await gateway.start(host, port)
     except OSError as error:
         log.warning("Foxglove view off: cannot serve on %s:%d (%s)", host, port, error)
         return None
     log.info(
-        "Foxglove view: ws://%s:%d (foxglove.websocket.v1 or foxglove.sdk.v1)", host, gateway.port
+        "Foxglove view: ws://%s:%d (foxglove.websocket.v1 or foxglove.sdk.v1; the API token in "
+        "the URL: /?token=TOKEN)",
+        host,
+        gateway.port,
     )
     return gateway
 

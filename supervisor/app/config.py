@@ -574,22 +574,26 @@ class LogSection(_Section):
     format: Literal["jsonl", "mcap"] = "mcap"
     """``jsonl`` (JSON Lines, one line per tick) or ``mcap`` (Foxglove's and our own
     channels: docs/flight-logs.md)."""
+    min_free_mb: NonNegativeFloat = 100.0
+    """Arming is refused while the log folder has less free space than this [MB] (a
+    flight's log and mocap recording take a few MB a minute). Logging is best-effort: a
+    disk that fills in flight stops the log, never the flight."""
 
 
 class FoxgloveSection(_Section):
     """The live Foxglove view: a WebSocket server (foxglove.websocket.v1 or
-    foxglove.sdk.v1) on the API's host streaming the flight log's channels
-    (docs/flight-logs.md)."""
+    foxglove.sdk.v1) on the API's host streaming the flight log's channels to clients with
+    the API token, ``ws://HOST:PORT/?token=TOKEN`` (docs/flight-logs.md)."""
 
     enabled: bool = False
-    """Off unless asked for: the protocol has no token and no origin check, so while it
-    runs any web page open on this computer can read the arena (docs/flight-logs.md)."""
+    """Off unless asked for: while a client is subscribed, each tick builds, seals and
+    queues its messages (docs/flight-logs.md)."""
     port: Annotated[int, Field(ge=0, le=65535)] = 8765
     """0: a free port, logged at start."""
     host: str | None = None
     """The interface to listen on. None: the API's host while that is loopback, else
-    loopback all the same — the protocol has no token, so anyone who reaches the port reads
-    the arena; name an interface here to open it to a network on purpose."""
+    loopback all the same — the view has no TLS, so its token would cross the network in
+    clear; name an interface here to open it to a network on purpose."""
 
     def bind_host(self, api_host: str) -> str:
         """Where the view listens, given the API's host."""

@@ -26,6 +26,7 @@ from supervisor.app.config import Config, host_port
 from supervisor.flight.core import Notice, NoticeKind
 from supervisor.logs.foxglove_live import FoxgloveLiveView
 from supervisor.logs.logging_setup import queued_logging
+from supervisor.logs.view_seal import view_keys
 from supervisor.mavlink.link import MavlinkLink
 from supervisor.runtime.cpu import raise_priority, single_threaded_blas, title_process
 from supervisor.runtime.flight_process import FlightProcess, FlightSettings
@@ -86,6 +87,7 @@ async def fly(
                         "COM_OF_LOSS_T": config.vehicles.offboard_loss_timeout_s,
                         "COM_OBL_RC_ACT": OFFBOARD_LOSS_LAND,
                     },
+                    min_free_log_mb=config.log.min_free_mb,
                 ),
                 TickDriver(
                     flight_core_from_config(config, clock=time.perf_counter),
@@ -103,7 +105,7 @@ async def fly(
             loop.add_signal_handler(signal.SIGTERM, process.stop)
             loop.add_signal_handler(signal.SIGINT, lambda: None)  # serve decides
             loop.add_reader(parent.fileno(), process.stop)  # serve is gone
-            process.driver.live = _live_view(config)
+            process.driver.live = _live_view(config, start.token)
             # Real-time only now that the MPC is built: seconds of set-up at SCHED_FIFO
             # would hold a core from everything below it, another serve's world included.
             log.info("flight process: %s", raise_priority())
@@ -117,18 +119,20 @@ async def fly(
             await link.close()
 
 
-def _live_view(config: Config) -> FoxgloveLiveView | None:
-    """The Foxglove view's server, on a free loopback port (clients come through the API
-    process's gateway on ``foxglove.port``: api/foxglove_gateway.py), unless off or no port
-    is free (a view is never worth a flight: the flight process goes on without it)."""
+def _live_view(config: Config, token: str) -> FoxgloveLiveView | None:
+    """The Foxglove view's server, on a free loopback port, its messages sealed with the API
+    ``token``'s keys (clients come through the API process's gateway on ``foxglove.port``,
+    which opens them: api/foxglove_gateway.py), unless off or no port is free (a view is
+    never worth a flight: the flight process goes on without it)."""
     if not config.foxglove.enabled:
         return None
     try:
-        view = FoxgloveLiveView("127.0.0.1", 0, config.system.to_params().arms_m)
+        arms_m = config.system.to_params().arms_m
+        view = FoxgloveLiveView("127.0.0.1", 0, arms_m, view_keys(token))
     except RuntimeError as error:
         log.warning("Foxglove view off: cannot serve on loopback (%s)", error)
         return None
-    log.info("Foxglove view's server: ws://127.0.0.1:%d (foxglove.sdk.v1)", view.port)
+    log.info("Foxglove view's server: ws://127.0.0.1:%d (foxglove.sdk.v1, sealed)", view.port)
     return view
 
 
