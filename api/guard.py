@@ -180,12 +180,20 @@ def admit(
     if access is Access.ABORT:
         needs_token = not same_origin
     if needs_token and not authenticated and method != WEBSOCKET:
-        return Refusal(
-            401,
-            "a valid 'Authorization: Bearer TOKEN' header is required",
-            (("www-authenticate", "Bearer"),),
+        wrong = headers.get("authorization") is not None
+        what = (
+            "the token presented is not this service's"
+            if wrong
+            else "no token: this request needs an 'Authorization: Bearer TOKEN' header"
         )
+        return Refusal(401, f"{what}; {WHERE_THE_TOKEN_IS}", (("www-authenticate", "Bearer"),))
     return Admission(authenticated, origin)
+
+
+WHERE_THE_TOKEN_IS = (
+    "the token is the one `serve` printed as it started (its line 'API token', or the "
+    "dashboard address's #token=), or the UAVBAR_TOKEN it was started with"
+)
 
 
 class BodyTooLargeError(Exception):

@@ -220,7 +220,7 @@ class SimulatedWorld:
                 vehicle.step(plant.time_s)
         if plant.time_s - self._truth_reported_s >= TRUTH_REPORT_PERIOD_S:
             self._truth_reported_s = plant.time_s
-            log.info("%s", self.truth.describe())
+            log.debug("%s", self.truth.describe())  # said at INFO when the world closes
         # Following the clock, each frame is stamped when it reached the network (world time
         # + the world's offset to the clock): after a stall the world catches up in a burst,
         # and frames stamped as they leave would be 4 ms apart in motion but microseconds

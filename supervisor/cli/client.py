@@ -229,6 +229,12 @@ def run_client(args: argparse.Namespace) -> int:
                 return _urgent_directly(address, args, error)
             return _unreachable(address, error)
         answer = response.body
+        if response.status == 401 and _token(args) is None:
+            raise UsageError(
+                f"no API token: export {TOKEN_ENV}=TOKEN (or --token TOKEN), the token "
+                "`serve` printed as it started (its line 'API token', or the dashboard "
+                "address's #token=)"
+            )
         if response.status >= 400:
             detail = answer.get("detail", answer) if isinstance(answer, dict) else answer
             print(

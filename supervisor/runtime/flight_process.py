@@ -325,6 +325,10 @@ class FlightProcess:
             self._on_ground.clear()
         else:
             self._on_ground.set()
+        for notice in result.notices:
+            log.warning("%s", notice)
+        if result.mode is not before:
+            log.info("mode %s → %s", before.value, result.mode.value)
         self._react(before, result.mode)
         self._notice_self_disarm(started)
         self._follow_px4_landing(started)
@@ -455,6 +459,16 @@ class FlightProcess:
         """Apply one operator request (the connections call this); returns the reply."""
         if not isinstance(request, ModeRequest):
             return handle_request(self.core, request, self.clock())
+        before = self.core.modes.mode
+        reply = await self._mode_request(request)
+        after = self.core.modes.mode
+        if reply.ok:
+            log.info("%s: mode %s → %s", request.kind, before.value, after.value)
+        else:
+            log.info("%s refused: %s", request.kind, reply.reason)
+        return reply
+
+    async def _mode_request(self, request: ModeRequest) -> Reply:
         event = Event(request.kind)
         if event is Event.ARM:
             return await self._arm(request)

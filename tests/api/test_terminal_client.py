@@ -58,8 +58,18 @@ async def test_refusals_exit_1_with_the_reason(
     assert "θ_l 86.0° exceeds the maximum 75.0° by 11.0°" in refused
     assert "UAV 1's equilibrium thrust 30.4 N is above the 26.0 N limit" in refused
     assert "UAV 2's equilibrium tilt 64.4° is above the 45.0° abort tilt" in refused
-    assert await cli(api, "arm", token=None) == 1
-    assert "401" in capsys.readouterr().err
+    assert await cli(api, "arm", token="not-the-token") == 1
+    wrong = capsys.readouterr().err
+    assert "401" in wrong and "not this service's" in wrong and "API token" in wrong
+    assert api.core.modes.mode is Mode.DISARMED
+
+
+async def test_a_missing_token_is_a_set_up_error_saying_where_the_token_is(
+    api: ApiUnderTest, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert await cli(api, "arm", token=None) == 2
+    said = capsys.readouterr().err
+    assert "export UAVBAR_TOKEN" in said and "'API token'" in said, said
     assert api.core.modes.mode is Mode.DISARMED
 
 
