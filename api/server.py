@@ -11,6 +11,8 @@ from pathlib import Path
 import uvicorn
 from fastapi import FastAPI
 
+from api.http_limits import HEAD_READ_DEADLINE_S, head_bounded_protocol
+
 # The only message a client sends on the telemetry WebSocket is its token.
 WS_MAX_MESSAGE_BYTES = 4096
 
@@ -45,13 +47,22 @@ class _ServerWithoutSignals(uvicorn.Server):
 class HttpServer:
     """uvicorn serving ``app`` on an already bound socket, over TLS when ``tls`` is given;
     ``serve`` returns after ``stop`` (graceful: open requests finish, WebSockets are
-    closed)."""
+    closed). A request head must arrive whole within ``head_read_deadline_s`` of the
+    connection's start or of the previous response, or the connection is closed; one over
+    ``api.http_limits.MAX_HEAD_BYTES`` is answered 431."""
 
-    def __init__(self, app: FastAPI, sock: socket.socket, tls: TlsFiles | None = None) -> None:
+    def __init__(
+        self,
+        app: FastAPI,
+        sock: socket.socket,
+        tls: TlsFiles | None = None,
+        head_read_deadline_s: float = HEAD_READ_DEADLINE_S,
+    ) -> None:
         self.sock = sock
         self.scheme = "http" if tls is None else "https"
         config = uvicorn.Config(
             app,
+            http=head_bounded_protocol(head_read_deadline_s),
             log_level="warning",
             lifespan="off",
             timeout_graceful_shutdown=2,
