@@ -76,6 +76,8 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+# While no QTM answers, one warning in this many failed connections (every few seconds).
+CONNECT_FAILURES_PER_WARNING = 3
 
 _FRAME_NUMBER_MODULUS: Final = 2**32
 MIN_PROTOCOL_VERSION: Final[ProtocolVersion] = (1, 8)
@@ -105,12 +107,14 @@ class MocapStats:
     ``queue_overflows`` (frames pushed out of the bounded store before ``drain``).
     Connection: ``sessions`` (successful stream starts), ``connect_failures``,
     ``connected``, ``protocol_version``, ``body_names``, ``transport`` ("udp" or "tcp"),
-    ``udp_port`` (local), ``server_udp_port`` (the port the server's stream comes from:
-    configured, or learned from the session's first frame). ``last_receive_time_s`` is on
+    ``server`` (the QTM server's "host:port" tried), ``udp_port`` (local),
+    ``server_udp_port`` (the port the server's stream comes from: configured, or learned
+    from the session's first frame). ``last_receive_time_s`` is on
     the client's clock.
     """
 
     connected: bool = False
+    server: str = ""
     sessions: int = 0
     connect_failures: int = 0
     protocol_version: str | None = None
@@ -531,6 +535,7 @@ class QtmClient:
         """A snapshot of the counters and the connection state."""
         return MocapStats(
             connected=self._connected.is_set(),
+            server=f"{self.host}:{self.port}",
             sessions=self._sessions,
             connect_failures=self._connect_failures,
             protocol_version=(
@@ -645,6 +650,14 @@ class QtmClient:
                 delay = self.reconnect_min_s
             else:
                 self._connect_failures += 1
+                if self._connect_failures % CONNECT_FAILURES_PER_WARNING == 1:
+                    log.warning(
+                        "no QTM RT server at %s:%d (%s): trying again every %g s",
+                        self.host,
+                        self.port,
+                        self._last_error,
+                        self.reconnect_max_s,
+                    )
             await asyncio.sleep(delay)
             delay = min(2.0 * delay, self.reconnect_max_s)
 

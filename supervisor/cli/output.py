@@ -37,11 +37,13 @@ def format_status(status: dict[str, Any]) -> str:
     tick = status.get("tick", {})
     mocap = status.get("mocap", {})
     setpoints = status.get("setpoints", {})
+    reference = status.get("reference")
     lines = [
         f"mode {status.get('mode')} ({status.get('phase', '-')}), controller "
         f"{status.get('controller')}{'  [STALE]' if status.get('stale') else ''}",
         f"bar  {_position(bar.get('position'))}, yaw "
-        + (degrees(bar["yaw"]) if bar.get("yaw") is not None else "unknown"),
+        + (degrees(bar["yaw"]) if bar.get("yaw") is not None else "unknown")
+        + (f", θ_l {degrees(reference['theta_l'])} (reference)" if reference else ""),
     ]
     for i, uav in enumerate(status.get("uavs", []), start=1):
         armed = status.get("armed", [False, False])[i - 1]
@@ -52,9 +54,16 @@ def format_status(status: dict[str, Any]) -> str:
             + (f", battery {battery:.1f} V" if isinstance(battery, int | float) else "")
         )
     refused = ", ".join(f"{reason} {n}" for reason, n in (mocap.get("refused") or {}).items())
+    unreached = not mocap.get("connected") and mocap.get("server")
     lines.append(
         f"mocap {'healthy' if mocap.get('healthy') else 'NOT HEALTHY'} at "
-        f"{mocap.get('rate_hz') or 0:.0f} Hz{f' (refused: {refused})' if refused else ''}; "
+        f"{mocap.get('rate_hz') or 0:.0f} Hz{f' (refused: {refused})' if refused else ''}"
+        + (
+            f" (QTM at {mocap['server']}: {mocap.get('last_error') or 'no answer'})"
+            if unreached
+            else ""
+        )
+        + "; "
         "setpoints: "
         f"{'active' if setpoints.get('active') else 'none active'}, "
         f"{len(setpoints.get('queued', []))} queued"
@@ -63,6 +72,10 @@ def format_status(status: dict[str, Any]) -> str:
         f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
         f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
     )
+    if status.get("mode") in ("disarmed", "px4_landing", "killed") and status.get("arm_blocked_by"):
+        lines.append(f"arm would be refused: {status['arm_blocked_by']}")
+    if status.get("log_stopped"):
+        lines.append(f"flight log: {status['log_stopped']}")
     world = _world_line(status.get("world") or {})
     if world:
         lines.append(world)

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from supervisor.flight.core import FlightCore
-from supervisor.flight.modes import TRANSITIONS, Event
+from supervisor.flight.modes import TRANSITIONS, Event, Mode
 from supervisor.flight.refusals import Request, refusal
 from supervisor.vehicles.types import VehicleView
 
@@ -38,6 +38,8 @@ def arm_blockers(
     """Why an arm would be refused now (empty: it would be taken)."""
     mode = core.modes.mode
     if (mode, Event.ARM) not in TRANSITIONS:
-        return [refusal(mode, Request.ARM)]
+        refused = [refusal(mode, Request.ARM)]
+        # The vehicles are PX4's until heard disarmed: one never heard is why, say so.
+        return refused + vehicle_problems(vehicles) if mode is Mode.PX4_LANDING else refused
     problems = core.not_ready_to_arm() + vehicle_problems(vehicles)
     return problems + ([log_problem] if log_problem is not None else [])

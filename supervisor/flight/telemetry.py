@@ -42,6 +42,8 @@ class MocapView:
     frames: int
     dropped: int
     refused: Mapping[str, int] = field(default_factory=dict)
+    server: str = ""  # the QTM server's "host:port"
+    last_error: str | None = None  # why the last connection to it ended
 
 
 def _floats(values: Any) -> list[float | None]:
@@ -112,6 +114,8 @@ def build_telemetry(
         "mocap": {
             "healthy": bool(estimate is not None and estimate.healthy),
             "connected": mocap.connected,
+            "server": mocap.server,
+            "last_error": mocap.last_error,
             "rate_hz": mocap.rate_hz,
             "age_ms": estimate.age_s * 1e3
             if estimate is not None and math.isfinite(estimate.age_s)

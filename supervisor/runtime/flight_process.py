@@ -571,7 +571,13 @@ class FlightProcess:
             reason: n for reason, n in self.driver.fusion.refused().items() if n
         }
         mocap = MocapView(
-            stats.connected, self._mocap_rate[2], stats.frames, stats.frames_missed, refused
+            stats.connected,
+            self._mocap_rate[2],
+            stats.frames,
+            stats.frames_missed,
+            refused,
+            stats.server,
+            stats.last_error,
         )
         summary: dict[str, Any] = dict(self.stats.summary())
         p50, p99 = _percentiles(self.latency_ms)
