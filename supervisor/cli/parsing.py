@@ -6,7 +6,9 @@ Standard library only (every command builds this parser before anything else run
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
+import re
 import sys
 import textwrap
 from typing import Any, NoReturn
@@ -14,6 +16,10 @@ from typing import Any, NoReturn
 from supervisor.cli.usage import EXIT_USAGE
 
 PROG = "uavbar-supervisor"
+# argparse's own wording of the two typos a "did you mean" answers.
+INVALID_CHOICE = re.compile(r"invalid choice: '([^']*)' \(choose from (.*)\)")
+UNRECOGNIZED = re.compile(r"unrecognized arguments: (.*)")
+QUOTED = re.compile(r"'([^']*)'")
 
 
 class HelpFormatter(argparse.HelpFormatter):
@@ -45,8 +51,33 @@ class Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
-        print(f"{self.prog}: {message} (see {self.prog} --help)", file=sys.stderr)
+        hint = self._did_you_mean(message)
+        print(f"{self.prog}: {message}{hint} (see {self.prog} --help)", file=sys.stderr)
         sys.exit(EXIT_USAGE)
+
+    def _did_you_mean(self, message: str) -> str:
+        """``; did you mean 'status'?`` for a mistyped command or option, else nothing."""
+        choice = INVALID_CHOICE.search(message)
+        if choice is not None:
+            typed, choices = choice.group(1), QUOTED.findall(choice.group(2))
+        else:
+            unknown = UNRECOGNIZED.search(message)
+            if unknown is None:
+                return ""
+            typed, choices = unknown.group(1).split()[0], sorted(_option_strings(self))
+        close = difflib.get_close_matches(typed, choices, n=1)
+        return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def _option_strings(parser: argparse.ArgumentParser) -> set[str]:
+    """Every option ``parser`` and its commands take (argparse reports an option unknown
+    to a command from the top-level parser, which knows only its own)."""
+    options = set(parser._option_string_actions)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for command in action.choices.values():
+                options |= _option_strings(command)
+    return options
 
 
 def finite_float(text: str) -> float:
