@@ -76,6 +76,7 @@ class Child:
     process: BaseProcess | None = None
     lifeline: Lifeline | None = None
     restarts: int = 0
+    last_exit: str | None = None  # how it ended last ("killed by SIGKILL"), for the status
     stopped: bool = False  # serve stops it on purpose: not restarted
     _recent: deque[float] = field(default_factory=deque)
 
@@ -89,7 +90,12 @@ class Child:
 
     def view(self) -> dict[str, Any]:
         pid = self.process.pid if self.process is not None else None
-        return {"pid": pid, "alive": self.alive, "restarts": self.restarts}
+        return {
+            "pid": pid,
+            "alive": self.alive,
+            "restarts": self.restarts,
+            "last_exit": self.last_exit,
+        }
 
     def _ended(self) -> None:
         assert self.process is not None
@@ -102,6 +108,7 @@ class Child:
     def _after_exit(self, how: str) -> None:
         if self.stopped:
             return
+        self.last_exit = how
         self.on_exit(self, how)
         if not self.restartable:
             return

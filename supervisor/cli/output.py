@@ -76,6 +76,13 @@ def format_status(status: dict[str, Any]) -> str:
         lines.append(f"arm would be refused: {status['arm_blocked_by']}")
     if status.get("log_stopped"):
         lines.append(f"flight log: {status['log_stopped']}")
+    for name, process in (status.get("processes") or {}).items():
+        if process.get("last_exit"):
+            again = "started again" if process.get("alive") else "NOT RUNNING"
+            lines.append(
+                f"the {name} process died ({process['last_exit']}): {again}, "
+                f"{process.get('restarts', 0)} restarts"
+            )
     world = _world_line(status.get("world") or {})
     if world:
         lines.append(world)

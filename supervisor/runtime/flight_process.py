@@ -441,7 +441,8 @@ class FlightProcess:
         in_offboard = tuple(link for link in self.links if link.view().px4_mode == "OFFBOARD")
         failures = await land_all(in_offboard)
         if failures:
-            text = "PX4's landing refused: " + "; ".join(failures)
+            # Refused, or unanswered (a stalled link): each failure says which.
+            text = "AUTO.LAND not confirmed: " + "; ".join(failures)
             self.core.notices.append((self.clock(), Notice(NoticeKind.VEHICLE, text)))
 
     def _sequence(self, coroutine: Coroutine[Any, Any, None]) -> None:

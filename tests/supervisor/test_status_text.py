@@ -45,3 +45,13 @@ def test_an_unreachable_qtm_is_named_with_why_and_a_stopped_log_said() -> None:
     text = format_status(a_status(mocap=mocap, log_stopped="log disk full: no longer recording"))
     assert "QTM at 10.0.0.5:22223: ConnectionRefusedError" in text
     assert "flight log: log disk full: no longer recording" in text
+
+
+def test_a_process_that_died_is_said_with_how() -> None:
+    processes = {
+        "relay": {"pid": 7, "alive": True, "restarts": 1, "last_exit": "killed by SIGKILL"},
+        "api": {"pid": 8, "alive": True, "restarts": 0, "last_exit": None},
+    }
+    text = format_status(a_status(processes=processes))
+    assert "the relay process died (killed by SIGKILL): started again, 1 restarts" in text
+    assert "api process" not in text
