@@ -31,9 +31,12 @@ def world_stalls(status: dict[str, Any]) -> int:
 
 def all_connected(status: dict[str, Any]) -> bool:
     """Healthy mocap and both vehicle links with their modes known (a heartbeat heard: arming
-    is refused before), as the status shows them."""
-    return bool(status["mocap"]["healthy"]) and all(
-        u["connected"] and u["px4_mode"] != "unknown" for u in status["uavs"]
+    is refused before), as the status shows them, and the system out of the ``px4_landing``
+    a flight process starts in until it has heard both vehicles."""
+    return (
+        bool(status["mocap"]["healthy"])
+        and status["mode"] != "px4_landing"
+        and all(u["connected"] and u["px4_mode"] != "unknown" for u in status["uavs"])
     )
 
 
