@@ -5,14 +5,14 @@ pymavlink's ``MAVLink`` object both builds messages and writes them to a file; h
 file is an in-memory queue, so ``messages.heartbeat_send(...)`` only queues the encoded frame
 (sequence numbers and all, as pymavlink keeps them) and the adapter takes the frames with
 ``outgoing()`` and sends them however it moves bytes. The supervisor's link and the
-simulated PX4 both use this codec over ``supervisor.mavlink.transport``.
+simulated PX4 both use this codec over ``px4_mavlink.transport``.
 
 Signing (``sign``): every frame we queue is signed (pymavlink's ``MAVLink.signing``) and every
-frame received is checked by ``supervisor.mavlink.signing`` — frames refused there are
+frame received is checked by ``px4_mavlink.signing`` — frames refused there are
 counted by why (unsigned, bad signature, replayed), never decoded into messages.
 
 ``mavlink`` here is the project's one MAVLink dialect (``development``, a superset of
-``common``, with PX4's EVENT messages added: ``supervisor.mavlink.px4_messages``); import it
+``common``, with PX4's EVENT messages added: ``px4_mavlink.px4_messages``); import it
 from here. ``codec.messages.send(msg)`` queues any message, the added ones included.
 """
 
@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from supervisor.mavlink.px4_messages import mavlink
-from supervisor.mavlink.signing import SignatureCheck, SigningKey, Verdict
+from px4_mavlink.px4_messages import mavlink
+from px4_mavlink.signing import SignatureCheck, SigningKey, Verdict
 
 __all__ = ["PARSE_ERRORS", "Decoded", "MavlinkCodec", "Refused", "mavlink"]
 
@@ -68,7 +68,7 @@ class MavlinkCodec:
         """Build and queue messages with its ``*_send`` methods (pymavlink's names)."""
         self.messages.robust_parsing = True
         # Parsed by a MAVLink object of its own, which never checks signatures (its
-        # signing has no key): the check is ours (``supervisor.mavlink.signing``).
+        # signing has no key): the check is ours (``px4_mavlink.signing``).
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
         self._check: SignatureCheck | None = None

@@ -11,7 +11,7 @@ registers them in the dialect's ``mavlink_map`` so that pymavlink's parser decod
 
 The dialect is ``development`` (a superset of ``common``; PX4 v1.15 sends CURRENT_MODE, id
 436, which only it has). ``mavlink`` below is the one place the project imports the dialect
-from (re-exported by ``supervisor.mavlink.codec``); its constants equal ``common``'s.
+from (re-exported by ``px4_mavlink.codec``); its constants equal ``common``'s.
 """
 
 from __future__ import annotations

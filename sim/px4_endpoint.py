@@ -70,18 +70,18 @@ from geometry.frames import (
     rotation_enu_flu_to_ned_frd,
     rotation_from_quaternion,
 )
-from sim.ports import AirframePort, AirframeState
-from sim.px4 import ParamSpec, ParamType, Px4Event, Px4Model, Px4Params, Timesync
-from supervisor.mavlink.codec import MavlinkCodec, mavlink
-from supervisor.mavlink.events import EventCatalog, EventDefinition, encode_event_arguments
-from supervisor.mavlink.px4_messages import (
+from px4_mavlink.codec import MavlinkCodec, mavlink
+from px4_mavlink.events import EventCatalog, EventDefinition, encode_event_arguments
+from px4_mavlink.px4_messages import (
     MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET,
     current_event_sequence_send,
     event_send,
     response_event_error_send,
 )
-from supervisor.mavlink.signing import SigningKey, Verdict
-from supervisor.mavlink.transport import Address, UdpTransport
+from px4_mavlink.signing import SigningKey, Verdict
+from px4_mavlink.transport import Address, UdpTransport
+from sim.ports import AirframePort, AirframeState
+from sim.px4 import ParamSpec, ParamType, Px4Event, Px4Model, Px4Params, Timesync
 
 API_CLIENT_PORT = 14540
 API_LOCAL_PORT = 14580

@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from geometry.arrays import FloatArray
+from px4_mavlink.codec import MavlinkCodec
 from sim.hil_sensors import ALL_FIELDS, HilSensors
 from sim.motor_mixer import QuadMixer
 from sim.ports import AirframePort
@@ -28,7 +29,6 @@ from sim.px4_firmware import (
     SIMULATOR_PORT,
     Px4Process,
 )
-from supervisor.mavlink.codec import MavlinkCodec
 
 log = logging.getLogger(__name__)
 

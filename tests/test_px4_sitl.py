@@ -24,9 +24,9 @@ from benchmarks.service import RunningService, running_service
 from benchmarks.tick import world_truth
 from geometry.frames import rotation_from_quaternion
 from mocap.client import QtmClient
+from px4_mavlink.codec import MavlinkCodec
+from px4_mavlink.events import EventCatalog
 from sim.px4_firmware import OFFBOARD_LOCAL_PORT, resolve_px4_dir
-from supervisor.mavlink.codec import MavlinkCodec
-from supervisor.mavlink.events import EventCatalog
 from supervisor.mavlink.parameters import MAV_PARAM_TYPE_INT32, encode_param_value
 from supervisor.mavlink.session import px4_mode_name
 from tests.test_service import TOKEN, ready, require_px4

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from benchmarks.service import RunningService, running_service
+from px4_mavlink.codec import MavlinkCodec
 from supervisor.cli.main import main
-from supervisor.mavlink.codec import MavlinkCodec
 
 TOKEN = "e2e-token-0123456789"
 FORCE_DISARM = 21196

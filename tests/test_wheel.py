@@ -18,7 +18,17 @@ from benchmarks.service import all_connected, running_service
 
 ROOT = Path(__file__).resolve().parent.parent
 NOT_SOURCES = (".git", ".venv", "build", "flight-logs", "*.egg-info", "__pycache__", ".*_cache")
-PACKAGES = ("geometry", "supervisor", "controllers", "mocap", "api", "sim", "benchmarks", "configs")
+PACKAGES = (
+    "geometry",
+    "supervisor",
+    "controllers",
+    "mocap",
+    "px4_mavlink",
+    "api",
+    "sim",
+    "benchmarks",
+    "configs",
+)
 
 
 def package_data() -> set[str]:

@@ -17,6 +17,8 @@ from typing import Any
 from mocap.client import MocapSource, MocapStats
 from mocap.fusion import MocapFusion
 from mocap.qtm_protocol import MocapFrame
+from px4_mavlink.codec import MavlinkCodec
+from px4_mavlink.signing import SigningKey, signing_timestamp
 from supervisor.app.assembly import (
     body_names_from_config,
     fusion_from_config,
@@ -25,9 +27,7 @@ from supervisor.app.assembly import (
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config, host_port
 from supervisor.logs.logging_setup import configure_logging
-from supervisor.mavlink.codec import MavlinkCodec
 from supervisor.mavlink.relay import MocapRelay, VisionTarget
-from supervisor.mavlink.signing import SigningKey, signing_timestamp
 from supervisor.mavlink.vision import VisionEncoder
 from supervisor.runtime.cpu import raise_priority, title_process
 

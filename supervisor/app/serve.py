@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from api.server import bind
+from px4_mavlink.transport import bind_udp
 from supervisor.app.api_process import GO, READY, ApiStart, api_tls
 from supervisor.app.child_entries import (
     LinkSockets,
@@ -43,7 +44,6 @@ from supervisor.app.flight_main import FlightStart
 from supervisor.app.relay_main import relay_addresses
 from supervisor.app.signing_keys import load_signing_keys, signing_keys_path
 from supervisor.ipc.rendezvous import Rendezvous, listen_unix, write_discovery
-from supervisor.mavlink.transport import bind_udp
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
 
 log = logging.getLogger(__name__)

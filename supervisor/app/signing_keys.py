@@ -18,8 +18,8 @@ import stat
 from collections.abc import Sequence
 from pathlib import Path
 
+from px4_mavlink.signing import KEY_BYTES
 from supervisor.app.config import ConfigError
-from supervisor.mavlink.signing import KEY_BYTES
 
 HEADER = "# uavbar-supervisor MAVLink 2 signing keys (one per vehicle: system id, 32 bytes hex)\n"
 

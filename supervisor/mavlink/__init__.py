@@ -1,1 +1,1 @@
-"""MAVLink 2: sans-IO codec, PX4 events, session, parameters; UDP transport; the asyncio link."""
+"""The supervisor's MAVLink (on px4_mavlink): PX4 session, parameters, vision; link, relay."""

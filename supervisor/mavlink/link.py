@@ -51,8 +51,11 @@ from geometry.arrays import FloatArray
 from geometry.frames import (
     flu_to_frd,
 )
-from supervisor.mavlink.codec import MavlinkCodec, Refused, mavlink
-from supervisor.mavlink.events import EventCatalog
+from px4_mavlink.codec import MavlinkCodec, Refused, mavlink
+from px4_mavlink.events import EventCatalog
+from px4_mavlink.px4_messages import request_event_send
+from px4_mavlink.signing import SigningKey, Verdict, signing_timestamp
+from px4_mavlink.transport import Address, UdpTransport
 from supervisor.mavlink.parameters import (
     ParameterClient,
     ParameterError,
@@ -61,7 +64,6 @@ from supervisor.mavlink.parameters import (
     format_value,
     param_id_bytes,
 )
-from supervisor.mavlink.px4_messages import request_event_send
 from supervisor.mavlink.session import (
     AUTOPILOT_COMPONENT,
     REASON_WAIT_S,
@@ -70,8 +72,6 @@ from supervisor.mavlink.session import (
     TimesyncReply,
     VehicleSession,
 )
-from supervisor.mavlink.signing import SigningKey, Verdict, signing_timestamp
-from supervisor.mavlink.transport import Address, UdpTransport
 from supervisor.mavlink.vision import VisionEncoder
 from supervisor.vehicles.types import UavCommand, VehicleCommandError, VehicleView
 

@@ -21,9 +21,9 @@ import time
 from dataclasses import dataclass
 
 from mocap.client import MocapSource
-from supervisor.mavlink.codec import MavlinkCodec
-from supervisor.mavlink.signing import signing_timestamp
-from supervisor.mavlink.transport import Address
+from px4_mavlink.codec import MavlinkCodec
+from px4_mavlink.signing import signing_timestamp
+from px4_mavlink.transport import Address
 from supervisor.mavlink.vision import VisionEncoder
 
 

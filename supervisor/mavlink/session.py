@@ -16,7 +16,7 @@ As PX4 v1.15.4 behaves (docs/reference/px4-offboard.md §5):
   an arm/disarm/force-disarm/set-mode command this session sent (the command's parameters
   are kept until its ACK, so the ACK can be applied).
 * **Reasons** arrive as EVENT messages (item 5), decoded through the firmware's event
-  catalog (``supervisor.mavlink.events``); STATUSTEXT is kept too (multi-chunk texts joined).
+  catalog (``px4_mavlink.events``); STATUSTEXT is kept too (multi-chunk texts joined).
   A refusal carries the text PX4 sent around the ACK (measured: the event 2–9 ms *after*
   the ACK, so the link waits ``REASON_WAIT_S`` for it) and, for arming, the arming checks
   PX4 last reported as failing in the current mode.
@@ -32,14 +32,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
-from supervisor.mavlink.codec import mavlink
-from supervisor.mavlink.events import (
+from px4_mavlink.codec import mavlink
+from px4_mavlink.events import (
     LOG_LEVEL_ERROR,
     LOG_LEVEL_PROTOCOL,
     EventCatalog,
     fallback_text,
 )
-from supervisor.mavlink.px4_messages import MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET
+from px4_mavlink.px4_messages import MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET
 from supervisor.vehicles.types import VehicleView
 
 HEARTBEAT_PERIOD_S = 1.0

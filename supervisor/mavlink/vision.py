@@ -18,7 +18,7 @@ from geometry.frames import (
     rotation_enu_flu_to_ned_frd,
     rotation_from_quaternion,
 )
-from supervisor.mavlink.codec import mavlink
+from px4_mavlink.codec import mavlink
 
 VisionMessage = Literal["vision_position_estimate", "odometry"]
 

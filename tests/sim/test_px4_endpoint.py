@@ -16,14 +16,14 @@ from typing import Any
 import numpy as np
 import pytest
 
+from px4_mavlink.codec import MavlinkCodec, mavlink
+from px4_mavlink.events import EventCatalog
+from px4_mavlink.px4_messages import request_event_send
 from sim import px4
 from sim.ports import AirframeState
 from sim.px4 import PX4_NAMES, Px4Params
 from sim.px4_endpoint import CATALOG_PATH, HeartbeatSchedule, Px4Endpoint
 from sim.px4_firmware import resolve_px4_dir
-from supervisor.mavlink.codec import MavlinkCodec, mavlink
-from supervisor.mavlink.events import EventCatalog
-from supervisor.mavlink.px4_messages import request_event_send
 from tests.test_service import require_px4
 
 INT32, REAL32 = 6, 9

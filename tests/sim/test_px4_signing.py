@@ -12,8 +12,8 @@ from collections.abc import AsyncIterator, Iterator
 
 import pytest
 
+from px4_mavlink.codec import MavlinkCodec
 from sim.px4_endpoint import Px4Endpoint
-from supervisor.mavlink.codec import MavlinkCodec
 from supervisor.mavlink.link import LinkConfig, MavlinkLink
 from tests.mocap.test_client import wait_until
 from tests.sim.test_px4_endpoint import Resting

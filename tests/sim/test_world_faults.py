@@ -14,6 +14,7 @@ import qtm_rt
 
 from mocap.client import QtmClient
 from mocap.qtm_protocol import BodyPose
+from px4_mavlink.px4_messages import MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET
 from sim.faults import (
     LinkLost,
     MocapBodyLost,
@@ -29,7 +30,6 @@ from sim.world import SimulatedWorld, WorldRefusedError
 from supervisor.app.assembly import mocap_params_from_config, plant_params_from_config
 from supervisor.app.config import load_config
 from supervisor.app.world_process import build_world
-from supervisor.mavlink.px4_messages import MAV_EVENT_CURRENT_SEQUENCE_FLAGS_RESET
 from tests.conftest import CONFIGS
 from tests.sim.test_px4_endpoint import Bench, Resting, of_type
 from tests.sim.test_world import running_world

@@ -13,7 +13,16 @@ from importlib.metadata import packages_distributions, requires
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-RUNTIME_PACKAGES = ("api", "configs", "controllers", "geometry", "mocap", "sim", "supervisor")
+RUNTIME_PACKAGES = (
+    "api",
+    "configs",
+    "controllers",
+    "geometry",
+    "mocap",
+    "px4_mavlink",
+    "sim",
+    "supervisor",
+)
 OURS = {*RUNTIME_PACKAGES, "benchmarks"}
 
 

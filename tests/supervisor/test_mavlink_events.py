@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from supervisor.mavlink.events import (
+from px4_mavlink.events import (
     EventCatalog,
     EventCatalogError,
     encode_event_arguments,

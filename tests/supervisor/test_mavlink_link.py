@@ -12,15 +12,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from supervisor.mavlink.codec import MavlinkCodec, mavlink
-from supervisor.mavlink.events import EventCatalog
+from px4_mavlink.codec import MavlinkCodec, mavlink
+from px4_mavlink.events import EventCatalog
+from px4_mavlink.transport import Address, UdpTransport
 from supervisor.mavlink.link import LinkConfig, MavlinkLink
 from supervisor.mavlink.parameters import (
     MAV_PARAM_TYPE_INT32,
     MAV_PARAM_TYPE_REAL32,
     decode_param_value,
 )
-from supervisor.mavlink.transport import Address, UdpTransport
 from supervisor.vehicles.sequences import apply_parameters, check_failsafe_parameters
 from supervisor.vehicles.types import UavCommand, VehicleCommandError
 from tests.mocap.test_client import wait_until

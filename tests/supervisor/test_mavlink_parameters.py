@@ -8,7 +8,7 @@ import struct
 
 import pytest
 
-from supervisor.mavlink.codec import MavlinkCodec
+from px4_mavlink.codec import MavlinkCodec
 from supervisor.mavlink.parameters import (
     MAV_PARAM_TYPE_INT8,
     MAV_PARAM_TYPE_INT32,

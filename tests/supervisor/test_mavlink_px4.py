@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
+from px4_mavlink.events import EventCatalog
 from sim.px4_firmware import FirmwareError, resolve_px4_dir
-from supervisor.mavlink.events import EventCatalog
 from supervisor.mavlink.link import LinkConfig, MavlinkLink
 from supervisor.mavlink.parameters import MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32
 from supervisor.vehicles.sequences import apply_parameters, check_failsafe_parameters

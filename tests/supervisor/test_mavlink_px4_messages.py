@@ -10,9 +10,9 @@ import pytest
 from pymavlink.dialects.v20 import common
 from pymavlink.generator import mavparse
 
-from supervisor.mavlink import px4_messages
-from supervisor.mavlink.codec import MavlinkCodec, mavlink
-from supervisor.mavlink.px4_messages import (
+from px4_mavlink import px4_messages
+from px4_mavlink.codec import MavlinkCodec, mavlink
+from px4_mavlink.px4_messages import (
     MAVLink_current_event_sequence_message,
     MAVLink_event_message,
     MAVLink_request_event_message,

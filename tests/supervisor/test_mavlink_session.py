@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from supervisor.mavlink import px4_messages
-from supervisor.mavlink.codec import MavlinkCodec, mavlink
-from supervisor.mavlink.events import EventCatalog, encode_event_arguments
+from px4_mavlink import px4_messages
+from px4_mavlink.codec import MavlinkCodec, mavlink
+from px4_mavlink.events import EventCatalog, encode_event_arguments
 from supervisor.mavlink.session import (
     ArmingCheck,
     EventRequest,

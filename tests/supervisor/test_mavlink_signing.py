@@ -11,9 +11,9 @@ from collections.abc import AsyncIterator
 import numpy as np
 import pytest
 
-from supervisor.mavlink.codec import MavlinkCodec, mavlink
+from px4_mavlink.codec import MavlinkCodec, mavlink
+from px4_mavlink.signing import SignatureCheck, SigningKey, Verdict, signing_timestamp
 from supervisor.mavlink.link import LinkConfig, MavlinkLink
-from supervisor.mavlink.signing import SignatureCheck, SigningKey, Verdict, signing_timestamp
 from supervisor.vehicles.types import UavCommand
 from tests.mocap.test_client import wait_until
 from tests.supervisor.test_mavlink_link import Clock, ScriptedVehicle, heartbeat, vehicle
