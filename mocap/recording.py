@@ -6,6 +6,11 @@ the body names and the ``GetParameters 6D`` XML), then one line per packet,
 ``{"t_s": arrival time [s] since the recording started, "packet": base64 of the whole RT
 packet, header included}``. ``mocap.recorder`` writes it from a live stream,
 ``sim.qtm_replay`` serves it again.
+
+A file cut short — its gzip stream without its end (a recorder killed, a disk full, a copy
+cut off) or its last line without its end — reads up to its last complete packet, and the
+``Recording`` says so (``truncation``) for whoever reads it to tell the operator; bytes
+changed inside it (gzip's CRC, deflate, a line that does not read) make it refused.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ from __future__ import annotations
 import base64
 import gzip
 import json
+import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,6 +64,14 @@ class Recording:
     """The recorder's clock when arrival times start (its ``time.monotonic``: on the same
     machine, the flight process's clock, so a recording lines up with a flight log)."""
     packets: tuple[RecordedPacket, ...]
+    truncation: str | None = None
+    """What shows that the file was cut short (the packets are those before the cut), or
+    None for a file that ends as it was written."""
+
+    @property
+    def frame_count(self) -> int:
+        """How many of the packets are frames (``frames``)."""
+        return sum(1 for _ in self.frames())
 
     @property
     def duration_s(self) -> float:
@@ -127,10 +142,10 @@ def write_recording(recording: Recording, path: Path) -> None:
             handle.write(packet_line(packet.arrival_s, packet.data))
 
 
-def _header(line: str, path: Path) -> dict[str, Any]:
+def _header(line: bytes, path: Path) -> dict[str, Any]:
     try:
-        header = json.loads(line)
-    except json.JSONDecodeError as error:
+        header = json.loads(line.decode("utf-8"))
+    except ValueError as error:  # JSON's and UTF-8's
         raise ValueError(f"{path}: not a QTM recording ({error})") from error
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ValueError(f"{path}: not a QTM recording (no {FORMAT} header)")
@@ -139,35 +154,69 @@ def _header(line: str, path: Path) -> dict[str, Any]:
     return header
 
 
-def _complete_lines(path: Path) -> list[str]:
-    """The file's lines; of a file cut short (its writer killed: ``StreamRecorder``), the
-    lines before the cut."""
-    lines: list[str] = []
+GZIP_MAGIC = b"\x1f\x8b"
+
+
+def _complete_lines(path: Path) -> tuple[list[bytes], str | None]:
+    """The file's complete lines (without their newline), and what shows that it was cut
+    short (None when it ends as written: the gzip stream's end, its CRC, a last newline)."""
+    with path.open("rb") as handle:
+        magic = handle.read(len(GZIP_MAGIC))
+    if not GZIP_MAGIC.startswith(magic):
+        raise ValueError(f"{path}: not a QTM recording (not gzip-compressed)")
+    if magic and magic != GZIP_MAGIC:
+        return [], "its gzip stream ends early"
+    lines: list[bytes] = []
+    truncation: str | None = None
     try:
-        with gzip.open(path, "rt", encoding="utf-8") as handle:
-            for line in handle:
-                lines.append(line)
+        with gzip.open(path, "rb") as handle:
+            lines.extend(handle)  # what was read before an EOFError stays
     except EOFError:
-        if lines and not lines[-1].endswith("\n"):
-            lines.pop()
-    except (gzip.BadGzipFile, UnicodeDecodeError) as error:
-        raise ValueError(f"{path}: not a QTM recording ({error})") from error
-    return [line.rstrip("\n") for line in lines]
+        truncation = "its gzip stream ends early"
+        # Unless the file ends with the trailer of what it held (RFC 1952: CRC-32, size):
+        # then its writer finished it, and a changed bit kept the stream from ending.
+        held = b"".join(lines)
+        trailer = struct.pack("<II", zlib.crc32(held), len(held) & 0xFFFFFFFF)
+        with path.open("rb") as handle:
+            handle.seek(max(0, path.stat().st_size - len(trailer)))
+            if handle.read() == trailer:
+                raise ValueError(f"{path}: corrupt (its gzip stream runs past its end)") from None
+    except (gzip.BadGzipFile, zlib.error) as error:
+        raise ValueError(f"{path}: corrupt ({error}), found after {len(lines)} lines") from error
+    if lines and not lines[-1].endswith(b"\n"):
+        lines.pop()
+        truncation = truncation or "its last line is cut"
+    return [line.rstrip(b"\n") for line in lines], truncation
+
+
+def truncation_warning(path: Path, recording: Recording) -> str | None:
+    """One line for the operator when ``recording`` (read from ``path``) was cut short:
+    what shows it and what it holds; None when it was not."""
+    if recording.truncation is None:
+        return None
+    return (
+        f"{path}: truncated ({recording.truncation}): it holds {recording.frame_count} "
+        f"frames over {recording.duration_s:.2f} s"
+    )
 
 
 def read_recording(path: Path) -> Recording:
-    """Read a recording. Raises ``ValueError`` for a file that is not one, or a packet that
-    does not decode, or arrival times that go backwards. A file cut short is read up to its
-    last complete packet."""
-    lines = _complete_lines(path)
+    """Read a recording. A file cut short is read up to its last complete packet, its
+    ``truncation`` saying what shows the cut. Raises ``ValueError`` naming the file (and
+    the line) for a file that is not a recording or is corrupt: gzip's CRC or deflate
+    stream, a packet that does not decode, arrival times that go backwards."""
+    lines, truncation = _complete_lines(path)
     if not lines:
-        raise ValueError(f"{path}: empty")
+        if truncation is not None:
+            raise ValueError(f"{path}: truncated before its header ended ({truncation})")
+        raise ValueError(f"{path}: empty file, not a QTM recording")
     header = _header(lines[0], path)
     packets: list[RecordedPacket] = []
     for number, line in enumerate(lines[1:], start=2):
         try:
-            entry = json.loads(line)
-            packet = RecordedPacket(float(entry["t_s"]), base64.b64decode(entry["packet"]))
+            entry = json.loads(line.decode("utf-8"))
+            data = base64.b64decode(entry["packet"], validate=True)
+            packet = RecordedPacket(float(entry["t_s"]), data)
             decode_datagram(packet.data)
         except (ValueError, KeyError, TypeError, QtmProtocolError) as error:
             raise ValueError(f"{path}:{number}: not a recorded packet ({error})") from error
@@ -184,6 +233,9 @@ def read_recording(path: Path) -> Recording:
             started=str(header["started"]),
             clock_start_s=float(header["clock_start_s"]),
             packets=tuple(packets),
+            truncation=truncation,
         )
     except (KeyError, QtmProtocolError) as error:
         raise ValueError(f"{path}: the recording's header lacks {error}") from error
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"{path}: the recording's header does not read ({error})") from error

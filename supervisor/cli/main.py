@@ -203,6 +203,9 @@ def _report(args: argparse.Namespace) -> int:
         logs = [read_flight_log(path) for path in paths]
     except (OSError, ValueError) as error:
         raise UsageError(str(error)) from error
+    for log in logs:
+        if not len(log.t_s):
+            raise UsageError(f"{log.path}: no tick logged (the flight never started): no report")
     for path in write_report(logs, args.out):
         print(path)
     return 0
@@ -228,32 +231,54 @@ def _mocap(args: argparse.Namespace) -> int:
         if not args.duration > 0:
             raise UsageError(f"--duration {args.duration}: must be > 0 (seconds)")
         return run_record(args.host, args.port, args.duration, args.out, _say)
+    from mocap.recording import read_recording, truncation_warning
+
     if not args.file.is_file():
         raise UsageError(f"{args.file}: no such recording")
     try:
-        from mocap.recording import read_recording
-
-        read_recording(args.file)
+        recording = read_recording(args.file)
     except ValueError as error:
         raise UsageError(str(error)) from error
+    if not recording.packets:
+        raise UsageError(f"{args.file}: holds no packet: nothing to replay")
+    # A recording cut short is what a killed or disk-starved recorder leaves: what it holds
+    # is still the stream as it came, so it is served, and the operator told where it ends.
+    warning = truncation_warning(args.file, recording)
+    if warning is not None:
+        _warn(args, f"{warning}; replaying what it holds")
     return run_replay(args.file, args.host, args.port, args.loop, _say)
 
 
 def _mocap_check(args: argparse.Namespace) -> int:
+    from mocap.recording import truncation_warning
     from supervisor.app.assembly import body_names_from_config, fusion_from_config
-    from supervisor.logs.flight_log import read_flight_log
-    from supervisor.logs.mocap_replay import check_flight, describe
+    from supervisor.logs.flight_log import mocap_recording_path, read_flight_log
+    from supervisor.logs.mocap_replay import check_flight, describe, flight_recording
 
     config = _config(args)
     try:
         log = read_flight_log(args.log)
+        recording = flight_recording(log)
         _, comparison = check_flight(
-            log, fusion_from_config(config), body_names_from_config(config), args.tolerance
+            log,
+            fusion_from_config(config),
+            body_names_from_config(config),
+            args.tolerance,
+            recording,
         )
     except (OSError, ValueError) as error:
         raise UsageError(str(error)) from error
+    # A recording cut short (a killed flight process) still checks the ticks before its
+    # end; refusing it would leave unchecked the flights that ended worst.
+    warning = truncation_warning(mocap_recording_path(log.path), recording)
+    if warning is not None:
+        _warn(args, f"{warning}; comparing the ticks before its end only")
     print(describe(args.log, comparison))
     return 0 if comparison.same else 1
+
+
+def _warn(args: argparse.Namespace, line: str) -> None:
+    print(f"{PROG} {args.command}: warning: {line}", file=sys.stderr, flush=True)
 
 
 def _say(line: str) -> None:

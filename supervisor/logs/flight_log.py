@@ -127,9 +127,13 @@ class FlightLogWriter:
             self._last_sync_s = record.t_s
 
     def close(self) -> None:
+        """Close the file (raises ``OSError`` when its last write fails; the file and its
+        sync thread are released all the same)."""
         if not self._file.closed:
-            self._file.close()
-            self._sync.close()
+            try:
+                self._file.close()
+            finally:
+                self._sync.close()
 
     def __enter__(self) -> FlightLogWriter:
         return self
@@ -186,8 +190,9 @@ def _array(rows: list[Any], width: int | None = None) -> FloatArray:
 
 def read_flight_log(path: Path) -> FlightLog:
     """Read a log of either format, chosen by its extension; what a killed writer tore at
-    the end (a last line, a last chunk) is skipped. Raises ``ValueError`` for a file that is
-    not a flight log."""
+    the end (a last line, a last chunk) is skipped. Raises ``ValueError`` naming the file
+    (and the line of JSON Lines) for a file that is not a flight log — empty, another
+    format — or is broken anywhere else: a line that is no tick, an MCAP's changed bytes."""
     if path.suffix == ".mcap":
         return _read_mcap(path)
     return _read_jsonl(path)
@@ -227,25 +232,66 @@ def _read_mcap(path: Path) -> FlightLog:
     return _flight_log(path, recovered.header, ticks, recovered.notices)
 
 
+_WIDTHS = {"state": 36, "state_ref": 36, "inputs": 8}
+_NUMBERS = ("solve_ms", "compute_ms", "lateness_ms", "mocap_age_ms")
+_NAMES = ("mode", "controller", "plan_status")
+
+
+def _is_number(value: Any) -> bool:
+    """A JSON number, or null (a non-finite value, as the writer writes it)."""
+    return value is None or (isinstance(value, int | float) and not isinstance(value, bool))
+
+
+def _tick_problem(entry: dict[str, Any]) -> str | None:
+    """What keeps ``entry`` from being a tick the reader can take, or None."""
+    if not isinstance(entry.get("t_s"), int | float) or isinstance(entry["t_s"], bool):
+        return "no time t_s"
+    for name in _NUMBERS:
+        if not _is_number(entry.get(name, "")):
+            return f"{name} is not a number"
+    for name in _NAMES:
+        if not isinstance(entry.get(name), str):
+            return f"{name} is not a name"
+    for name, width in _WIDTHS.items():
+        values = entry.get(name)
+        if not (isinstance(values, list) and len(values) == width):
+            return f"{name} is not {width} numbers"
+        if not all(_is_number(value) for value in values):
+            return f"{name} holds something other than numbers"
+    if not isinstance(entry.get("extra", {}), dict):
+        return "extra is not an object"
+    notices = entry.get("notices", [])
+    if not (isinstance(notices, list) and all(isinstance(text, str) for text in notices)):
+        return "notices are not texts"
+    return None
+
+
 def _read_jsonl(path: Path) -> FlightLog:
+    data = path.read_bytes()
+    if not data:
+        raise ValueError(f"{path}: empty file, not a flight log")
+    lines = data.split(b"\n")
     header: dict[str, Any] | None = None
     ticks: list[dict[str, Any]] = []
-    with path.open(encoding="utf-8") as handle:
-        lines = handle.read().split("\n")
     for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:
-            entry = json.loads(line)
-        except json.JSONDecodeError as error:
-            if number >= len(lines) - 1:
-                break  # torn tail of a killed process
+            entry = json.loads(line.decode("utf-8"))
+        except ValueError as error:  # JSON's and UTF-8's
+            if number == len(lines):
+                break  # a last line without its newline: the torn tail of a killed writer
             raise ValueError(f"{path}:{number}: not a flight-log line ({error})") from error
+        if not isinstance(entry, dict):
+            raise ValueError(f"{path}:{number}: not a flight-log line (not a JSON object)")
         if entry.get("kind") == "header" and header is None:
             header = entry
         elif entry.get("kind") == "tick":
+            problem = _tick_problem(entry)
+            if problem is not None:
+                raise ValueError(f"{path}:{number}: not a tick line ({problem})")
             ticks.append(entry)
     if header is None:
-        raise ValueError(f"{path}: no flight-log header")
+        raise ValueError(f"{path}: no flight-log header: not a flight log")
     notices = [(t["t_s"], text) for t in ticks for text in t.get("notices", ())]
     return _flight_log(path, header, ticks, notices)

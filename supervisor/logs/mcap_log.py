@@ -4,7 +4,8 @@ Every tick's messages go into the current chunk; the chunk is finished and hande
 OS at least once a second of the log's time (``FLUSH_INTERVAL_S``), and a thread fsyncs the
 file after each (an fsync can take tens of ms on a busy disk: never on the tick's path). A
 writer killed at any moment leaves a file without a summary whose complete chunks
-``read_mcap_flight_log`` recovers, losing at most the last second.
+``read_mcap_records`` recovers, losing at most the last second; bytes changed anywhere else
+(the CRCs and LZ4's checksums tell) make it refuse the file, saying where.
 
 Two libraries can write it, with the same channels, schemas and messages: ``foxglove`` (the
 SDK's own writer, in Rust: the default) and ``mcap`` (the ``mcap`` package's writer in
@@ -15,8 +16,11 @@ packs them about a third smaller but doubles the flush's cost.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import struct
+import zlib
 from collections import defaultdict
 from collections.abc import Iterator
 from datetime import UTC, datetime
@@ -28,10 +32,12 @@ import foxglove.channels
 import foxglove.messages as fg
 import pydantic_core
 from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
+from mcap.opcode import Opcode
 from mcap.records import Channel as McapChannel
-from mcap.records import Message, Metadata
-from mcap.stream_reader import StreamReader
+from mcap.records import Chunk, DataEnd, Footer, McapRecord, Message, Metadata
+from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from supervisor.flight.tick_record import TickRecord
@@ -137,8 +143,13 @@ class _FoxgloveSdkSink:
             path, allow_overwrite=True, context=self._context, writer_options=options
         )
         self._channels = FoxgloveChannels(self._context)
-        self._writer.write_metadata(HEADER_METADATA, metadata)
-        self._writer.flush()
+        try:
+            self._writer.write_metadata(HEADER_METADATA, metadata)
+            self._writer.flush()
+        except RuntimeError:
+            with contextlib.suppress(RuntimeError):
+                self._writer.close()  # a writer dropped open panics at the interpreter's exit
+            raise
 
     def write(self, topic: str, log_time_ns: int, message: bytes | Any) -> None:
         self._channels.write(topic, log_time_ns, message)
@@ -222,10 +233,15 @@ class McapFlightLogWriter:
             self._last_flush_s = record.t_s
 
     def close(self) -> None:
+        """Close the file. Raises when its last write fails (the sync thread is released
+        all the same); foxglove-sdk's writer refuses once after a failed write, and a
+        second call closes it."""
         if not self._closed:
-            self._closed = True
-            self._sink.close()
-            self._sync.close()
+            try:
+                self._sink.close()
+                self._closed = True
+            finally:
+                self._sync.close()
 
     def __enter__(self) -> McapFlightLogWriter:
         return self
@@ -245,47 +261,153 @@ class RecoveredMcap:
         self.complete = False
 
 
-def _decoded_messages(path: Path, recovered: RecoveredMcap) -> Iterator[tuple[str, Any]]:
-    """(topic, decoded JSON) of our own channels in file order; the header into
-    ``recovered``. A torn tail (a killed writer) ends the iteration: everything before the
-    chunk it tore comes through."""
-    topics: dict[int, str] = {}
+MAGIC = b"\x89MCAP0\r\n"
+# Every record is an opcode, the content's length and the content (MCAP spec, "Records").
+RECORD_PREFIX = struct.Struct("<BQ")
+# Our writers write no other record (the spec's private opcodes 0x80-0xff neither): any
+# other opcode is a byte that is not where a record starts.
+OPCODES = frozenset(Opcode)
+# What the mcap package raises below it for bytes that are not what it expects: its own
+# errors, struct's, LZ4's (RuntimeError: a frame or its checksum), UTF-8's and
+# CRCValidationError (ValueErrors), an impossible length (OverflowError).
+UNREADABLE = (McapError, struct.error, ValueError, RuntimeError, OverflowError)
+
+
+class _Bounded(io.BytesIO):
+    """One record's content: a field that runs past its end is an error, not a short read
+    (which ``ReadDataStream`` would take as it is)."""
+
+    def read(self, size: int | None = -1, /) -> bytes:
+        data = super().read(size)
+        if size is not None and 0 <= size != len(data):
+            raise ValueError(f"a field of {size} bytes runs past the record's end")
+        return data
+
+
+def _parsed(opcode: int, content: bytes) -> list[McapRecord]:
+    """The records one top-level record holds: the chunk's (its CRC and LZ4 checksum
+    checked), or itself for those the reader uses; nothing for the indexes and statistics
+    (the summary CRC checks them)."""
+    stream = ReadDataStream(_Bounded(content))
+    if opcode == Opcode.CHUNK:
+        return list(breakup_chunk(Chunk.read(stream), validate_crc=True))
+    if opcode == Opcode.MESSAGE:
+        return [Message.read(stream, len(content))]
+    readers: dict[int, Any] = {
+        Opcode.CHANNEL: McapChannel.read,
+        Opcode.METADATA: Metadata.read,
+        Opcode.DATA_END: DataEnd.read,
+        Opcode.FOOTER: Footer.read,
+    }
+    return [readers[opcode](stream)] if opcode in readers else []
+
+
+def _corrupt(path: Path, offset: int, what: str) -> ValueError:
+    return ValueError(f"{path}: corrupt at byte {offset}: {what}")
+
+
+def _mcap_records(path: Path, recovered: RecoveredMcap) -> Iterator[McapRecord]:
+    """Every record in file order, chunks opened, each checked: the chunks' CRCs and LZ4
+    checksums, the data section's and the summary's CRCs, every length. The end a killed
+    writer leaves — a last record that runs past the end of a file without the closing
+    magic — ends the iteration (``recovered.complete`` then stays False); any other bytes
+    that do not read raise ``ValueError`` naming where the record holding them starts."""
+    size = path.stat().st_size
     with path.open("rb") as handle:
-        records = StreamReader(handle, validate_crcs=True).records
+        handle.seek(size - len(MAGIC))
+        closed = size > 2 * len(MAGIC) and handle.read() == MAGIC
+        handle.seek(len(MAGIC))
+        offset = len(MAGIC)
+        data_crc: int | None = zlib.crc32(MAGIC)  # None after the data section
+        summary_crc = 0
         while True:
+            prefix = handle.read(RECORD_PREFIX.size)
+            if len(prefix) == RECORD_PREFIX.size:
+                opcode, length = RECORD_PREFIX.unpack(prefix)
+                if opcode not in OPCODES:
+                    raise _corrupt(path, offset, f"no MCAP record starts with {opcode:#04x}")
+                fits = length <= size - offset - RECORD_PREFIX.size
+            else:
+                opcode, length, fits = 0, 0, False
+            if not fits:
+                if closed:
+                    raise _corrupt(path, offset, "a record runs past the end of the file")
+                return  # torn by a killed writer: everything before it is whole
+            content = handle.read(length)
             try:
-                record = next(records)
-            except StopIteration:
+                records = _parsed(opcode, content)
+            except UNREADABLE as error:
+                name = Opcode(opcode).name.lower()
+                raise _corrupt(path, offset, f"{name} record: {error}") from error
+            record = records[0] if records else None
+            if isinstance(record, DataEnd):
+                if data_crc is not None and record.data_section_crc not in (0, data_crc):
+                    raise _corrupt(path, offset, "the data section's CRC does not match")
+                data_crc = None
+            elif isinstance(record, Footer):
+                summary_crc = zlib.crc32(prefix + content[:16], summary_crc)
+                if record.summary_start and record.summary_crc not in (0, summary_crc):
+                    raise _corrupt(path, offset, "the summary's CRC does not match")
+                if handle.read() != MAGIC:
+                    raise _corrupt(path, offset + RECORD_PREFIX.size + length, "no end magic")
                 recovered.complete = True
                 return
-            except (McapError, struct.error, ValueError, EOFError):
-                return
-            if isinstance(record, McapChannel):
-                topics[record.id] = record.topic
-            elif isinstance(record, Metadata) and record.name == HEADER_METADATA:
+            elif data_crc is not None:
+                data_crc = zlib.crc32(content, zlib.crc32(prefix, data_crc))
+            else:
+                summary_crc = zlib.crc32(content, zlib.crc32(prefix, summary_crc))
+            yield from records
+            offset += RECORD_PREFIX.size + length
+
+
+def _decoded_messages(path: Path, recovered: RecoveredMcap) -> Iterator[tuple[str, Any]]:
+    """(topic, decoded JSON) of our own channels in file order (``_mcap_records``); the
+    header into ``recovered``."""
+    topics: dict[int, str] = {}
+    for record in _mcap_records(path, recovered):
+        if isinstance(record, McapChannel):
+            topics[record.id] = record.topic
+        elif isinstance(record, Metadata) and record.name == HEADER_METADATA:
+            try:
                 recovered.header = {key: json.loads(v) for key, v in record.metadata.items()}
-            elif isinstance(record, Message):
-                topic = topics.get(record.channel_id, "")
-                if topic in JSON_SCHEMAS:
+            except ValueError as error:
+                raise ValueError(f"{path}: corrupt {HEADER_METADATA} ({error})") from error
+        elif isinstance(record, Message):
+            topic = topics.get(record.channel_id, "")
+            if topic in JSON_SCHEMAS:
+                try:
                     yield topic, json.loads(record.data)
+                except ValueError as error:
+                    raise ValueError(f"{path}: corrupt {topic} message ({error})") from error
 
 
 def read_mcap_records(path: Path) -> RecoveredMcap:
-    """Read back every complete tick of an MCAP flight log. Raises ``ValueError`` for a
-    file that is not one (no MCAP magic, or no ``uavbar.header``)."""
+    """Read back every complete tick of an MCAP flight log; of a file torn by a killed
+    writer, those before the tear. Raises ``ValueError`` naming the file and what is wrong
+    for a file that is not a flight log (empty, no MCAP magic, no ``uavbar.header``) or
+    whose bytes were changed (a CRC, a checksum, a length or a message that does not
+    read)."""
     with path.open("rb") as handle:
-        if handle.read(8) != b"\x89MCAP0\r\n":
-            raise ValueError(f"{path}: not an MCAP file")
+        magic = handle.read(len(MAGIC))
+    if not magic:
+        raise ValueError(f"{path}: empty file, not a flight log")
+    if magic != MAGIC:
+        raise ValueError(f"{path}: not an MCAP file")
     recovered = RecoveredMcap()
     pending: dict[str, list[Any]] = defaultdict(list)
     for topic, message in _decoded_messages(path, recovered):
-        if topic == "/uavbar/notices":
-            recovered.notices.append((float(message["t_s"]), str(message["text"])))
-            continue
-        pending[topic].append(message)
-        if all(pending[t] for t in PER_TICK_TOPICS):
-            tick = {t: pending[t].pop(0) for t in PER_TICK_TOPICS}
-            recovered.records.append(record_from_messages(tick))
+        try:
+            if topic == "/uavbar/notices":
+                recovered.notices.append((float(message["t_s"]), str(message["text"])))
+                continue
+            pending[topic].append(message)
+            if all(pending[t] for t in PER_TICK_TOPICS):
+                tick = {t: pending[t].pop(0) for t in PER_TICK_TOPICS}
+                recovered.records.append(record_from_messages(tick))
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{path}: a {topic} message of another shape ({error!r})") from error
     if recovered.header is None:
+        if not recovered.complete:
+            raise ValueError(f"{path}: cut short before its {HEADER_METADATA} metadata")
         raise ValueError(f"{path}: no {HEADER_METADATA} metadata: not a flight log")
     return recovered

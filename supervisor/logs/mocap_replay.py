@@ -8,8 +8,10 @@ through the client's receiving side at its receive time, the frames fused at the
 logged tick after they came, with the repeat refusal the tick logged — the estimate at each
 tick is the one the flight used, bit for bit, as long as the fusion, its gate and the
 receiver work as they did: a regression test of them on recorded flights
-(``uavbar-supervisor mocap check LOG``). ``mocap replay`` serves the same file over the
-QTM RT protocol, where the arrival times become the replaying machine's own.
+(``uavbar-supervisor mocap check LOG``). A recording cut short (the flight process killed,
+the disk full) is compared over the ticks before its last packet only, and the comparison
+says so. ``mocap replay`` serves the same file over the QTM RT protocol, where the arrival
+times become the replaying machine's own.
 """
 
 from __future__ import annotations
@@ -29,12 +31,14 @@ from supervisor.logs.flight_log import FlightLog, mocap_recording_path
 
 @dataclass(frozen=True)
 class ReplayComparison:
-    """The replayed estimates against the logged ones: ``state_difference`` the largest
-    |Δ| over every tick and state (a NaN where the other is not counts as infinite),
+    """The replayed estimates against the logged ones: ``ticks`` compared of the log's
+    ``logged_ticks`` (fewer when the recording was cut short), ``state_difference`` the
+    largest |Δ| over every tick and state (a NaN where the other is not counts as infinite),
     ``age_difference_s`` the largest |Δ| of the mocap age, ``first_difference_s`` the
     first tick (since the log's first) where either exceeds ``tolerance``."""
 
     ticks: int
+    logged_ticks: int
     state_difference: float
     age_difference_s: float
     tolerance: float
@@ -62,10 +66,15 @@ def replay_estimates(
     """The estimate at each of ``log``'s ticks from ``recording``, taken as the flight
     process took it, starting from the log's ``mocap_recording`` state (``fusion``: a new
     fusion of the flight's config)."""
-    start = log.header["mocap_recording"]
-    fusion.restore(start["fusion"])
     receiver = FrameReceiver(recording.body_names, recording.component)
-    receiver.resume(start["receiver"])
+    try:
+        start = log.header["mocap_recording"]
+        fusion.restore(start["fusion"])
+        receiver.resume(start["receiver"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(
+            f"{log.path}: its mocap_recording header does not read ({error!r})"
+        ) from error
     received_s = [recording.clock_start_s + p.arrival_s for p in recording.packets]
     estimates: list[Estimate] = []
     next_packet = 0
@@ -101,14 +110,38 @@ def compare_with_log(
         state_max, age_max = max(state_max, state), max(age_max, age)
         if first is None and (state > tolerance or age > tolerance):
             first = float(log.t_s[k] - log.t_s[0])
-    return ReplayComparison(len(estimates), state_max, age_max, tolerance, first)
+    return ReplayComparison(len(estimates), len(log.t_s), state_max, age_max, tolerance, first)
+
+
+def recorded_ticks(log: FlightLog, recording: Recording) -> int:
+    """How many of ``log``'s first ticks came before ``recording``'s last packet: all that a
+    recording cut short still accounts for (a later tick may have fused packets it lost)."""
+    if not recording.packets:
+        return 0
+    end_s = recording.clock_start_s + recording.packets[-1].arrival_s
+    return int(np.searchsorted(log.t_s, end_s, side="left"))
 
 
 def check_flight(
-    log: FlightLog, fusion: MocapFusion, names: BodyNames, tolerance: float = 1e-9
+    log: FlightLog,
+    fusion: MocapFusion,
+    names: BodyNames,
+    tolerance: float = 1e-9,
+    recording: Recording | None = None,
 ) -> tuple[list[Estimate], ReplayComparison]:
-    """Replay ``log``'s own recording (``flight_recording``) and compare."""
-    estimates = replay_estimates(log, flight_recording(log), fusion, names)
+    """Replay ``log``'s own recording (``recording`` when already read, else
+    ``flight_recording``) and compare: every tick, or of a recording cut short the ticks it
+    accounts for (``recorded_ticks``). Raises ``ValueError`` when it accounts for none."""
+    if recording is None:
+        recording = flight_recording(log)
+    estimates = replay_estimates(log, recording, fusion, names)
+    if recording.truncation is not None:
+        estimates = estimates[: recorded_ticks(log, recording)]
+        if not estimates:
+            raise ValueError(
+                f"{mocap_recording_path(log.path)}: truncated ({recording.truncation}) "
+                "before the flight's first tick: nothing to compare"
+            )
     return estimates, compare_with_log(log, estimates, tolerance)
 
 
@@ -120,8 +153,14 @@ def describe(path: Path, comparison: ReplayComparison) -> str:
         if c.same
         else f"NOT the same: first beyond {c.tolerance:g} {c.first_difference_s:.2f} s in"
     )
+    ticks = (
+        f"{c.ticks} ticks"
+        if c.ticks == c.logged_ticks
+        else f"{c.ticks} of {c.logged_ticks} ticks (the recording is truncated: the later "
+        "ticks are not compared)"
+    )
     return (
-        f"{path.name}: {c.ticks} ticks replayed from the flight's own mocap recording: "
+        f"{path.name}: {ticks} replayed from the flight's own mocap recording: "
         f"{verdict} (largest difference: state {c.state_difference:.3g}, "
         f"mocap age {c.age_difference_s:.3g} s)"
     )

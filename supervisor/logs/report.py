@@ -2,12 +2,14 @@
 
 ``write_report([log], out)`` writes ``positions.png``, ``orientations.png`` (Fig. 6),
 ``inputs.png`` (Fig. 7), ``errors.png`` (Fig. 8) and ``summary.md`` / ``summary.json``.
-With two logs (e.g. centralized and decentralized) the second is drawn dashed, in its own
-colour, over the first in Figs 6 and 7, and in a column of its own in Fig. 8 (the errors
-of the two would hide each other). References are dotted black; angles are unwrapped in
-Fig. 6 and errors wrapped to ±180° in Fig. 8; inputs are a moving mean with the raw range
-shaded (the MPC's tick-to-tick input chatter otherwise fills the panel). Every panel has
-its legend.
+Time is in seconds from each log's first tick (the flight's start: a service's log counts
+its ticks on the machine's clock, since it booted). With two logs (e.g. centralized and
+decentralized) both are drawn on the same axes of every panel, the first solid and the
+second dashed, each in its colour and labelled by its file name; the figure's title says
+which controller flew each. References are dotted black; angles are unwrapped in Fig. 6 and
+errors wrapped to ±180° in Fig. 8, one panel per component; inputs are a moving mean with
+the raw range shaded (the MPC's tick-to-tick input chatter otherwise fills the panel).
+Every panel has its legend, inside the panel.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import matplotlib
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Patch
 
 from controllers.mpc import PlanStatus
 from supervisor.logs.flight_log import FlightLog
@@ -66,6 +69,9 @@ def summarize(log: FlightLog) -> dict[str, Any]:
     def pct(values: np.ndarray, q: float) -> float:
         return float(np.percentile(values, q)) if values.size else math.nan
 
+    with _warnings_ignored():
+        position_rms_m = float(np.sqrt(np.nanmean(np.sum(error**2, axis=1))))
+        yaw_rms_deg = float(np.degrees(np.sqrt(np.nanmean(yaw_error**2))))
     return {
         "controller": log.controller,
         "ticks": len(log.t_s),
@@ -74,12 +80,8 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         "bar_x_error_std_m": float(np.std(x_error[finite], ddof=1))
         if finite.sum() > 1
         else math.nan,
-        "bar_position_rms_m": float(np.sqrt(np.nanmean(np.sum(error**2, axis=1))))
-        if len(error)
-        else math.nan,
-        "bar_yaw_rms_deg": float(np.degrees(np.sqrt(np.nanmean(yaw_error**2))))
-        if len(yaw_error)
-        else math.nan,
+        "bar_position_rms_m": position_rms_m,
+        "bar_yaw_rms_deg": yaw_rms_deg,
         "solve_ms": {
             "p50": pct(solve, 50),
             "p99": pct(solve, 99),
@@ -92,10 +94,50 @@ def summarize(log: FlightLog) -> dict[str, Any]:
 
 COLOURS = ("tab:blue", "tab:orange")
 FILTER_S = 0.5  # the inputs' moving window: the MPC's tick-to-tick chatter is ~20 ms
+# A panel's legend holds a label per log: longer file names are shortened in their middle
+# (the start and the end tell flight logs apart: flight-20261203-101500.mcap is 27).
+LABEL_CHARS = 36
+TIME_LABEL = "t since the flight's start [s]"
 
 
 def _style(index: int) -> str:
     return "-" if index == 0 else "--"
+
+
+def _t_s(log: FlightLog) -> np.ndarray:
+    """The ticks' times from the log's first tick [s]."""
+    return log.t_s - log.t_s[0] if len(log.t_s) else log.t_s
+
+
+def _shortened(name: str) -> str:
+    if len(name) <= LABEL_CHARS:
+        return name
+    keep = LABEL_CHARS - 1
+    return f"{name[: keep - keep // 2]}…{name[len(name) - keep // 2 :]}"
+
+
+def log_names(logs: list[FlightLog]) -> list[str]:
+    """What names each log in the report: its file name; with its folder's when the names
+    are the same, and its place when the paths are too."""
+    names = [log.path.name for log in logs]
+    if len(set(names)) < len(names):
+        names = [f"{log.path.parent.name}/{log.path.name}" for log in logs]
+    if len(set(names)) < len(names):
+        names = [f"{name} ({k + 1})" for k, name in enumerate(names)]
+    return names
+
+
+def _labels(logs: list[FlightLog]) -> list[str]:
+    """Each log's name as its figures' legends and titles give it."""
+    return [_shortened(name) for name in log_names(logs)]
+
+
+def _title(fig: Any, title: str, logs: list[FlightLog]) -> None:
+    """The figure's title, then a line per log: its label and the controller(s) it flew."""
+    labels = _labels(logs)
+    styles = ("", "") if len(logs) == 1 else (" (solid)", " (dashed)")
+    lines = [f"{labels[k]}{styles[k]}: {log.controller}" for k, log in enumerate(logs)]
+    fig.suptitle(title + "\n" + "\n".join(lines), fontsize=11)
 
 
 def _unwrap(angles_rad: np.ndarray) -> np.ndarray:
@@ -119,24 +161,18 @@ def _legend(ax: Any, **kwargs: Any) -> None:
     ax.legend(fontsize=7, loc="best", framealpha=0.8, **kwargs)
 
 
-def _label(log: FlightLog, logs: list[FlightLog]) -> str:
-    if len(logs) == 1:
-        return log.controller
-    return f"{log.controller} ({'solid' if log is logs[0] else 'dashed'})"
-
-
 def _against_reference(
     ax: Any, logs: list[FlightLog], k: int, values: np.ndarray, reference: np.ndarray
 ) -> None:
     """Log ``k``'s ``values`` in its style, and its ``reference`` dotted (labelled once)."""
-    t_s = logs[k].t_s
-    ax.plot(t_s, values, _style(k), color=COLOURS[k], lw=1.1, label=_label(logs[k], logs))
+    t_s = _t_s(logs[k])
+    ax.plot(t_s, values, _style(k), color=COLOURS[k], lw=1.1, label=_labels(logs)[k])
     ax.plot(t_s, reference, ":", color="k", lw=0.9, label="reference" if k == 0 else None)
 
 
 def _positions(logs: list[FlightLog]) -> Any:
     """Fig. 6, positions: bar, UAV 1, UAV 2 (columns) × x, y, z (rows), reference dotted."""
-    fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
+    fig, axes = plt.subplots(3, 3, figsize=(13, 8.5), sharex=True, layout="constrained")
     for col, (body, offset) in enumerate(BODIES):
         for row, axis in enumerate(AXES):
             ax = axes[row, col]
@@ -148,8 +184,8 @@ def _positions(logs: list[FlightLog]) -> Any:
             ax.set_ylabel("[m]")
             ax.grid(alpha=0.3)
             _legend(ax)
-        axes[-1, col].set_xlabel("t [s]")
-    fig.suptitle("Positions (dotted: reference)")
+        axes[-1, col].set_xlabel(TIME_LABEL)
+    _title(fig, "Positions (dotted: reference)", logs)
     return fig
 
 
@@ -162,25 +198,22 @@ ORIENTATION_PANELS = (
 )
 
 
+def _no_panel(ax: Any, text: str) -> None:
+    ax.axis("off")
+    ax.text(
+        0.5, 0.5, text, ha="center", va="center", fontsize=9, color="0.4", transform=ax.transAxes
+    )
+
+
 def _orientations(logs: list[FlightLog]) -> Any:
     """Fig. 6, orientations, unwrapped (no ±180° stripes); the bar has no roll panel."""
-    fig, axes = plt.subplots(3, 3, figsize=(13, 8), sharex=True)
+    fig, axes = plt.subplots(3, 3, figsize=(13, 8.5), sharex=True, layout="constrained")
     for col, (body, offset, angles) in enumerate(ORIENTATION_PANELS):
         rows = [ANGLES.index(angle) for angle in angles]
         for row in range(3):
             ax = axes[row, col]
             if row not in rows:  # the bar's roll
-                ax.axis("off")
-                ax.text(
-                    0.5,
-                    0.5,
-                    f"{body}: no roll\n(it cannot turn about its own axis)",
-                    ha="center",
-                    va="center",
-                    fontsize=9,
-                    color="0.4",
-                    transform=ax.transAxes,
-                )
+                _no_panel(ax, f"{body}: no roll\n(it cannot turn about its own axis)")
                 continue
             for k, log in enumerate(logs):
                 state, ref = _unwrapped_pair(
@@ -192,8 +225,8 @@ def _orientations(logs: list[FlightLog]) -> Any:
             ax.grid(alpha=0.3)
             _legend(ax)
             ax.xaxis.set_tick_params(labelbottom=True)
-        axes[max(rows), col].set_xlabel("t [s]")
-    fig.suptitle("Orientations, unwrapped (dotted: reference)")
+        axes[max(rows), col].set_xlabel(TIME_LABEL)
+    _title(fig, "Orientations, unwrapped (dotted: reference)", logs)
     return fig
 
 
@@ -223,39 +256,29 @@ INPUT_ROWS = (
 def _inputs(logs: list[FlightLog]) -> Any:
     """Fig. 7: each UAV's thrust and torques, one panel each, as a 0.5 s moving mean with
     the raw values' range over the same window shaded."""
-    fig, axes = plt.subplots(4, 2, figsize=(13, 9), sharex=True)
+    fig, axes = plt.subplots(4, 2, figsize=(13, 9.5), sharex=True, layout="constrained")
+    labels = _labels(logs)
     for uav in range(2):
         for row, (name, index, unit) in enumerate(INPUT_ROWS):
             ax = axes[row, uav]
             for k, log in enumerate(logs):
-                window = _window(log)
-                mean, low, high = _filtered(log.inputs[:, 4 * uav + index], window)
-                ax.fill_between(
-                    log.t_s,
-                    low,
-                    high,
-                    color=COLOURS[k],
-                    alpha=0.22,
-                    lw=0,
-                    label=f"{log.controller}: raw range",
-                )
-                ax.plot(
-                    log.t_s,
-                    mean,
-                    _style(k),
-                    color=COLOURS[k],
-                    lw=1.1,
-                    label=f"{log.controller}: {FILTER_S:g} s mean",
-                )
+                mean, low, high = _filtered(log.inputs[:, 4 * uav + index], _window(log))
+                t_s = _t_s(log)
+                ax.fill_between(t_s, low, high, color=COLOURS[k], alpha=0.22, lw=0)
+                ax.plot(t_s, mean, _style(k), color=COLOURS[k], lw=1.1, label=labels[k])
+            handles, _ = ax.get_legend_handles_labels()
+            shade = Patch(color="0.5", alpha=0.3, lw=0, label="raw range")
+            ax.legend(handles=[*handles, shade], fontsize=7, loc="best", framealpha=0.8, ncol=2)
             ax.set_title(f"UAV {uav + 1} {name}{uav + 1 if index == 0 else ''}", fontsize=9)
             ax.set_ylabel(unit)
             ax.grid(alpha=0.3)
-            _legend(ax, ncol=2)
-        axes[-1, uav].set_xlabel("t [s]")
-    fig.suptitle(f"Inputs: {FILTER_S:g} s moving mean, raw range shaded")
+        axes[-1, uav].set_xlabel(TIME_LABEL)
+    _title(fig, f"Inputs: {FILTER_S:g} s moving mean, raw range shaded", logs)
     return fig
 
 
+# Fig. 8's rows: (name, the state index of its first component, its components, unit); a
+# panel per component, x/roll, y/pitch, z/yaw from the left.
 ERROR_ROWS = (
     ("bar position error", 0, AXES, "[m]"),
     ("bar yaw error", 8, ("yaw",), "[°]"),
@@ -264,41 +287,38 @@ ERROR_ROWS = (
     ("UAV 2 position error", 24, AXES, "[m]"),
     ("UAV 2 attitude error", 30, ANGLES, "[°]"),
 )
-ERROR_COLOURS = ("tab:red", "tab:green", "tab:blue")
 
 
 def _errors(logs: list[FlightLog]) -> Any:
-    """Fig. 8: tracking errors of the bar and both UAVs, one column per log (the same
-    scale along a row), angles wrapped to ±180°."""
+    """Fig. 8: tracking errors of the bar and both UAVs, a panel per component with every
+    log on it (the same scale along a row), angles wrapped to ±180°."""
     fig, axes = plt.subplots(
-        len(ERROR_ROWS),
-        len(logs),
-        figsize=(7 * len(logs), 13),
-        sharex=True,
-        sharey="row",
-        squeeze=False,
+        len(ERROR_ROWS), 3, figsize=(13, 15), sharex=True, sharey="row", layout="constrained"
     )
-    for col, log in enumerate(logs):
-        for row, (name, offset, components, unit) in enumerate(ERROR_ROWS):
-            ax = axes[row, col]
-            error = (
-                log.state[:, offset : offset + len(components)]
-                - log.state_ref[:, offset : offset + len(components)]
-            )
-            if unit == "[°]":
-                error = np.degrees(_wrap(error))
-            for j, component in enumerate(components):
-                ax.plot(log.t_s, error[:, j], color=ERROR_COLOURS[j], lw=0.9, label=component)
-            ax.set_title(f"{name} — {log.controller}", fontsize=9)
+    labels = _labels(logs)
+    for row, (name, offset, components, unit) in enumerate(ERROR_ROWS):
+        for col in range(len(components), 3):
+            axes[row, col].axis("off")
+        for j, component in enumerate(components):
+            ax = axes[row, j]
+            for k, log in enumerate(logs):
+                error = log.state[:, offset + j] - log.state_ref[:, offset + j]
+                if unit == "[°]":
+                    error = np.degrees(_wrap(error))
+                ax.plot(_t_s(log), error, _style(k), color=COLOURS[k], lw=0.9, label=labels[k])
+            ax.set_title(f"{name} {component}" if len(components) > 1 else name, fontsize=9)
             ax.set_ylabel(unit)
             ax.grid(alpha=0.3)
-            _legend(ax, ncol=len(components))
-        axes[-1, col].set_xlabel("t [s]")
-    fig.suptitle("Tracking errors (state − reference)")
+            ax.xaxis.set_tick_params(labelbottom=True)
+            _legend(ax)
+    for col in range(3):
+        axes[-1, col].set_xlabel(TIME_LABEL)
+    _title(fig, "Tracking errors (state − reference)", logs)
     return fig
 
 
 SUMMARY_COLUMNS = (
+    "log",
     "controller",
     "duration [s]",
     "bar x error mean [m]",
@@ -314,11 +334,12 @@ PAPER_TABLE_III = (
 )
 
 
-def _markdown(summaries: list[dict[str, Any]]) -> str:
+def _markdown(summaries: list[dict[str, Any]], labels: list[str]) -> str:
     lines = ["# Flight summary", "", "| " + " | ".join(SUMMARY_COLUMNS) + " |"]
     lines.append("|" + "---|" * len(SUMMARY_COLUMNS))
-    for s in summaries:
+    for s, label in zip(summaries, labels, strict=True):
         cells = (
+            label.replace("|", "\\|"),
             s["controller"],
             f"{s['duration_s']:.1f}",
             f"{s['bar_x_error_mean_m']:.5f}",
@@ -344,15 +365,15 @@ def figures(logs: list[FlightLog]) -> dict[str, Any]:
 
 
 def write_report(logs: list[FlightLog], out: Path) -> list[Path]:
-    """Write the figures and the summary for one or two logs; returns the files written."""
+    """Write the figures and the summary (a row per log, named by its file) for one or two
+    logs, each with at least one tick; returns the files written."""
     out.mkdir(parents=True, exist_ok=True)
     files = []
     for stem, fig in figures(logs).items():
-        fig.tight_layout()
         fig.savefig(out / f"{stem}.png", dpi=110)
         plt.close(fig)
         files.append(out / f"{stem}.png")
-    summaries = [summarize(log) for log in logs]
+    summaries = [{"log": str(log.path), **summarize(log)} for log in logs]
     (out / "summary.json").write_text(json.dumps(summaries, indent=2) + "\n")
-    (out / "summary.md").write_text(_markdown(summaries))
+    (out / "summary.md").write_text(_markdown(summaries, log_names(logs)))
     return [*files, out / "summary.json", out / "summary.md"]

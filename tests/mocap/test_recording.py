@@ -7,7 +7,10 @@ import asyncio
 import gzip
 import itertools
 import os
+import socket
+import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +20,7 @@ import qtm_rt
 from mocap.client import QtmClient
 from mocap.qtm_protocol import ComponentType, DataPacket, MocapFrame
 from mocap.recorder import record_stream
-from mocap.recording import Recording, read_recording, write_recording
+from mocap.recording import Recording, read_recording, truncation_warning, write_recording
 from sim.qtm_replay import QtmReplayServer
 from sim.qtm_server import QtmServer
 from tests.mocap.test_client import LOCALHOST, NAMES, assert_matches_source, source
@@ -221,3 +224,129 @@ def test_the_cli_refuses_what_is_no_recording(
     assert main(["mocap", "replay", str(tmp_path / "x.gz")]) == 2
     assert "not a QTM recording" in capsys.readouterr().err
     assert main(["mocap", "record", "--duration", "0", "--out", str(tmp_path / "y")]) == 2
+
+
+# ---- recordings cut short or corrupted ------------------------------------------------------
+SHIPPED = ROOT / "tests" / "data" / "hover-dropout.qtm.gz"
+
+
+def written(recording: Recording, path: Path) -> bytes:
+    write_recording(recording, path)
+    return path.read_bytes()
+
+
+def test_a_recording_cut_in_half_says_so_and_what_it_holds(tmp_path: Path) -> None:
+    whole = read_recording(SHIPPED)
+    data = written(whole, tmp_path / "whole.qtm.gz")
+    assert whole.truncation is None and truncation_warning(SHIPPED, whole) is None
+    cut_path = tmp_path / "cut.qtm.gz"
+    cut_path.write_bytes(data[: len(data) // 2])
+    cut = read_recording(cut_path)
+    assert cut.truncation == "its gzip stream ends early"
+    assert 0 < len(cut.packets) < len(whole.packets)
+    assert cut.packets == whole.packets[: len(cut.packets)]
+    frames = list(cut.frames())
+    held_s = cut.packets[-1].arrival_s - cut.packets[0].arrival_s
+    assert truncation_warning(cut_path, cut) == (
+        f"{cut_path}: truncated (its gzip stream ends early): it holds {len(frames)} frames "
+        f"over {held_s:.2f} s"
+    )
+
+
+def test_a_recording_whose_last_line_is_cut_says_so(tmp_path: Path) -> None:
+    whole = read_recording(SHIPPED)
+    text = gzip.decompress(written(whole, tmp_path / "whole.qtm.gz"))
+    cut_path = tmp_path / "cut.qtm.gz"
+    cut_path.write_bytes(gzip.compress(text[:-30]))  # a complete gzip stream of a cut text
+    cut = read_recording(cut_path)
+    assert cut.truncation == "its last line is cut"
+    assert cut.packets == whole.packets[:-1]
+    assert "truncated (its last line is cut)" in (truncation_warning(cut_path, cut) or "")
+
+
+def test_no_changed_byte_of_a_recording_is_taken_silently(tmp_path: Path) -> None:
+    """gzip's CRC covers the whole stream: a changed byte is refused, naming the file —
+    or, in the last deflate block's bits, reads as a stream cut short (said so), or, in
+    its padding bits, changes nothing. Never other packets read as a whole recording."""
+    whole = read_recording(SHIPPED)
+    data = written(whole, tmp_path / "whole.qtm.gz")
+    broken = tmp_path / "broken.qtm.gz"
+    refused = 0
+    offsets = [*range(0, len(data), len(data) // 60), *range(len(data) - 40, len(data))]
+    for offset in offsets:
+        changed = bytearray(data)
+        changed[offset] ^= 0x20
+        broken.write_bytes(bytes(changed))
+        try:
+            again = read_recording(broken)
+        except ValueError as error:
+            assert str(error).startswith(f"{broken}")
+            refused += 1
+            continue
+        assert again.truncation is not None or again.packets == whole.packets, offset
+    assert refused >= len(offsets) - 10
+
+
+def replay_command(path: Path, port: int) -> list[str]:
+    command = [sys.executable, "-m", "supervisor.cli.main", "mocap", "replay", str(path)]
+    return [*command, "--port", str(port)]
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind((LOCALHOST, 0))
+        return int(probe.getsockname()[1])
+
+
+async def test_the_cli_replays_a_truncated_recording_saying_so(tmp_path: Path) -> None:
+    """Served as far as it goes — what a killed recorder leaves is still the stream as it
+    came — with one warning line: truncated, and how many frames over how many seconds."""
+    data = written(await recorded(1.0), tmp_path / "whole.qtm.gz")
+    cut_path = tmp_path / "cut.qtm.gz"
+    cut_path.write_bytes(data[: len(data) // 2])
+    cut = read_recording(cut_path)
+    port = free_port()
+    replay = await asyncio.create_subprocess_exec(
+        *replay_command(cut_path, port),
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    assert replay.stdout is not None
+    await asyncio.wait_for(replay.stdout.readline(), 30.0)  # serving
+    held = [f.frame_number for f in cut.frames()]
+    async with QtmClient(LOCALHOST, port, transport="tcp") as client:
+        rest, errors = await asyncio.wait_for(replay.communicate(), 30.0)
+        frames = client.drain()
+        async with asyncio.timeout(10.0):
+            while not frames or frames[-1].frame_number != held[-1]:
+                await asyncio.sleep(0.05)
+                frames += client.drain()
+    assert replay.returncode == 0 and "replayed 1 pass" in rest.decode()
+    assert [f.frame_number for f in frames] == held
+    [warning] = errors.decode().splitlines()
+    assert str(cut_path) in warning and "truncated (its gzip stream ends early)" in warning
+    assert f"it holds {len(held)} frames over {cut.duration_s:.2f} s" in warning
+
+
+@pytest.mark.parametrize("damage", ["a byte changed", "no packet"])
+def test_the_cli_refuses_a_broken_recording_in_one_line(tmp_path: Path, damage: str) -> None:
+    whole = read_recording(SHIPPED)
+    path = tmp_path / "broken.qtm.gz"
+    if damage == "a byte changed":
+        data = bytearray(written(whole, path))
+        data[len(data) // 2] ^= 0x20
+        path.write_bytes(bytes(data))
+    else:
+        write_recording(replace(whole, packets=()), path)
+    said = subprocess.run(
+        replay_command(path, free_port()),
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    assert said.returncode == 2 and said.stdout == "", said
+    [line] = said.stderr.splitlines()
+    assert str(path) in line
+    assert ("corrupt" if damage == "a byte changed" else "holds no packet") in line
