@@ -88,7 +88,7 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
         assert f"#token={TOKEN}" in "\n".join(service.output)  # the address to open
 
         status, out, err = await cli("setpoint", "0.3", "0", "1.1")
-        assert status == 1 and "not taken in mode 'disarmed'" in err
+        assert status == 1 and "not allowed in mode 'disarmed'" in err and "arm first" in err
         assert (await cli("arm", "--wait"))[0] == 0
         status, out, err = await cli("takeoff", "--wait")
         assert status == 0 and "airborne, hover" in out, err

@@ -492,3 +492,182 @@ async def test_the_3d_view_draws_the_arena_and_follows_the_bar(
             (await http.post("/api/land")).raise_for_status()
             await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
         assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+MEDIUM = ViewportSize(width=1280, height=800)
+WIDE = ViewportSize(width=1920, height=1080)
+# In sight without scrolling from 1280 × 800 up: the flight controls, the bar's state and
+# a plot; where the page says why an arm would be refused or the log stopped.
+CONTROLS = (
+    "abort", "mode", "arm", "takeoff", "land", "disarm", "kill-box",
+    "controller-centralized", "controller-decentralized",
+)  # fmt: skip
+BAR_STATE = ("bar-position", "bar-error")
+SAID_HERE = ("arm-blocked", "log-stopped", "flight-reason")
+ARENA_EDGE = (0x5C, 0x6A, 0x78)  # the views' outline of the arena
+LABELS_OUTSIDE_M = 0.5  # the 3D view's metre labels stand this far outside the arena
+
+ARENA_DRAWN_JS = """(selector) => {
+    const canvas = document.querySelector(selector);
+    const drawn = JSON.parse(canvas.dataset.arena);
+    const box = canvas.getBoundingClientRect();
+    const ratio = canvas.width / box.width;
+    const g = canvas.getContext("2d");
+    const corners = [[drawn.left, drawn.top], [drawn.right, drawn.top],
+                     [drawn.left, drawn.bottom], [drawn.right, drawn.bottom]];
+    return {
+        drawn, canvas: { width: box.width, height: box.height },
+        // what is on top at each corner of the drawn arena, just inside it, in the window
+        // (null outside the window)
+        onTop: corners.map(([x, y]) => {
+            const inward = [x === drawn.left ? 2 : -2, y === drawn.top ? 2 : -2];
+            const [left, top] = [box.left + x + inward[0], box.top + y + inward[1]];
+            return document.elementFromPoint(left, top) === canvas;
+        }),
+        // the colour drawn on each corner (the outline is 2 px wide, centred on it)
+        colours: corners.map(([x, y]) => {
+            const pixel = g.getImageData(Math.floor(x * ratio), Math.floor(y * ratio), 1, 1);
+            return Array.from(pixel.data.slice(0, 3));
+        }),
+    };
+}"""
+
+
+ON_TOP_JS = "(e, [x, y]) => e.contains(document.elementFromPoint(x, y))"
+
+
+async def assert_in_sight(page: Page, viewport: ViewportSize, names: tuple[str, ...]) -> None:
+    """Each element inside the window and not under another one (its middle is its own)."""
+    for name in names:
+        element = page.get_by_test_id(name)
+        box = await element.bounding_box()
+        assert box is not None, f"{name} is not laid out"
+        inside = box["x"] >= 0 and box["y"] >= 0
+        inside &= box["x"] + box["width"] <= viewport["width"]
+        inside &= box["y"] + box["height"] <= viewport["height"]
+        assert inside, f"{name} is not inside the {viewport} window: {box}"
+        middle = [box["x"] + box["width"] / 2, box["y"] + box["height"] / 2]
+        on_top = await element.evaluate(ON_TOP_JS, middle)
+        assert on_top, f"{name} is under another element at {middle}"
+
+
+async def assert_whole_arena_drawn(page: Page, arena: dict[str, list[float]]) -> None:
+    """The top and side views draw the status's whole arena, inside their canvases and in
+    the window with nothing over it; the 3D view draws it (labels included) uncut."""
+    for selector, axes in (("#top-view", (0, 1)), ("#side-view", (0, 2))):
+        seen = await page.evaluate(ARENA_DRAWN_JS, selector)
+        drawn, canvas = seen["drawn"], seen["canvas"]
+        assert drawn["min"] == [arena["min"][a] for a in axes], (selector, drawn, arena)
+        assert drawn["max"] == [arena["max"][a] for a in axes], (selector, drawn, arena)
+        assert 0 <= drawn["left"] < drawn["right"] <= canvas["width"], (selector, seen)
+        assert 0 <= drawn["top"] < drawn["bottom"] <= canvas["height"], (selector, seen)
+        assert all(seen["onTop"]), f"{selector}: a corner of the arena is out of sight: {seen}"
+        for colour in seen["colours"]:
+            off = sum(abs(c - e) for c, e in zip(colour, ARENA_EDGE, strict=True))
+            assert off < 30, f"{selector}: no outline drawn at a corner: {seen}"
+    canvas = await page.get_by_test_id("view3d").bounding_box()
+    assert canvas is not None
+    lo, hi, m = arena["min"], arena["max"], LABELS_OUTSIDE_M
+    xs, ys, zs = (lo[0] - m, hi[0] + m), (lo[1] - m, hi[1] + m), (lo[2], hi[2])
+    corners = [[x, y, z] for x in xs for y in ys for z in zs]
+    for corner in corners:
+        x, y = await page.evaluate("p => window.uavbarView3d.project(p)", corner)
+        inside = 0 <= x <= canvas["width"] and 0 <= y <= canvas["height"]
+        assert inside, f"the 3D view cuts {corner} off: drawn at {x, y} in {canvas}"
+
+
+async def assert_the_operator_sees_it(
+    page: Page, viewport: ViewportSize, arena: dict[str, list[float]]
+) -> None:
+    await assert_in_sight(page, viewport, (*CONTROLS, *BAR_STATE, "error-plot", "view3d"))
+    await assert_in_sight(page, viewport, ("top-view", "side-view"))
+    for name in SAID_HERE:  # empty lines have no height: their place is in sight
+        box = await page.get_by_test_id(name).bounding_box()
+        assert box is not None and 0 <= box["y"] <= viewport["height"] - 20, (name, box)
+    if await page.get_by_test_id("reset").is_visible():
+        await assert_in_sight(page, viewport, ("reset",))
+    await assert_whole_arena_drawn(page, arena)
+    width = await page.evaluate("document.scrollingElement.scrollWidth")
+    assert width <= viewport["width"], f"the page scrolls sideways: {width} px wide"
+
+
+# How the page looks: its flight state, the mode's level, the header's and the mode's colours
+# as drawn, and whether the last-flight line is shown.
+LOOK_JS = """() => ({
+    flight: document.body.dataset.flight,
+    level: document.getElementById("mode").dataset.level,
+    header: getComputedStyle(document.querySelector("header")).backgroundColor,
+    mode: getComputedStyle(document.getElementById("mode")).backgroundColor,
+    lastFlight: !document.getElementById("last-flight").hidden,
+})"""
+
+
+async def test_the_controls_bar_and_plots_in_sight_and_armed_disarmed_aborted_distinct(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """At 1280 × 800 and 1920 × 1080 (from the page's boxes): the flight controls, the
+    bar's state, a plot and both views in the window, the top and side views drawing the
+    whole arena and the 3D view not cutting it. Disarmed, armed on the ground and disarmed
+    after an abort each look different, the last with a line saying so until the next
+    arm. Reset is offered (embedded world) only while disarmed. The README's screenshots."""
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN, MEDIUM)
+        async with service.client() as http:
+            arena = (await service.status(http))["arena"]
+        mode, reset, reason = (page.get_by_test_id(n) for n in ("mode", "reset", "flight-reason"))
+        last_flight = page.get_by_test_id("last-flight")
+        await expect(reset).to_be_visible()
+        await assert_the_operator_sees_it(page, MEDIUM, arena)
+        disarmed = await page.evaluate(LOOK_JS)
+        assert disarmed["flight"] == "disarmed" and not disarmed["lastFlight"], disarmed
+
+        await reset.click()
+        await expect(reason).to_contain_text(re.compile("^world reset: the motion capture tracks"))
+        await expect(page.get_by_test_id("arm-blocked")).to_have_text("", timeout=30_000)
+        await page.get_by_test_id("arm").click()
+        await expect(mode).to_have_text("armed", timeout=10_000)
+        await expect(reset).to_be_hidden()
+        armed = await page.evaluate(LOOK_JS)
+        assert armed["flight"] == "armed" and armed["level"] == "armed", armed
+        assert armed["header"] != disarmed["header"], (armed, disarmed)
+        assert armed["mode"] != disarmed["mode"], (armed, disarmed)
+
+        await page.get_by_test_id("takeoff").click()
+        await expect(mode).to_have_text("hover", timeout=60_000)
+        await page.wait_for_timeout(3000)  # a few seconds of live plots for the pictures
+        await assert_the_operator_sees_it(page, MEDIUM, arena)
+        await page.screenshot(path=str(IMAGES / "dashboard-1280.png"))
+        await page.set_viewport_size(WIDE)
+        await assert_the_operator_sees_it(page, WIDE, arena)
+        await page.screenshot(path=str(IMAGES / "dashboard-1920.png"))
+        await page.set_viewport_size(MEDIUM)
+
+        await page.get_by_test_id("abort").click()
+        await expect(mode).to_have_text(re.compile("abort|disarmed"))
+        await expect(mode).to_have_text("disarmed", timeout=90_000)
+        await expect(last_flight).to_be_visible()
+        await expect(last_flight).to_have_attribute("data-ended", "abort")
+        await expect(last_flight).to_contain_text("Last flight ended in an abort")
+        await expect(last_flight).to_contain_text("asked for with ABORT")
+        aborted = await page.evaluate(LOOK_JS)
+        assert aborted["flight"] == "ended-abort" and aborted["lastFlight"], aborted
+        assert len({disarmed["flight"], armed["flight"], aborted["flight"]}) == 3
+        await expect(reset).to_be_visible()
+        await assert_the_operator_sees_it(page, MEDIUM, arena)
+        await page.screenshot(path=str(IMAGES / "dashboard-1280-aborted.png"))
+
+        # The line stays until the next arm, which the Reset makes possible at once.
+        await reset.click()
+        await expect(reason).to_contain_text("world reset:")
+        await expect(last_flight).to_be_visible()
+        await expect(page.get_by_test_id("arm-blocked")).to_have_text("", timeout=30_000)
+        await page.get_by_test_id("arm").click()
+        await expect(mode).to_have_text("armed", timeout=10_000)
+        await expect(last_flight).to_be_hidden()
+        assert (await page.evaluate(LOOK_JS))["flight"] == "armed"
+        await page.get_by_test_id("disarm").click()
+        await expect(mode).to_have_text("disarmed", timeout=10_000)
+        again = await page.evaluate(LOOK_JS)
+        assert again["flight"] == "disarmed" and not again["lastFlight"], again
+        assert again["header"] == disarmed["header"], (again, disarmed)
+        assert not PAGE_ERRORS, PAGE_ERRORS

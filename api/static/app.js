@@ -22,7 +22,7 @@ const state = {
 };
 // [page time s, value] for the last PLOT_SECONDS; null breaks the line (no live data).
 const plots = { error: [], solve: [], battery1: [], battery2: [] };
-const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", uav2: "#c58bff", ref: "#9be39b", grid: "#2a333c", muted: "#8c98a4", text: "#e6e9ec" };
+const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", uav2: "#c58bff", ref: "#9be39b", grid: "#2a333c", edge: "#5c6a78", muted: "#8c98a4", text: "#e6e9ec" };
 const tickHistory = [];  // [page time s, tick count, missed deadlines], the last TICK_WINDOW_S
 
 // What each mode that is not normal flight means, in words; level "bad" or "warn".
@@ -40,6 +40,18 @@ const ASKED_BY = {
   px4_landing: "",
 };
 const MODE_CAUSES = new Set(["abort", "land_other", "blind", "process"]);  // notice kinds
+// How a flight can end other than by a landing: said, once disarmed, until the next arm.
+const ENDINGS = { abort: "an abort", px4_landing: "PX4's own landing", killed: "a kill" };
+// Notice kinds that end a flight in "abort" (the flight process keeps the last 20 notices,
+// with their ages): a page opened after such a flight finds it there. An operator's ABORT
+// leaves no notice, so only a page that saw the abort can say so after a reload.
+const ABORT_NOTICES = new Set(["abort", "land_other"]);
+// An abort's coordinated landing is over well within this [s]: a notice this much older
+// than the disarm belongs to an earlier flight.
+const ABORT_LANDING_MAX_S = 120;
+// What the page knows of the last flight's ending: ``mode`` one of ENDINGS (null: none
+// seen since the last arm) and ``why``; ``checked`` once the first message was read.
+const lastFlight = { mode: null, why: "", checked: false };
 
 // ---- token ---------------------------------------------------------------------------------
 function takeTokenFromAddress() {
@@ -143,6 +155,18 @@ async function command(method, path, body, reasonId) {
     return null;
   }
   return send(method, path, body, reasonId, bearer);
+}
+
+// The simulated world back in its resting pose; its answer says whether the motion capture
+// tracks the bodies there and whether an arm would be refused now.
+async function resetWorld() {
+  const answer = await command("POST", "/api/sim/reset", undefined, "flight-reason");
+  if (!answer) return;
+  const tracked = answer.tracked
+    ? "the motion capture tracks the bodies at rest"
+    : "the motion capture does not track the bodies at rest yet";
+  const arm = answer.arm_blocked_by ? `an arm would be refused: ${answer.arm_blocked_by}` : "an arm would be accepted";
+  show("flight-reason", `world reset: ${tracked}; ${arm}`, answer.tracked && !answer.arm_blocked_by);
 }
 
 // At once, with whatever token there is (none, a refused one): the page's origin suffices.
@@ -411,11 +435,66 @@ function tickLamp(tick) {
   return ["unknown", `${meaning}. Now: waiting for ticks`];
 }
 
-function render(t) {
-  setText("mode", t.mode);
-  const modeLevel = DANGER_MODES[t.mode] ? DANGER_MODES[t.mode].level : "";
+// Remembered from the telemetry as it comes: a danger mode seen with a vehicle armed is how
+// the flight ended (its causes are those of the mode); the next arm forgets it. Not the
+// px4_landing a flight process starts in, its vehicles disarmed: no flight ended there. A
+// page opened while disarmed looks for an abort's notice from just before the disarm.
+function trackLastFlight(t) {
+  const firstMessage = !lastFlight.checked;
+  lastFlight.checked = true;
+  if (t.mode === "armed") {
+    lastFlight.mode = null;
+    lastFlight.why = "";
+  } else if (ENDINGS[t.mode] && (t.mode === "killed" || t.armed.some(Boolean))) {
+    const causes = modeCauses(t);
+    if (lastFlight.mode !== t.mode) lastFlight.why = "";
+    lastFlight.mode = t.mode;
+    if (causes.length) lastFlight.why = causes.join("; ");
+    else if (!lastFlight.why) lastFlight.why = ASKED_BY[t.mode] || "";
+  } else if (firstMessage && t.mode === "disarmed" && t.mode_for_s !== undefined) {
+    const before = (t.notices || []).filter((notice) => ABORT_NOTICES.has(noticeKind(notice.message))
+      && notice.age_s >= t.mode_for_s && notice.age_s - t.mode_for_s <= ABORT_LANDING_MAX_S);
+    if (before.length) {
+      lastFlight.mode = "abort";
+      lastFlight.why = before.map((notice) => notice.message).join("; ");
+    }
+  }
+}
+
+function renderLastFlight(t) {
+  const element = document.getElementById("last-flight");
+  const shown = t.mode === "disarmed" && lastFlight.mode !== null;
+  element.hidden = !shown;
+  const ended = shown ? lastFlight.mode : "";
+  if (element.dataset.ended !== ended) element.dataset.ended = ended;
+  const since = t.mode_for_s === undefined ? "" : ` (disarmed ${ago(t.mode_for_s)})`;
+  setText("last-flight-title", shown ? `Last flight ended in ${ENDINGS[lastFlight.mode]}` : "");
+  setText("last-flight-text", shown ? `${since}: ${lastFlight.why || "why is not known"} — shown until the next arm` : "");
+}
+
+// The mode's look: disarmed "safe" (grey), armed on the ground "armed" (amber), the danger
+// modes their level; ``body[data-flight]`` says which of disarmed, armed, flying, danger or
+// "ended-MODE" (disarmed after a flight that ended in MODE) the page shows.
+function renderModeLook(t) {
+  const modeLevel = DANGER_MODES[t.mode] ? DANGER_MODES[t.mode].level
+    : { disarmed: "safe", armed: "armed" }[t.mode] || "";
   const modeElement = document.getElementById("mode");
   if (modeElement.dataset.level !== modeLevel) modeElement.dataset.level = modeLevel;
+  const title = { disarmed: "disarmed: the vehicles' motors are off",
+    armed: "armed on the ground: the motors are live — take off or disarm" }[t.mode] || "";
+  if (modeElement.title !== title) modeElement.title = title;
+  let flight = "flying";
+  if (t.mode === "disarmed") flight = lastFlight.mode ? `ended-${lastFlight.mode}` : "disarmed";
+  else if (t.mode === "armed") flight = "armed";
+  else if (DANGER_MODES[t.mode] && DANGER_MODES[t.mode].level === "bad") flight = "danger";
+  if (document.body.dataset.flight !== flight) document.body.dataset.flight = flight;
+}
+
+function render(t) {
+  setText("mode", t.mode);
+  trackLastFlight(t);
+  renderModeLook(t);
+  renderLastFlight(t);
   setText("phase", t.phase);
   setText("controller", t.controller);
   for (const button of document.querySelectorAll("[data-controller]")) {
@@ -433,6 +512,11 @@ function render(t) {
   setText("arm-blocked", armQuestion ? `Arm would be refused now: ${t.arm_blocked_by}` : "");
   document.getElementById("arm").classList.toggle("blocked", Boolean(t.arm_blocked_by));
   setText("log-stopped", t.log_stopped ? `Flight log: ${t.log_stopped}` : "");
+  // Reset: only where the simulator offers one, and only while disarmed (it is refused
+  // while a vehicle is armed).
+  const reset = document.getElementById("reset");
+  const canReset = Boolean(t.world && t.world.embedded) && t.mode === "disarmed" && !t.armed.some(Boolean);
+  if (reset.hidden === canReset) reset.hidden = !canReset;
   // Greyed: what comes from a source that is not live (the mocap's estimate, a lost link).
   greyed(".mocap-value", !t.mocap.healthy);
   setText("bar-position", vec(t.bar.position));
@@ -579,28 +663,56 @@ function drawViews(t) {
   drawView("side-view", t, arena, 0, 2);
 }
 
-// The arena, scaled to fit and centred, a ``a`` → right, ``b`` ↑.
+// The whole arena, scaled to fit the canvas and centred, ``a`` → right, ``b`` ↑: its
+// outline, a 1 m grid, and the metres at both ends of each axis. What was drawn is kept in
+// the canvas's ``data-arena`` (the outline in CSS pixels from its top left, and the bounds
+// [m] it stands for), for the page's tests to check against the window.
+const VIEW_INSET_PX = 1;  // the outline (2 px wide) drawn inside the canvas
+
 function drawView(id, t, arena, a, b) {
-  const [g, width, height] = fitCanvas(document.getElementById(id));
+  const canvas = document.getElementById(id);
+  const [g, width, height] = fitCanvas(canvas);
   const span = [arena.max[a] - arena.min[a], arena.max[b] - arena.min[b]];
-  const scale = Math.min((width - 2) / span[0], (height - 2) / span[1]);
+  const scale = Math.min((width - 2 * VIEW_INSET_PX) / span[0], (height - 2 * VIEW_INSET_PX) / span[1]);
   const x0 = (width - span[0] * scale) / 2, y0 = (height + span[1] * scale) / 2;
+  const [x1, y1] = [x0 + span[0] * scale, y0 - span[1] * scale];
   const px = (p) => [x0 + (p[a] - arena.min[a]) * scale, y0 - (p[b] - arena.min[b]) * scale];
-  g.strokeStyle = COLOURS.grid;
+  g.strokeStyle = "#1c232a";  // a 1 m grid, labelled along the bottom and left edges
   g.lineWidth = 1;
-  g.strokeRect(x0, y0 - span[1] * scale, span[0] * scale, span[1] * scale);
   g.fillStyle = COLOURS.muted;
-  g.strokeStyle = "#1c232a";  // a 1 m grid, labelled along the edges
+  g.textBaseline = "alphabetic";
+  // Each x label right of its line; one that would leave the arena, left of it; one that
+  // would then touch its neighbour is left out (the end of the arena is always labelled).
+  const xLabels = [];
   for (let v = Math.ceil(arena.min[a]); v <= arena.max[a]; v += 1) {
     const [x] = px({ [a]: v, [b]: arena.min[b] });
-    g.beginPath(); g.moveTo(x, y0); g.lineTo(x, y0 - span[1] * scale); g.stroke();
-    if (x < width - 24) g.fillText(`${v} m`, x + 2, y0 - 3);
+    g.beginPath(); g.moveTo(x, y0); g.lineTo(x, y1); g.stroke();
+    const text = `${v} m`, textWidth = g.measureText(text).width;
+    const atEnd = x + 3 + textWidth > x1 - 2;
+    xLabels.push({ text, x: atEnd ? x - 3 : x + 3, from: atEnd ? x - 3 - textWidth : x + 3, atEnd });
   }
+  xLabels.forEach((label, i) => {
+    const next = xLabels[i + 1];
+    if (next && next.atEnd && label.from + g.measureText(label.text).width + 6 > next.from) return;
+    g.textAlign = label.atEnd ? "right" : "left";
+    g.fillText(label.text, label.x, y0 - 4);
+  });
+  g.textAlign = "left";
   for (let v = Math.ceil(arena.min[b]); v <= arena.max[b]; v += 1) {
     const [, y] = px({ [a]: arena.min[a], [b]: v });
-    g.beginPath(); g.moveTo(x0, y); g.lineTo(x0 + span[0] * scale, y); g.stroke();
-    if (v) g.fillText(`${v} m`, x0 + 2, y - 3);
+    g.beginPath(); g.moveTo(x0, y); g.lineTo(x1, y); g.stroke();
+    if (v === arena.min[b]) continue;  // the corner has the other axis's label
+    g.fillText(`${v} m`, x0 + 4, y - y1 < 14 ? y + 13 : y - 3);  // the top one, below its line
   }
+  g.strokeStyle = COLOURS.edge;
+  g.lineWidth = 2;
+  g.strokeRect(x0, y1, x1 - x0, y0 - y1);
+  const tenth = (v) => Math.round(v * 10) / 10;  // written on a change only: a tenth of a pixel
+  const key = JSON.stringify({
+    left: tenth(x0), top: tenth(y1), right: tenth(x1), bottom: tenth(y0),
+    min: [arena.min[a], arena.min[b]], max: [arena.max[a], arena.max[b]],
+  });
+  if (canvas.dataset.arena !== key) canvas.dataset.arena = key;
   const reference = t.reference;
   if (reference) {
     g.setLineDash([5, 4]);
@@ -689,6 +801,7 @@ function wire() {
   for (const name of ["arm", "takeoff", "land", "disarm"]) {
     document.getElementById(name).addEventListener("click", () => command("POST", `/api/${name}`, undefined, "flight-reason"));
   }
+  document.getElementById("reset").addEventListener("click", resetWorld);
   const confirm = document.getElementById("kill-confirm");
   const kill = document.getElementById("kill");
   confirm.addEventListener("change", () => { kill.disabled = !confirm.checked; });
@@ -720,6 +833,7 @@ function watchLayout() {
   };
   new ResizeObserver(redraw).observe(top);
   new ResizeObserver(redraw).observe(document.getElementById("views"));
+  new ResizeObserver(redraw).observe(document.getElementById("live-panel"));
 }
 
 takeTokenFromAddress();

@@ -3,7 +3,8 @@
 // three.js (vendor/three.module.min.js, r170, MIT: vendor/three-LICENSE.txt).
 // A module of its own, fed by app.js's "uavbar:telemetry" events: if WebGL or the library
 // is missing, the view says so and the rest of the page, ABORT first, works as before.
-// Drag to turn, wheel to zoom, double-click for the first view. It draws when the camera
+// Drag to turn, wheel to zoom, double-click for the first view; at zoom 1 the whole arena,
+// its labels included, is in sight whatever the turn. It draws when the camera
 // moves, on telemetry at most TELEMETRY_DRAWS_HZ (without a GPU, WebGL is drawn in software:
 // at 25 Hz it took a core's half, and the page's clicks waited), and not at all while it is
 // scrolled out of sight.
@@ -13,6 +14,8 @@ const COLOURS = { bar: 0xf0a030, uav: 0x4ea1ff, cable: 0x9aa4ad, ref: 0x9be39b, 
 const HOME = { azimuth: -Math.PI / 3, elevation: Math.PI / 7, zoom: 1 };
 const FOV_DEG = 40;
 const TELEMETRY_DRAWS_HZ = 10;
+const LABEL_M = 0.6;  // the metre labels reach this far outside the arena (0.4 m off, 0.2 m wide)
+const FIT_MARGIN = 1.04;  // a little room around the arena at zoom 1
 
 function label(text, colour = "#8c98a4", height = 0.22) {
   const canvas = document.createElement("canvas");
@@ -124,7 +127,7 @@ function start() {
   const camera = new THREE.PerspectiveCamera(FOV_DEG, 1, 0.05, 200);
   camera.up.set(0, 0, 1);
   const view = { ...HOME, target: new THREE.Vector3(0, 0, 0.8) };
-  let arenaRadius = 4.5;  // half the arena's diagonal [m]
+  let fitPoints = [];  // what must be in sight at zoom 1: the arena and its labels [m]
 
   const bar = new THREE.Mesh(new THREE.CylinderGeometry(0.04, 0.04, 1, 16), new THREE.MeshBasicMaterial({ color: COLOURS.bar }));
   const drop = movingLine(COLOURS.box, true);  // from the bar's middle to the floor: its height
@@ -146,19 +149,43 @@ function start() {
   let arenaKey = "", arenaGroup = null, floorZ = 0;
   let visible = true, pending = false, renders = 0;
 
-  // At zoom 1 the arena's bounding sphere, shrunk to 95 % (its corners are seldom all in
-  // view at once), fits the narrower field of view.
+  // At zoom 1 the camera is as close as it can be with every one of ``fitPoints`` in the
+  // field of view, whatever the turn and the canvas's shape (a bounding sphere's fit cut
+  // the arena's near corners off on a wide canvas), and aimed at the middle of what they
+  // span on the screen (perspective draws the near side larger). A point q from the aim,
+  // with the camera at distance d behind it along ``forward``, is at depth d + q·forward;
+  // it is in sight when |q·right| ≤ depth tan(horizontal/2), and likewise up.
   function placeCamera() {
-    const vertical = (FOV_DEG * Math.PI) / 180;
-    const horizontal = 2 * Math.atan(Math.tan(vertical / 2) * camera.aspect);
-    const distance = view.zoom * 0.95 * arenaRadius / Math.sin(Math.min(vertical, horizontal) / 2);
+    const tanV = Math.tan((FOV_DEG * Math.PI) / 360);
+    const tanH = tanV * camera.aspect;
     const c = Math.cos(view.elevation);
-    camera.position.set(
-      view.target.x + distance * c * Math.cos(view.azimuth),
-      view.target.y + distance * c * Math.sin(view.azimuth),
-      view.target.z + distance * Math.sin(view.elevation),
-    );
-    camera.lookAt(view.target);
+    const forward = new THREE.Vector3(-c * Math.cos(view.azimuth), -c * Math.sin(view.azimuth), -Math.sin(view.elevation));
+    const right = new THREE.Vector3().crossVectors(forward, camera.up).normalize();
+    const up = new THREE.Vector3().crossVectors(right, forward);
+    const aim = view.target.clone();
+    const fitDistance = () => fitPoints.reduce((d, point) => {
+      const q = point.clone().sub(aim);
+      const depth = q.dot(forward);
+      return Math.max(d, Math.abs(q.dot(right)) / tanH - depth, Math.abs(q.dot(up)) / tanV - depth);
+    }, 1);
+    let distance = fitDistance();
+    for (let pass = 0; pass < 3; pass += 1) {
+      // The points' extents on the screen, as tangents from the camera; the aim is moved
+      // toward their middle (a shift δ moves them by about δ / distance), then fitted again.
+      const extent = [Infinity, -Infinity, Infinity, -Infinity];
+      for (const point of fitPoints) {
+        const q = point.clone().sub(aim);
+        const depth = distance + q.dot(forward);
+        const [x, y] = [q.dot(right) / depth, q.dot(up) / depth];
+        extent[0] = Math.min(extent[0], x); extent[1] = Math.max(extent[1], x);
+        extent[2] = Math.min(extent[2], y); extent[3] = Math.max(extent[3], y);
+      }
+      aim.addScaledVector(right, ((extent[0] + extent[1]) / 2) * distance);
+      aim.addScaledVector(up, ((extent[2] + extent[3]) / 2) * distance);
+      distance = fitDistance();
+    }
+    camera.position.copy(aim).addScaledVector(forward, -distance * FIT_MARGIN * view.zoom);
+    camera.lookAt(aim);
   }
 
   function fit() {
@@ -198,9 +225,15 @@ function start() {
     arenaGroup = arenaObjects(arena);
     scene.add(arenaGroup);
     floorZ = arena.min[2];
-    const size = new THREE.Vector3(...arena.max).sub(new THREE.Vector3(...arena.min));
-    view.target.set((arena.min[0] + arena.max[0]) / 2, (arena.min[1] + arena.max[1]) / 2, floorZ + size.z / 4);
-    arenaRadius = size.length() / 2;
+    const [min, max] = [arena.min, arena.max];
+    view.target.set((min[0] + max[0]) / 2, (min[1] + max[1]) / 2, (min[2] + max[2]) / 2);
+    // The box's corners, widened by the labels (outside it by up to LABEL_M).
+    fitPoints = [];
+    for (const x of [min[0] - LABEL_M, max[0] + LABEL_M]) {
+      for (const y of [min[1] - LABEL_M, max[1] + LABEL_M]) {
+        fitPoints.push(new THREE.Vector3(x, y, min[2]), new THREE.Vector3(x, y, max[2]));
+      }
+    }
   }
 
   function place(t) {
@@ -267,7 +300,12 @@ function start() {
   new ResizeObserver(redraw).observe(canvas);
   new IntersectionObserver(([entry]) => { visible = entry.isIntersecting; if (visible) redraw(); }).observe(canvas);
   window.addEventListener("uavbar:telemetry", (event) => place(event.detail));
-  window.uavbarView3d = { project, webgl: renderer.capabilities.isWebGL2 ? "webgl2" : "webgl" };
+  // For the page's tests: where things are drawn, and what must be in sight at zoom 1.
+  window.uavbarView3d = {
+    project,
+    fitPoints: () => fitPoints.map((p) => p.toArray()),
+    webgl: renderer.capabilities.isWebGL2 ? "webgl2" : "webgl",
+  };
 }
 
 start();

@@ -26,7 +26,7 @@ import websockets
 
 from api.foxglove_gateway import TRY_AGAIN_LATER, FoxgloveGateway, opened
 from api.guard import HttpPolicy
-from benchmarks.service import running_service
+from benchmarks.service import all_connected, running_service
 from controllers.params import BarSystemParams
 from supervisor.logs.flight_messages import JSON_SCHEMAS, WELL_KNOWN, json_messages
 from supervisor.logs.foxglove_live import FoxgloveLiveView
@@ -388,6 +388,8 @@ async def test_serve_streams_a_flight_to_a_foxglove_websocket_v1_client(tmp_path
             service.client() as http,
         ):
             assert socket.subprotocol == OLD_NAME
+            # Until it has heard both vehicles disarmed, the flight process says px4_landing.
+            await service.wait_for(http, all_connected, 60.0, "both vehicles heard")
             channels = await advertised(socket)
             mode = channels["/uavbar/mode"]
             subscribe_mode = {
