@@ -43,9 +43,10 @@ browser:
 		echo "chromium is not installed: the dashboard browser tests will be skipped"
 
 # One pytest worker per core; the tests on the wall clock (serve, real PX4, the browser)
-# run in two lanes, at most two at once (tests/conftest.py), the rest beside them.
+# run in two lanes, at most two at once (tests/conftest.py), the rest beside them; the
+# thirty slowest are listed at the end, for whoever works on the suite's length.
 test: lint browser
-	$(BIN)/pytest -n auto --dist loadgroup
+	$(BIN)/pytest -n auto --dist loadgroup --durations=30
 
 # The quick loop while editing: lint, then the tests not marked slow (about 2 minutes).
 test-fast: lint
