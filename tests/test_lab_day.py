@@ -5,7 +5,9 @@ up in flight."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
+import signal
 import subprocess
 import time
 import uuid
@@ -16,7 +18,7 @@ from typing import Any
 import httpx
 import pytest
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import CHILDREN, RunningService, running_service
 from supervisor.logs.flight_log import read_flight_log
 
 TOKEN = "lab-day-token-0123456789"
@@ -50,19 +52,22 @@ async def take_off_at_once(http: httpx.AsyncClient) -> None:
 
 
 async def disarmed(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
-    return await service.wait_for(
-        http,
-        lambda s: s["mode"] == "disarmed" and s["armed"] == [False, False],
-        DISARMED_WITHIN_S,
-        "landed and disarmed",
-    )
+    """Wait until landed and disarmed; no status on the way says disarmed while a vehicle
+    says it is armed."""
+
+    def down(status: dict[str, Any]) -> bool:
+        if status["mode"] == "disarmed" or status["phase"] == "ground":
+            assert status["armed"] == [False, False], status["armed"]
+        return bool(status["mode"] == "disarmed")
+
+    return await service.wait_for(http, down, DISARMED_WITHIN_S, "landed and disarmed")
 
 
 @pytest.mark.slow
 async def test_land_abort_land_in_a_row_with_nothing_moved(tmp_path: Path) -> None:
     """From serve's start: arm the moment nothing blocks it, take off at once; land, then
-    the same with an abort, then again a landing. No reset, nothing moved, and the status
-    never says disarmed while a vehicle is armed."""
+    the same with an abort from tracking, then again a landing. No reset, nothing moved.
+    Then every process of serve is sent SIGTERM at once (systemd's stop): a quiet exit 0."""
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
         for ending in ("land", "abort", "land"):
             ready = await arm_the_moment_nothing_blocks_it(http)
@@ -70,14 +75,38 @@ async def test_land_abort_land_in_a_row_with_nothing_moved(tmp_path: Path) -> No
             await take_off_at_once(http)
             status = await service.status(http)
             assert status["mode"] == "hover", status["notices"][-1:]
-            assert (await http.post(f"/api/{ending}")).status_code == 200
+            if ending == "abort":
+                away = {"bar_position": [1.0, 0.0, 1.2], "hold_s": 5.0}
+                assert (await http.post("/api/setpoints", json=away)).status_code == 200
+                await service.wait_for(http, lambda s: s["mode"] == "tracking", 10.0, "tracking")
+            answer = await http.post(f"/api/{ending}")
+            assert answer.status_code == 200 and answer.json()["mode"] in ("landing", "abort")
             status = await disarmed(service, http)
+            assert status["bar"]["position"][2] < 0.05
+            assert all(uav["position"][2] < 0.15 for uav in status["uavs"])
+            assert status["setpoints"] == {"active": None, "queued": []}
+        await stop_as_systemd_does(service)
+    said = "\n".join(service.output)
+    assert said.rstrip().endswith("stopped")
+    assert "Traceback" not in said and "ERROR" not in said, said[-3000:]
     flown = flights_flown(tmp_path)
     assert [("abort" in modes, "landing" in modes) for modes in flown] == [
         (False, True),
         (True, False),
         (False, True),
     ], flown
+
+
+async def stop_as_systemd_does(service: RunningService) -> None:
+    """SIGTERM to serve and to every child at once; serve must exit 0."""
+    children = [service.child_pid(f"uavbar-{name}") for name in CHILDREN]
+    service.process.send_signal(signal.SIGTERM)
+    for pid in children:
+        # A process already gone (serve stopping its children first) has stopped as asked.
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
+    async with asyncio.timeout(60.0):
+        assert await service.process.wait() == 0
 
 
 def flights_flown(folder: Path) -> list[set[str]]:

@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
-import os
-import signal
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,7 +12,7 @@ import httpx
 import numpy as np
 import pytest
 
-from benchmarks.service import CHILDREN, RunningService, all_connected, running_service
+from benchmarks.service import RunningService, all_connected, running_service
 from controllers.params import BarSystemParams
 from geometry.state import P_B, bar_ends, uav_position
 from sim.px4_firmware import FirmwareError, resolve_px4_dir
@@ -150,35 +147,6 @@ async def test_a_whole_flight_over_http(tmp_path: Path, vehicles: str) -> None:
     jumps = np.abs(np.diff(log.inputs[switch - 5 : switch + 20, [0, 4]], axis=0))
     assert jumps.max() < 1.5
     assert slack_while_airborne(log, load_config(CONFIG_DIR / "sim.toml").system.to_params()) < 0.05
-
-
-@pytest.mark.slow
-async def test_abort_mid_flight_lands_and_disarms(tmp_path: Path) -> None:
-    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
-        await service.take_off(http)
-        await http.post("/api/setpoints", json={"bar_position": [1.0, 0.0, 1.2], "hold_s": 5.0})
-        await service.wait_for(http, lambda s: s["mode"] == "tracking", 10.0, "tracking")
-        response = await http.post("/api/abort")
-        assert response.status_code == 200 and response.json()["mode"] == "abort"
-        status = await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
-        status = await service.wait_for(
-            http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
-        )
-        assert status["bar"]["position"][2] < 0.05
-        assert all(uav["position"][2] < 0.15 for uav in status["uavs"])
-        assert status["setpoints"] == {"active": None, "queued": []}
-        # Stopped as systemd stops a service: SIGTERM to every process of it at once.
-        children = [service.child_pid(f"uavbar-{name}") for name in CHILDREN]
-        # A process already gone (serve stopping its children first) has stopped as asked.
-        service.process.send_signal(signal.SIGTERM)
-        for pid in children:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGTERM)
-        async with asyncio.timeout(60.0):
-            assert await service.process.wait() == 0
-    said = "\n".join(service.output)
-    assert said.rstrip().endswith("stopped")
-    assert "Traceback" not in said and "ERROR" not in said, said[-3000:]
 
 
 @pytest.mark.slow
