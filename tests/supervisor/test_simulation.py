@@ -19,6 +19,7 @@ from supervisor.logs.report import summarize
 from supervisor.simulate.closed_loop import run_scenario
 from supervisor.simulate.scenarios import load_scenario
 from tests.conftest import CONFIGS
+from tests.supervisor.test_descent import MAX_DESCENT_MPS
 
 SHORT_SCENARIO = """
 name = "short"
@@ -82,6 +83,7 @@ def test_flights_in_a_row_need_nobody_to_move_anything(
     assert result.truth.slack_events == 0
     assert result.truth.min_tension_airborne_n > 1.0
     assert result.truth.max_tilt_deg < 20.0
+    assert result.truth.max_descent_mps <= MAX_DESCENT_MPS  # the landing and the abort
     assert result.log_path is not None
     log = read_flight_log(result.log_path)
     modes = [mode for mode, _ in itertools.groupby(log.modes)]
