@@ -20,6 +20,7 @@ import pytest
 
 from benchmarks.service import CHILDREN, RunningService, running_service
 from supervisor.logs.flight_log import read_flight_log
+from tests.test_service import hovers_within_5_cm
 
 TOKEN = "lab-day-token-0123456789"
 NEXT_ARM_WITHIN_S = 20.0
@@ -67,14 +68,19 @@ async def disarmed(service: RunningService, http: httpx.AsyncClient) -> dict[str
 async def test_land_abort_land_in_a_row_with_nothing_moved(tmp_path: Path) -> None:
     """From serve's start: arm the moment nothing blocks it, take off at once; land, then
     the same with an abort from tracking, then again a landing. No reset, nothing moved.
-    Then every process of serve is sent SIGTERM at once (systemd's stop): a quiet exit 0."""
-    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
-        for ending in ("land", "abort", "land"):
+    The simulated PX4s arm only on fresh external vision (so the mocap is forwarded), and
+    in the first hover the bar keeps within 5 cm for 5 s (the rates command mode). Then
+    every process of serve is sent SIGTERM at once (systemd's stop): a quiet exit 0."""
+    overrides = ["sim.px4_require_vision=true"]
+    async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
+        for flight, ending in enumerate(("land", "abort", "land")):
             ready = await arm_the_moment_nothing_blocks_it(http)
             assert ready["mode"] == "disarmed"
             await take_off_at_once(http)
             status = await service.status(http)
             assert status["mode"] == "hover", status["notices"][-1:]
+            if flight == 0:
+                await hovers_within_5_cm(service, http)
             if ending == "abort":
                 away = {"bar_position": [1.0, 0.0, 1.2], "hold_s": 5.0}
                 assert (await http.post("/api/setpoints", json=away)).status_code == 200
