@@ -39,6 +39,7 @@ from supervisor.flight.operator_requests import (
     Outcome,
     Reply,
     Request,
+    SetpointsQuery,
     handle_request,
 )
 from supervisor.flight.telemetry import MocapView, build_telemetry
@@ -215,12 +216,14 @@ class FlightProcess:
         if refused is not None:
             return Reply(outcome=Outcome.REFUSED, reason=refused)
         reply = await self.handle(request)
-        # The status the request left, ahead of its reply on the API's commands connection:
-        # a status read, or a ``wait_s``, after the reply never sees the state before it.
-        status = TelemetryMessage(status=self.telemetry())
-        for channel in self._telemetry_channels:
-            with contextlib.suppress(ChannelClosedError):
-                channel.send(status)
+        if reply.ok and not isinstance(request, SetpointsQuery):
+            # The status the request left, ahead of its reply on the API's commands
+            # connection: a status read, or a ``wait_s``, after the reply never sees the
+            # state before it (a query changes nothing).
+            status = TelemetryMessage(status=self.telemetry())
+            for channel in self._telemetry_channels:
+                with contextlib.suppress(ChannelClosedError):
+                    channel.send(status)
         return reply
 
     def stop(self) -> None:
