@@ -1,6 +1,6 @@
 # Two commands on a fresh machine: `make serve` (the service on the embedded simulator)
 # and `make test` (lint, type-check and the whole test suite). Both create the virtualenv
-# in .venv on first use. `make serve PORT=8131 ARGS='--config kth_sml'` chooses the port
+# in .venv on first use. `make serve PORT=8131 ARGS='--config path/to/lab.toml'` chooses the port
 # and passes more options to `uavbar-supervisor serve`.
 PYTHON ?= python3
 VENV := .venv
