@@ -533,22 +533,31 @@ ARENA_DRAWN_JS = """(selector) => {
 }"""
 
 
-ON_TOP_JS = "(e, [x, y]) => e.contains(document.elementFromPoint(x, y))"
+# One synchronous read of the layout: the page redraws 25 times a second, and a line that
+# appears between two reads (a refusal's reason, say) moved the buttons in between.
+BOX_AND_ON_TOP_JS = """e => {
+    const r = e.getBoundingClientRect();
+    const middle = [r.left + r.width / 2, r.top + r.height / 2];
+    return {
+        box: {x: r.left, y: r.top, width: r.width, height: r.height},
+        middle: middle,
+        onTop: e.contains(document.elementFromPoint(middle[0], middle[1])),
+    };
+}"""
 
 
 async def assert_in_sight(page: Page, viewport: ViewportSize, names: tuple[str, ...]) -> None:
     """Each element inside the window and not under another one (its middle is its own)."""
     for name in names:
         element = page.get_by_test_id(name)
-        box = await element.bounding_box()
-        assert box is not None, f"{name} is not laid out"
+        seen = await element.evaluate(BOX_AND_ON_TOP_JS)
+        box = seen["box"]
+        assert box["width"] > 0 and box["height"] > 0, f"{name} is not laid out"
         inside = box["x"] >= 0 and box["y"] >= 0
         inside &= box["x"] + box["width"] <= viewport["width"]
         inside &= box["y"] + box["height"] <= viewport["height"]
         assert inside, f"{name} is not inside the {viewport} window: {box}"
-        middle = [box["x"] + box["width"] / 2, box["y"] + box["height"] / 2]
-        on_top = await element.evaluate(ON_TOP_JS, middle)
-        assert on_top, f"{name} is under another element at {middle}"
+        assert seen["onTop"], f"{name} is under another element at {seen['middle']}"
 
 
 async def assert_whole_arena_drawn(page: Page, arena: dict[str, list[float]]) -> None:
