@@ -38,6 +38,7 @@ _AFTER_PX4 = (
     "then arm and take off again"
 )
 _IN_THE_AIR = "land first (kill only in an emergency: the vehicles fall)"
+_DISARMS_ITSELF = "it disarms itself on the ground (kill only in an emergency: the vehicles fall)"
 _ACKNOWLEDGE_KILL = "disarm to acknowledge the kill, then arm and take off again"
 
 NEXT_STEP: dict[tuple[Mode, Request], str] = {
@@ -60,14 +61,12 @@ NEXT_STEP: dict[tuple[Mode, Request], str] = {
     (Mode.LANDING, Request.ARM): _AFTER_LANDING,
     (Mode.LANDING, Request.TAKEOFF): _AFTER_LANDING,
     (Mode.LANDING, Request.LAND): "landing already: it disarms itself on the ground",
-    (Mode.LANDING, Request.DISARM): "it disarms itself on the ground (kill only in an "
-    "emergency: the vehicles fall)",
+    (Mode.LANDING, Request.DISARM): _DISARMS_ITSELF,
     (Mode.LANDING, Request.SETPOINT): _AFTER_LANDING,
     (Mode.ABORT, Request.ARM): _AFTER_LANDING,
     (Mode.ABORT, Request.TAKEOFF): _AFTER_LANDING,
     (Mode.ABORT, Request.LAND): "the abort lands it already: wait until it has disarmed itself",
-    (Mode.ABORT, Request.DISARM): "it disarms itself on the ground (kill only in an "
-    "emergency: the vehicles fall)",
+    (Mode.ABORT, Request.DISARM): _DISARMS_ITSELF,
     (Mode.ABORT, Request.SETPOINT): _AFTER_LANDING,
     (Mode.PX4_LANDING, Request.ARM): _AFTER_PX4,
     (Mode.PX4_LANDING, Request.TAKEOFF): _AFTER_PX4,
