@@ -1,0 +1,285 @@
+"""Equilibria of N UAVs carrying one rigid payload: the payload level, its cables on a cone.
+
+The statics (derived in ``docs/model.md``, "N cables: equilibria"): the payload hangs
+level at yaw ψ_b, and every cable's line of action passes through one point C on the
+vertical through the payload's CoM. Forces through one point on the weight's line have
+no net moment about it, so the payload is in equilibrium as soon as the forces balance:
+Σ V_i = m g and Σ H_i = 0, with V_i and H_i cable i's vertical and horizontal pull. The
+vertical loads V are the least-norm deviation from the equal share m g / N that does so;
+C's depth follows from the cone angle, chosen so that the mean of the cables'
+cotangents is its cotangent. A symmetric geometry then has every cable at exactly the
+cone angle, and the two-cable bar is ``controllers.equilibria.bar_equilibrium`` (any
+d1, d2, masses and cable lengths).
+
+Scalar and small numpy arithmetic only: a relinearized tick comes here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from controllers.equilibria import EquilibriumError, tilt_to_euler
+from controllers.formation_params import BAR_TOLERANCE_M, FormationParams
+from geometry.arrays import FloatArray
+from geometry.formation import FormationLayout
+from geometry.state import P_B, TH_B, V_B, W_B
+
+_BALANCE_RTOL = 1e-9
+
+
+@dataclass(frozen=True)
+class FormationReference:
+    """What the operator asks for: the payload's CoM [m] and yaw, each UAV's yaw, and the
+    cone angle of the cables [rad] (θ_l's generalization).
+
+    ``velocity_mps``, ``payload_yaw_rate_radps``, ``uav_yaw_rates_radps`` (None: none
+    turns) and ``cone_angle_rate_radps`` make it a moving reference, a feed-forward as in
+    ``controllers.equilibria.Reference``: the formation translates, turns about the
+    payload's CoM, each UAV about its own vertical, and the cables swing along the
+    equilibrium family.
+    """
+
+    payload_position_m: tuple[float, float, float]
+    payload_yaw_rad: float
+    uav_yaw_rad: tuple[float, ...]
+    cone_angle_rad: float = 0.0
+    velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    payload_yaw_rate_radps: float = 0.0
+    uav_yaw_rates_radps: tuple[float, ...] | None = None
+    cone_angle_rate_radps: float = 0.0
+
+
+@dataclass(frozen=True)
+class FormationLimits:
+    """Bounds an equilibrium must respect: each UAV's thrust [N] and thrust tilt [rad]."""
+
+    thrust_min_n: float
+    thrust_max_n: float
+    max_tilt_rad: float
+
+
+@dataclass(frozen=True)
+class FormationEquilibrium:
+    """A fixed point of ``FormationModel`` and what it implies, per cable/UAV i = 1..N.
+
+    ``x`` (12 + 12N,) and ``u`` (4N,) as in ``geometry.formation``; ``cable_angles_rad``
+    from the vertical; ``tilts_rad`` of each UAV's thrust from the vertical;
+    ``attachments_m`` the world positions e_i; ``payload_force_n[i-1]`` the horizontal
+    pull of the rest of the payload on attachment i (−H_i, the decentralized model's
+    ``f_ext``); ``payload_mass_share_kg[i-1]`` = V_i / g.
+    """
+
+    x: FloatArray
+    u: FloatArray
+    tensions_n: tuple[float, ...]
+    thrusts_n: tuple[float, ...]
+    cable_angles_rad: tuple[float, ...]
+    tilts_rad: tuple[float, ...]
+    attachments_m: tuple[FloatArray, ...]
+    payload_force_n: tuple[FloatArray, ...]
+    payload_mass_share_kg: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class _CableLoads:
+    """The yaw-independent part: per cable, V_i [N], tan θ_i and d(tan θ_i)/d(cone)."""
+
+    vertical_n: FloatArray
+    tan_angle: FloatArray
+    tan_angle_per_cone_rad: FloatArray
+
+
+def _check_reference(reference: FormationReference, n: int) -> None:
+    rates = reference.uav_yaw_rates_radps
+    if len(reference.uav_yaw_rad) != n or (rates is not None and len(rates) != n):
+        raise EquilibriumError(f"a formation of {n} UAVs needs {n} UAV yaws and yaw rates")
+    values = (
+        *reference.payload_position_m,
+        reference.payload_yaw_rad,
+        *reference.uav_yaw_rad,
+        reference.cone_angle_rad,
+        *reference.velocity_mps,
+        reference.payload_yaw_rate_radps,
+        *(rates or ()),
+        reference.cone_angle_rate_radps,
+    )
+    if not all(math.isfinite(v) for v in values):
+        raise EquilibriumError("reference values must be finite")
+    if not 0.0 <= reference.cone_angle_rad < math.pi / 2.0:
+        raise EquilibriumError(
+            f"cone angle = {math.degrees(reference.cone_angle_rad):.2f}° has no equilibrium: "
+            "it must lie in [0°, 90°)"
+        )
+
+
+@lru_cache(maxsize=8)
+def _cable_loads(params: FormationParams, cone_angle_rad: float) -> _CableLoads:
+    """V, tan θ_i and their cone-angle derivative, in the payload frame (yaw-free, so a
+    held or turning reference reuses them tick after tick; the arrays are read-only)."""
+    a = np.array(params.payload.attachments_m, dtype=float)
+    reach = np.hypot(a[:, 0], a[:, 1])  # |ρ_i|
+    off_axis = reach > BAR_TOLERANCE_M
+    t = math.tan(cone_angle_rad)
+    # Mean cot θ_i = cot(cone) over the off-axis cables with tan θ_i = t m1 |ρ_i| / D_i,
+    # D_i = 1 + t (m1 h_i − mh): C lies (1/t − mh)/m1 below the CoM.
+    if off_axis.any():
+        m1 = float(np.mean(1.0 / reach[off_axis]))
+        mh = float(np.mean(a[off_axis, 2] / reach[off_axis]))
+    elif t > 0.0:
+        raise EquilibriumError(
+            "every attachment is on the payload's vertical axis: only a cone angle of 0° "
+            "has a level equilibrium"
+        )
+    else:
+        m1 = mh = 0.0
+    depth_factor = 1.0 + t * (m1 * a[:, 2] - mh)
+    below = np.flatnonzero(off_axis & (depth_factor <= 0.0))
+    if below.size:
+        raise EquilibriumError(
+            f"cone angle = {math.degrees(cone_angle_rad):.2f}° puts the point where the "
+            f"cables' lines meet at or above cable {below[0] + 1}'s attachment: no equilibrium"
+        )
+    weight = params.payload.mass_kg * params.gravity_mps2
+    inverse_depth = np.divide(1.0, depth_factor, out=np.zeros(len(a)), where=off_axis)
+    horizontal = inverse_depth[:, None] * a[:, :2]
+    # Σ V_i = m g and Σ V_i ρ_i / D_i = 0 (Σ H_i = 0; at t = 0 the moment balance).
+    A = np.vstack((np.ones(len(a)), horizontal.T))
+    b = np.array((weight, 0.0, 0.0))
+    equal_share = np.full(len(a), weight / len(a))
+    vertical = equal_share + np.linalg.lstsq(A, b - A @ equal_share, rcond=None)[0]
+    if np.abs(A @ vertical - b).max() > _BALANCE_RTOL * weight * max(1.0, float(reach.max())):
+        raise EquilibriumError(
+            "the payload cannot hang level: no vertical loads on its cables balance its "
+            "weight and moments"
+        )
+    pushing = np.flatnonzero(vertical <= 0.0)
+    if pushing.size:
+        i = int(pushing[0])
+        raise EquilibriumError(
+            f"cable {i + 1} would carry {vertical[i]:.3f} N of the payload's weight: its CoM "
+            "lies outside the support of the attachments (or, with four cables or more, too "
+            "near its edge for the least-norm load share)"
+        )
+    scale = m1 * reach * inverse_depth
+    loads = _CableLoads(
+        vertical_n=vertical,
+        tan_angle=t * scale,
+        tan_angle_per_cone_rad=scale * inverse_depth / math.cos(cone_angle_rad) ** 2,
+    )
+    for array in (loads.vertical_n, loads.tan_angle, loads.tan_angle_per_cone_rad):
+        array.setflags(write=False)
+    return loads
+
+
+def formation_equilibrium(
+    params: FormationParams,
+    reference: FormationReference,
+    limits: FormationLimits | None = None,
+) -> FormationEquilibrium:
+    """The equilibrium (x_eq, u_eq) for ``reference``, in closed form (one least-norm
+    solve of at most three equations for the vertical loads).
+
+    Raises ``EquilibriumError`` for a reference without one: a cone angle outside
+    [0°, 90°) or one that puts the cables' common point above an attachment, a payload
+    that cannot hang level or whose CoM lies outside its attachments' support (naming the
+    cable), or, given ``limits``, a UAV whose thrust or tilt would break them (naming the
+    UAV and the bound).
+    """
+    layout = FormationLayout(params.n_vehicles)
+    _check_reference(reference, layout.n_vehicles)
+    loads = _cable_loads(params, reference.cone_angle_rad)
+    g = params.gravity_mps2
+    psi_b, psi_b_rate = reference.payload_yaw_rad, reference.payload_yaw_rate_radps
+    cos_b, sin_b = math.cos(psi_b), math.sin(psi_b)
+    bx, by, bz = reference.payload_position_m
+    vx, vy, vz = reference.velocity_mps
+    uav_rates = reference.uav_yaw_rates_radps or (0.0,) * layout.n_vehicles
+
+    x = np.zeros(layout.n_states)
+    u = np.zeros(layout.n_inputs)
+    x[P_B] = (bx, by, bz)
+    x[V_B] = (vx, vy, vz)
+    x[TH_B] = (0.0, 0.0, psi_b)
+    x[W_B] = (0.0, 0.0, psi_b_rate)
+    tensions, thrusts, angles, tilts, ends, forces = [], [], [], [], [], []
+    for k, ((ax, ay, az), cable, uav) in enumerate(
+        zip(params.payload.attachments_m, params.cable_lengths_m, params.uavs, strict=True)
+    ):
+        i = k + 1
+        rho_x, rho_y = cos_b * ax - sin_b * ay, sin_b * ax + cos_b * ay  # R(ψ_b) a_i, level
+        reach = math.hypot(rho_x, rho_y)
+        out_x, out_y = (rho_x / reach, rho_y / reach) if reach > BAR_TOLERANCE_M else (0.0, 0.0)
+        vertical, tan_angle = float(loads.vertical_n[k]), float(loads.tan_angle[k])
+        angle = math.atan(tan_angle)
+        sin_a, cos_a = math.sin(angle), math.cos(angle)
+        tension = vertical / cos_a
+        n_x, n_y, n_z = sin_a * out_x, sin_a * out_y, cos_a
+        end = (bx + rho_x, by + rho_y, bz + az)
+        thrust_vector = (tension * n_x, tension * n_y, uav.mass_kg * g + tension * n_z)
+        thrust = math.hypot(*thrust_vector)
+        tilt = math.atan2(math.hypot(thrust_vector[0], thrust_vector[1]), thrust_vector[2])
+        if limits is not None:
+            _check_limits(limits, i, thrust, tilt)
+        yaw = reference.uav_yaw_rad[k]
+        roll, pitch = tilt_to_euler(thrust_vector, yaw)
+
+        p_i, v_i, th_i, w_i = layout.uav_slices(i)
+        px, py = end[0] + cable * n_x, end[1] + cable * n_y
+        x[p_i] = (px, py, end[2] + cable * n_z)
+        # The formation turning about the payload's CoM at ψ̇_b, and the cable swinging
+        # outward at θ̇_i = cos²θ_i d(tan θ_i)/d(cone) · cone rate: l θ̇_i ∂n_i/∂θ_i.
+        swing = cable * cos_a**2 * loads.tan_angle_per_cone_rad[k] * reference.cone_angle_rate_radps
+        x[v_i] = (
+            vx - psi_b_rate * (py - by) + swing * cos_a * out_x,
+            vy + psi_b_rate * (px - bx) + swing * cos_a * out_y,
+            vz - swing * sin_a,
+        )
+        x[th_i] = (roll, pitch, yaw)
+        # A turn about the vertical at ψ̇, in the body frame: ψ̇ Rᵀ e_z, with R of (2).
+        cos_pitch = math.cos(pitch)
+        x[w_i] = (
+            -uav_rates[k] * math.sin(pitch),
+            uav_rates[k] * math.sin(roll) * cos_pitch,
+            uav_rates[k] * math.cos(roll) * cos_pitch,
+        )
+        u[layout.thrust_index(i)] = thrust
+
+        tensions.append(tension)
+        thrusts.append(thrust)
+        angles.append(angle)
+        tilts.append(tilt)
+        ends.append(np.array(end))
+        forces.append(np.array((-tension * n_x, -tension * n_y, 0.0)))
+    return FormationEquilibrium(
+        x=x,
+        u=u,
+        tensions_n=tuple(tensions),
+        thrusts_n=tuple(thrusts),
+        cable_angles_rad=tuple(angles),
+        tilts_rad=tuple(tilts),
+        attachments_m=tuple(ends),
+        payload_force_n=tuple(forces),
+        payload_mass_share_kg=tuple(float(v) / g for v in loads.vertical_n),
+    )
+
+
+def _check_limits(limits: FormationLimits, i: int, thrust_n: float, tilt_rad: float) -> None:
+    if thrust_n > limits.thrust_max_n:
+        raise EquilibriumError(
+            f"UAV {i} would need {thrust_n:.2f} N of thrust, above the maximum thrust "
+            f"{limits.thrust_max_n:.2f} N"
+        )
+    if thrust_n < limits.thrust_min_n:
+        raise EquilibriumError(
+            f"UAV {i} would need {thrust_n:.2f} N of thrust, below the minimum thrust "
+            f"{limits.thrust_min_n:.2f} N"
+        )
+    if tilt_rad > limits.max_tilt_rad:
+        raise EquilibriumError(
+            f"UAV {i} would tilt {math.degrees(tilt_rad):.1f}°, beyond the maximum tilt "
+            f"{math.degrees(limits.max_tilt_rad):.1f}°"
+        )

@@ -1,0 +1,369 @@
+"""Equilibria of N UAVs carrying one payload: fixed points of the N-cable model, the cone
+angle of a symmetric geometry, the bar system's equilibria for N = 2, refusals, and the
+moving reference's feed-forward."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
+from controllers.formation_equilibria import (
+    FormationLimits,
+    FormationReference,
+    formation_equilibrium,
+)
+from controllers.formation_model import FormationModel
+from controllers.formation_params import FormationParams, PayloadParams, formation_from_bar
+from controllers.model import PayloadModel
+from controllers.params import BarSystemParams, UavParams
+from geometry.formation import FormationLayout
+from geometry.frames import rotation_from_euler_zyx
+from geometry.state import P_B, P_P, PAYLOAD_STATES, TH_B, UAV_BLOCK, V_B, W_B
+from tests.conftest import LAB_INERTIA, symmetric_params, uneven_params
+
+CONE_GRID_DEG = (0.0, 10.0, 30.0, 55.0, 75.0)
+YAWS = (0.0, 0.7, -2.4, math.pi)
+
+
+def plate_params(n: int, radius_m: float = 0.5) -> FormationParams:
+    """A regular n-gon plate hung by equal UAVs on equal cables (a symmetric geometry)."""
+    uav = UavParams(1.52, LAB_INERTIA)
+    corners = tuple(
+        (radius_m * math.cos(2 * math.pi * k / n), radius_m * math.sin(2 * math.pi * k / n), 0.0)
+        for k in range(n)
+    )
+    m = 0.8
+    plate = PayloadParams(
+        m,
+        (
+            (m * radius_m**2 / 4, 0.0, 0.0),
+            (0.0, m * radius_m**2 / 4, 0.0),
+            (0.0, 0.0, m * radius_m**2 / 2),
+        ),
+        corners,
+    )
+    return FormationParams((uav,) * n, plate, (1.0,) * n)
+
+
+def vector3(v: np.ndarray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
+
+
+def irregular_params(n: int) -> FormationParams:
+    """Nothing equal: attachments at jittered angles, radii and heights, a full inertia
+    tensor, and different UAV masses and cable lengths."""
+    rng = np.random.default_rng(n)
+    angles = 2 * math.pi * (np.arange(n) + rng.uniform(-0.2, 0.2, n)) / n
+    radii = rng.uniform(0.4, 0.8, n)
+    heights = rng.uniform(-0.12, 0.12, n)
+    attachments = tuple(
+        (float(r * math.cos(a)), float(r * math.sin(a)), float(h))
+        for a, r, h in zip(angles, radii, heights, strict=True)
+    )
+    turn = rotation_from_euler_zyx(0.3, -0.2, 0.9)
+    inertia = turn @ np.diag([0.04, 0.07, 0.1]) @ turn.T
+    payload = PayloadParams(
+        0.9, (vector3(inertia[0]), vector3(inertia[1]), vector3(inertia[2])), attachments
+    )
+    uavs = tuple(UavParams(float(m), LAB_INERTIA) for m in rng.uniform(1.0, 1.6, n))
+    lengths = tuple(float(length) for length in rng.uniform(0.7, 1.3, n))
+    return FormationParams(uavs, payload, lengths)
+
+
+def three_cable_bar() -> FormationParams:
+    """Three UAVs on one bar (collinear attachments: the bar model (5g))."""
+    J_b = 0.39 * 1.5**2 / 12
+    bar = PayloadParams(
+        0.39,
+        ((0.0, 0.0, 0.0), (0.0, J_b, 0.0), (0.0, 0.0, J_b)),
+        ((-0.7, 0.0, 0.0), (0.15, 0.0, 0.0), (0.75, 0.0, 0.0)),
+    )
+    return FormationParams(
+        tuple(UavParams(m, LAB_INERTIA) for m in (1.1, 1.3, 1.2)), bar, (0.9, 1.0, 1.1)
+    )
+
+
+def reference_for(params: FormationParams, psi_b: float, cone_rad: float) -> FormationReference:
+    n = params.n_vehicles
+    uav_yaws = tuple(YAWS[k % len(YAWS)] - 0.3 * k for k in range(n))
+    return FormationReference((0.4, -1.1, 1.3), psi_b, uav_yaws, cone_rad)
+
+
+GEOMETRIES = {
+    "plate3": plate_params(3),
+    "plate4": plate_params(4),
+    "plate6": plate_params(6),
+    "irregular3": irregular_params(3),
+    "irregular4": irregular_params(4),
+    "irregular6": irregular_params(6),
+    "bar3": three_cable_bar(),
+}
+
+
+@pytest.mark.parametrize("params", GEOMETRIES.values(), ids=GEOMETRIES.keys())
+def test_equilibria_are_fixed_points(params: FormationParams) -> None:
+    """ẋ(x_eq, u_eq) = 0 in the N-cable model, and its tensions are the equilibrium's."""
+    model = FormationModel(params)
+    worst = 0.0
+    for cone_deg, psi_b in itertools.product(CONE_GRID_DEG, YAWS):
+        eq = formation_equilibrium(params, reference_for(params, psi_b, math.radians(cone_deg)))
+        worst = max(worst, float(np.abs(np.asarray(model.dynamics(eq.x, eq.u))).max()))
+        tensions = np.asarray(model.tensions(eq.x, eq.u)).ravel()
+        assert np.all(tensions > 0.0)
+        np.testing.assert_allclose(tensions, eq.tensions_n, rtol=1e-10)
+        assert math.fsum(eq.payload_mass_share_kg) == pytest.approx(params.payload.mass_kg)
+    assert worst < 1e-9
+
+
+@pytest.mark.parametrize("n", [3, 4, 6])
+def test_a_symmetric_geometry_has_every_cable_at_the_cone_angle(n: int) -> None:
+    params = plate_params(n)
+    m_b, g = params.payload.mass_kg, params.gravity_mps2
+    for cone_deg, psi_b in itertools.product(CONE_GRID_DEG, YAWS):
+        cone = math.radians(cone_deg)
+        eq = formation_equilibrium(params, reference_for(params, psi_b, cone))
+        assert eq.cable_angles_rad == pytest.approx((cone,) * n, abs=1e-12)
+        assert eq.tensions_n == pytest.approx((m_b * g / n / math.cos(cone),) * n, rel=1e-12)
+        assert eq.thrusts_n == pytest.approx((eq.thrusts_n[0],) * n, rel=1e-12)
+        # Proposition 1's tilt with the payload shared by n: tan θ_f = m_s tan θ_l / (m_s + m).
+        share = m_b / n
+        expected_tilt = math.atan(share * math.tan(cone) / (share + params.uavs[0].mass_kg))
+        assert eq.tilts_rad == pytest.approx((expected_tilt,) * n, abs=1e-12)
+
+
+BAR_SETUPS = {"symmetric": symmetric_params(), "uneven": uneven_params()}
+
+
+@pytest.mark.parametrize("bar", BAR_SETUPS.values(), ids=BAR_SETUPS.keys())
+def test_two_cables_on_a_bar_are_the_bar_systems_equilibria(
+    bar: BarSystemParams, lab_params: BarSystemParams
+) -> None:
+    """x, u, tensions, angles and the decentralized model's inputs equal bar_equilibrium's."""
+    for params in (bar, lab_params):
+        formation = formation_from_bar(params)
+        for theta_deg, psi_b, rates, theta_rate in itertools.product(
+            (0.0, 10.0, 45.0, 80.0), YAWS, ((0.0, 0.0, 0.0), (0.3, -0.5, 0.2)), (0.0, -0.4)
+        ):
+            velocity = (0.3, -0.2, 0.1)
+            uav_yaws = (0.3, -1.0)
+            bar_eq = bar_equilibrium(
+                params,
+                Reference(
+                    (0.4, -1.1, 1.3),
+                    psi_b,
+                    uav_yaws,
+                    math.radians(theta_deg),
+                    velocity,
+                    rates,
+                    theta_rate,
+                ),
+            )
+            eq = formation_equilibrium(
+                formation,
+                FormationReference(
+                    (0.4, -1.1, 1.3),
+                    psi_b,
+                    uav_yaws,
+                    math.radians(theta_deg),
+                    velocity,
+                    rates[0],
+                    rates[1:],
+                    theta_rate,
+                ),
+            )
+            np.testing.assert_allclose(eq.x, bar_eq.x, rtol=0.0, atol=1e-12)
+            np.testing.assert_allclose(eq.u, bar_eq.u, rtol=0.0, atol=1e-12)
+            assert eq.tensions_n == pytest.approx(bar_eq.tensions_n, abs=1e-12)
+            assert eq.cable_angles_rad == pytest.approx(bar_eq.theta_l_rad, abs=1e-12)
+            assert eq.tilts_rad == pytest.approx(bar_eq.theta_f_rad, abs=1e-12)
+            for i in (1, 2):
+                np.testing.assert_allclose(
+                    eq.attachments_m[i - 1], bar_eq.bar_ends_m[i - 1], atol=1e-12
+                )
+                np.testing.assert_allclose(
+                    eq.payload_force_n[i - 1], bar_eq.payload_force_n[i - 1], atol=1e-12
+                )
+                assert eq.payload_mass_share_kg[i - 1] == pytest.approx(
+                    params.payload_mass_kg(i), rel=1e-12
+                )
+
+
+def test_each_cable_end_is_an_equilibrium_of_the_decentralized_model() -> None:
+    """UAV i with a point mass V_i/g at its attachment and the pull −H_i of the rest of the
+    payload is a fixed point of the single UAV–payload model (1)–(4)."""
+    params = irregular_params(4)
+    layout = FormationLayout(4)
+    eq = formation_equilibrium(params, reference_for(params, 0.7, math.radians(35)))
+    for i in layout.vehicles:
+        model = PayloadModel(
+            params.uavs[i - 1], eq.payload_mass_share_kg[i - 1], params.cable_lengths_m[i - 1]
+        )
+        x_i = np.zeros(PAYLOAD_STATES)
+        x_i[UAV_BLOCK] = eq.x[layout.uav_block(i)]
+        x_i[P_P] = eq.attachments_m[i - 1]
+        xdot = model.dynamics(x_i, eq.u[layout.uav_input_slice(i)], eq.payload_force_n[i - 1])
+        assert float(np.abs(np.asarray(xdot)).max()) < 1e-9
+
+
+def outside_support() -> FormationParams:
+    """Three attachments all on one side of the CoM: no cable can hold the far side."""
+    params = plate_params(3)
+    shifted = tuple((x + 0.6, y, z) for x, y, z in params.payload.attachments_m)
+    return dataclasses.replace(
+        params, payload=dataclasses.replace(params.payload, attachments_m=shifted)
+    )
+
+
+def test_a_com_outside_the_support_is_refused_naming_the_cable() -> None:
+    params = outside_support()
+    with pytest.raises(EquilibriumError, match=r"cable 1 would carry -\d.* outside the support"):
+        formation_equilibrium(params, reference_for(params, 0.0, math.radians(20)))
+
+
+def test_a_payload_that_cannot_hang_level_is_refused() -> None:
+    """Two cables whose attachments' line passes beside the CoM: it would tilt."""
+    params = plate_params(3)
+    payload = dataclasses.replace(params.payload, attachments_m=((-0.5, 0.2, 0.0), (0.5, 0.2, 0.0)))
+    two = FormationParams(params.uavs[:2], payload, (1.0, 1.0))
+    with pytest.raises(EquilibriumError, match="cannot hang level"):
+        formation_equilibrium(two, reference_for(two, 0.0, 0.2))
+
+
+def test_a_cone_that_puts_the_cables_meeting_point_above_an_attachment_is_refused() -> None:
+    """Cable 3's attachment 0.6 m below the others: from tan(cone) = 1.25 on (51.3°), the
+    point where the cables' lines meet is at or above it."""
+    params = plate_params(3)
+    lowered = tuple(
+        (x, y, 0.3 if k < 2 else -0.3) for k, (x, y, _) in enumerate(params.payload.attachments_m)
+    )
+    params = dataclasses.replace(
+        params, payload=dataclasses.replace(params.payload, attachments_m=lowered)
+    )
+    eq = formation_equilibrium(params, reference_for(params, 0.4, math.radians(50)))
+    xdot = FormationModel(params).dynamics(eq.x, eq.u)
+    assert float(np.abs(np.asarray(xdot)).max()) < 1e-9
+    with pytest.raises(EquilibriumError, match="at or above cable 3's attachment"):
+        formation_equilibrium(params, reference_for(params, 0.4, math.radians(52)))
+
+
+@pytest.mark.parametrize(
+    ("limits", "message"),
+    [
+        (
+            FormationLimits(0.0, 17.5, math.radians(30)),
+            r"UAV 1 would need 17\.80 N .*above the maximum thrust 17\.50 N",
+        ),
+        (
+            FormationLimits(18.0, 40.0, math.radians(30)),
+            r"UAV 1 would need 17\.80 N .*below the minimum thrust 18\.00 N",
+        ),
+        (
+            FormationLimits(0.0, 40.0, math.radians(5)),
+            r"UAV 1 would tilt 10\.1°, beyond the maximum tilt 5\.0°",
+        ),
+    ],
+    ids=["thrust max", "thrust min", "tilt"],
+)
+def test_an_equilibrium_beyond_the_limits_is_refused_naming_vehicle_and_bound(
+    limits: FormationLimits, message: str
+) -> None:
+    params = plate_params(3)
+    reference = reference_for(params, 0.3, math.radians(50))
+    eq = formation_equilibrium(params, reference)  # 17.80 N of thrust, tilted 10.1°, each
+    assert eq.thrusts_n[0] == pytest.approx(17.80, abs=0.005)
+    with pytest.raises(EquilibriumError, match=message):
+        formation_equilibrium(params, reference, limits)
+    assert (
+        formation_equilibrium(
+            params, reference, FormationLimits(0.0, 40.0, math.radians(30))
+        ).thrusts_n
+        == eq.thrusts_n
+    )
+
+
+def test_the_vehicle_named_is_the_one_beyond_the_limit() -> None:
+    params = irregular_params(4)
+    reference = reference_for(params, 0.3, math.radians(40))
+    eq = formation_equilibrium(params, reference)
+    heaviest = int(np.argmax(eq.thrusts_n)) + 1
+    ceiling = (sorted(eq.thrusts_n)[-2] + max(eq.thrusts_n)) / 2
+    with pytest.raises(EquilibriumError, match=f"UAV {heaviest} would need"):
+        formation_equilibrium(params, reference, FormationLimits(0.0, ceiling, math.radians(80)))
+
+
+@pytest.mark.parametrize("cone", [-0.01, math.pi / 2, 2.0, math.nan])
+def test_impossible_cone_angles_are_refused(cone: float) -> None:
+    params = plate_params(4)
+    with pytest.raises(EquilibriumError, match=r"cone angle|finite"):
+        formation_equilibrium(params, reference_for(params, 0.0, cone))
+
+
+def test_a_reference_for_another_formation_size_is_refused() -> None:
+    with pytest.raises(EquilibriumError, match="4 UAVs needs 4 UAV yaws"):
+        formation_equilibrium(plate_params(4), FormationReference((0, 0, 1), 0.0, (0.0,) * 3))
+
+
+@pytest.mark.parametrize(
+    "params",
+    [plate_params(3), irregular_params(4), three_cable_bar()],
+    ids=["plate3", "irregular4", "bar3"],
+)
+def test_the_feed_forward_is_the_derivative_along_the_moving_reference(
+    params: FormationParams,
+) -> None:
+    """For a reference moving in time (position, yaws, cone angle), the central difference
+    of x_eq(t) matches the velocities, the payload's Euler rates H^E ω_b and the UAVs' yaw
+    rates in x_eq(t)."""
+    layout = FormationLayout(params.n_vehicles)
+    velocity, psi_rate, cone_rate = np.array((0.3, -0.2, 0.1)), 0.4, 0.25
+    uav_rates = tuple(0.2 - 0.15 * k for k in range(params.n_vehicles))
+    start = reference_for(params, 0.7, math.radians(30))
+
+    def at(t: float) -> np.ndarray:
+        reference = FormationReference(
+            vector3(np.asarray(start.payload_position_m) + velocity * t),
+            start.payload_yaw_rad + psi_rate * t,
+            tuple(y + r * t for y, r in zip(start.uav_yaw_rad, uav_rates, strict=True)),
+            start.cone_angle_rad + cone_rate * t,
+            vector3(velocity),
+            psi_rate,
+            uav_rates,
+            cone_rate,
+        )
+        return formation_equilibrium(params, reference).x
+
+    delta = 1e-6
+    x, rate = at(0.0), (at(delta) - at(-delta)) / (2 * delta)
+    positions = [(P_B, V_B)] + [layout.uav_slices(i)[:2] for i in layout.vehicles]
+    for position, velocity_slice in positions:
+        np.testing.assert_allclose(rate[position], x[velocity_slice], atol=1e-7)
+    np.testing.assert_allclose(rate[TH_B], (0.0, 0.0, x[W_B][2]), atol=1e-7)
+    for i, uav_rate in zip(layout.vehicles, uav_rates, strict=True):
+        assert rate[layout.uav_yaw_index(i)] == pytest.approx(uav_rate, abs=1e-7)
+        roll, pitch, _ = x[layout.uav_slices(i)[2]]
+        body_rates = x[layout.uav_slices(i)[3]]
+        yaw_rate = (math.sin(roll) * body_rates[1] + math.cos(roll) * body_rates[2]) / math.cos(
+            pitch
+        )  # (4)
+        assert yaw_rate == pytest.approx(uav_rate, abs=1e-12)
+
+
+def test_a_translating_reference_is_a_relative_equilibrium() -> None:
+    """With velocity alone, everything moves at v and nothing accelerates."""
+    params = irregular_params(4)
+    velocity = (0.3, -0.2, 0.1)
+    reference = dataclasses.replace(
+        reference_for(params, 0.7, math.radians(30)), velocity_mps=velocity
+    )
+    eq = formation_equilibrium(params, reference)
+    layout = FormationLayout(4)
+    xdot = np.asarray(FormationModel(params).dynamics(eq.x, eq.u)).ravel()
+    expected = np.zeros(layout.n_states)
+    for position in (P_B, *(layout.uav_slices(i)[0] for i in layout.vehicles)):
+        expected[position] = velocity
+    np.testing.assert_allclose(xdot, expected, atol=1e-9)
