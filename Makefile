@@ -42,11 +42,13 @@ browser:
 		apt-get update -qq && apt-get install -y -qq chromium >/dev/null; } || \
 		echo "chromium is not installed: the dashboard browser tests will be skipped"
 
-# One pytest worker per core; the tests on the wall clock (serve, real PX4, the browser)
-# run in two lanes, at most two at once (tests/conftest.py), the rest beside them; the
-# thirty slowest are listed at the end, for whoever works on the suite's length.
+# The tests on the wall clock (serve, real PX4, the browser) run in two lanes, at most two
+# at once, each on a worker of its own from the start, and the rest beside them, niced, on
+# one worker per core more (tests/conftest.py); the thirty slowest are listed at the end,
+# for whoever works on the suite's length.
+WORKERS ?= $(shell echo $$(( $$(nproc) + 1 )))
 test: lint browser
-	$(BIN)/pytest -n auto --dist loadgroup --durations=30
+	$(BIN)/pytest -n $(WORKERS) --dist loadgroup --no-loadscope-reorder --durations=30
 
 # The quick loop while editing: lint, then the tests not marked slow (about 2 minutes).
 test-fast: lint

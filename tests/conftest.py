@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -67,10 +69,13 @@ WALL_CLOCK_MODULES = {
 }
 SECOND_LANE_MODULES = {
     "tests/test_dashboard.py",
+    "tests/test_service.py",
     "tests/api/test_openapi_contract.py",
     "tests/test_wheel.py",
     "tests/test_service_signing.py",
 }
+BESIDE_THE_LANES = 3
+NICE_BESIDE_THE_LANES = 10
 TESTS = Path(__file__).parent
 RERUN_REASON_LINES = 25  # of the first failure's report: its error and where
 
@@ -84,19 +89,46 @@ def _on_the_wall_clock(item: pytest.Item) -> bool:
     return Path(item.path).parent == TESTS or _module(item) in WALL_CLOCK_MODULES or marked
 
 
+def _lane(item: pytest.Item) -> int:
+    """1 or 2 for a test on the wall clock (its lane), ``BESIDE_THE_LANES`` otherwise."""
+    if not _on_the_wall_clock(item):
+        return BESIDE_THE_LANES
+    return 2 if _module(item) in SECOND_LANE_MODULES else 1
+
+
 # Before xdist's own hook, which turns the marker into the group it schedules by: hooks of
 # plugins registered later run first, and without tryfirst the marker came too late (every
 # worker then ran serve-based tests at once).
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    # The lanes first: xdist (`--no-loadscope-reorder`) hands out work units in collection
+    # order, so each lane starts at once on a worker of its own and the third worker takes
+    # the other modules; a lane queued behind them ended the run minutes late.
+    items.sort(key=_lane)
     for item in items:
-        if _on_the_wall_clock(item):
-            lane = 2 if _module(item) in SECOND_LANE_MODULES else 1
+        lane = _lane(item)
+        if lane != BESIDE_THE_LANES:
             item.add_marker(pytest.mark.xdist_group(f"wall_clock_{lane}"))
             # Run once more after a failure (pytest-rerunfailures; the summary counts reruns):
             # with the simulated QTM on this same computer, a loaded CI VM delays its frames
             # by 100 ms at times, which the supervisor rightly answers as blind (PX4 lands).
             item.add_marker(pytest.mark.flaky(reruns=1, reruns_delay=2))
+
+
+@pytest.fixture(autouse=True)
+def _yield_to_the_lanes(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test beside the lanes runs niced, so that the serves, browsers and clients of the
+    two lanes keep the CPU they need while it soaks up what they leave; only as root (as
+    CI runs), where the priority can be given back after the test."""
+    if os.geteuid() != 0 or _lane(request.node) != BESIDE_THE_LANES:
+        yield
+        return
+    before = os.getpriority(os.PRIO_PROCESS, 0)
+    os.setpriority(os.PRIO_PROCESS, 0, NICE_BESIDE_THE_LANES)
+    try:
+        yield
+    finally:
+        os.setpriority(os.PRIO_PROCESS, 0, before)
 
 
 def pytest_collection_finish(session: pytest.Session) -> None:
