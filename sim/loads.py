@@ -15,13 +15,17 @@ import math
 from dataclasses import dataclass
 from typing import Final, Literal
 
-BODIES: Final = ("uav1", "uav2", "bar")
+from geometry.formation import MAX_VEHICLES
+
+BODIES: Final = ("bar", "payload", *(f"uav{i}" for i in range(1, MAX_VEHICLES + 1)))
+"""Every body a plant may have; a plant refuses a load on one it does not have."""
 Profile = Literal["steady", "gust"]
 
 
 @dataclass(frozen=True)
 class ExternalLoad:
-    """A force [N] and torque [N m] (world frame) on ``body`` from ``start_s`` [s]."""
+    """A force [N] and torque [N m] (world frame) on ``body`` from ``start_s`` [s]; the
+    body is "uav1" … "uavN", or the payload: "bar", or "payload" for one that is not."""
 
     body: str
     force_n: tuple[float, float, float]

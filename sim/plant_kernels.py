@@ -2,22 +2,25 @@
 
 Everything here works on flat float64 arrays so that many steps run inside one jitted call
 with no Python objects in the loop. ``sim/plant.py`` packs the parameters
-(``pack_parameters``) and wraps the state in a readable API.
+(``pack_parameters``) and wraps the state in a readable API. The number of UAVs N (2 to 8)
+is read from the parameters (``G_NUAV``); every size and offset below follows from it.
 
-State vector x, shape (STATE_SIZE,) = (47,):
+State vector x, shape (state_size(N),) = (17 N + 13,), 47 for the bar's two UAVs:
 
-* body b ∈ {0: uav1, 1: uav2, 2: bar}, offset 13 b:
+* body b, offset 13 b: UAV b+1 for b < N, the payload for b = N:
   position ENU [m] (3), velocity ENU [m/s] (3), quaternion (w, x, y, z) body → ENU (4),
   angular velocity in the body frame [rad/s] (3);
-* UAV i ∈ {0, 1} actuators, offset 39 + 4 i: thrust after the lag [N] (1), body torque
-  after the lag [N m] (3).
+* UAV i ∈ {0, …, N−1} actuators, offset actuator_offset(N) + 4 i: thrust after the lag
+  [N] (1), body torque after the lag [N m] (3).
 
-External loads ``ext``, shape (N_BODIES × EXT_SIZE,): per body b at offset EXT_SIZE b, a
-force at its CoM [N] (3) and a torque [N m] (3), both in the ENU world frame (a push, a
+Commands ``cmd``, shape (4 N,): per UAV i at 4 i the saturated thrust [N] and torque [N m]
+(3). External loads ``ext``, shape ((N + 1) × EXT_SIZE,): per body b at offset EXT_SIZE b,
+a force at its CoM [N] (3) and a torque [N m] (3), both in the ENU world frame (a push, a
 gust), held over a call like the commands.
 
-Frames: ENU arena (z up); UAV bodies FLU with thrust along +z; the bar's body frame has
-its origin at the CoM and x along the bar from end 1 to end 2.
+Frames: ENU arena (z up); UAV bodies FLU with thrust along +z; the payload's body frame
+has its origin at the CoM (the bar's x axis runs along it from end 1 to end 2). Cable c
+ties UAV c+1 to the payload.
 """
 
 from __future__ import annotations
@@ -40,15 +43,31 @@ def _jit(fn: _F) -> _F:
 
 
 # --- State layout --------------------------------------------------------------------
-N_BODIES = 3
 BODY_SIZE = 13
 POS, VEL, QUAT, RATES = 0, 3, 6, 10
-ACT_OFFSET = N_BODIES * BODY_SIZE  # 39
 ACT_SIZE = 4
-STATE_SIZE = ACT_OFFSET + 2 * ACT_SIZE  # 47
 EXT_SIZE = 6  # per body: world force (3), world torque (3)
 
+
+@_jit
+def actuator_offset(n: int) -> int:
+    """Where the actuators start in the state of ``n`` UAVs: after the n + 1 bodies."""
+    return (n + 1) * BODY_SIZE
+
+
+@_jit
+def state_size(n: int) -> int:
+    """Length of the state vector of ``n`` UAVs and the payload."""
+    return (n + 1) * BODY_SIZE + n * ACT_SIZE
+
+
 # --- Parameter layout (pack_parameters in sim/plant.py writes it) -----------------------
+G_NUAV = 0  # N, the number of UAVs (and cables)
+G_GRAV = 1
+G_GROUND = 2
+G_NWIND = 3
+OFF_BODIES = 4  # then one BODY_BLOCK per body, in the state's order
+
 MAX_CONTACTS = 8
 B_MASS = 0
 B_J = 1  # inertia, row-major 3 × 3
@@ -73,44 +92,68 @@ C_L0 = 0
 C_K = 1
 C_C = 2
 C_UAVPT = 3  # attachment on the UAV, its body frame
-C_BARPT = 6  # attachment on the bar, its body frame
+C_PAYLOADPT = 6  # attachment on the payload, its body frame
 CABLE_BLOCK = 9
 
 L_TAU_F = 0
 L_TAU_T = 1
 LAG_BLOCK = 2
 
-OFF_CABLE = N_BODIES * BODY_BLOCK
-OFF_LAG = OFF_CABLE + 2 * CABLE_BLOCK
-OFF_GLOBAL = OFF_LAG + 2 * LAG_BLOCK
-G_GRAV = 0
-G_GROUND = 1
-G_NWIND = 2
-OFF_WIND = OFF_GLOBAL + 3  # mean (3), then amplitude, ω, phase, each 3 × K
+
+@_jit
+def body_block(b: int) -> int:
+    """Offset of body b's parameters."""
+    return OFF_BODIES + b * BODY_BLOCK
 
 
-def parameter_size(n_wind: int) -> int:
-    """Length of the parameter vector with ``n_wind`` sinusoids per wind axis."""
-    return OFF_WIND + 3 + 9 * n_wind
+@_jit
+def cable_block(n: int, c: int) -> int:
+    """Offset of cable c's parameters among ``n``."""
+    return OFF_BODIES + (n + 1) * BODY_BLOCK + c * CABLE_BLOCK
 
 
-# --- Diagnostics layout ------------------------------------------------------------------
-D_TENSION = 0  # 2
-D_STRETCH = 2  # 2
-D_STRETCH_RATE = 4  # 2
-D_SLACK = 6  # 2 (1.0 = slack)
-D_ON_GROUND = 8  # 3 (1.0 = a contact point penetrates)
-D_KINETIC = 11
-D_GRAVITY = 12
-D_CABLE_SPRING = 13
-D_CONTACT_SPRING = 14
-DIAG_SIZE = 15
+@_jit
+def lag_block(n: int, i: int) -> int:
+    """Offset of UAV i's motor lag parameters among ``n``."""
+    return OFF_BODIES + (n + 1) * BODY_BLOCK + n * CABLE_BLOCK + i * LAG_BLOCK
+
+
+@_jit
+def wind_offset(n: int) -> int:
+    """Offset of the wind: mean (3), then amplitude, ω, phase, each 3 × K."""
+    return OFF_BODIES + (n + 1) * BODY_BLOCK + n * (CABLE_BLOCK + LAG_BLOCK)
+
+
+def parameter_size(n: int, n_wind: int) -> int:
+    """Length of the parameter vector of ``n`` UAVs with ``n_wind`` sinusoids per wind
+    axis."""
+    return int(wind_offset(n)) + 3 + 9 * n_wind
+
+
+# --- Diagnostics layout -------------------------------------------------------------------
+# Four blocks of N per cable (block k at k N, cable c at + c), one of N + 1 per body at 4 N
+# (body b at + b), then four energies [J] from energy_offset(N).
+D_TENSION, D_STRETCH, D_STRETCH_RATE, D_SLACK = 0, 1, 2, 3  # D_SLACK: 1.0 = slack
+D_ON_GROUND = 4  # 1.0 = a contact point penetrates
+D_KINETIC, D_GRAVITY, D_CABLE_SPRING, D_CONTACT_SPRING = 0, 1, 2, 3
+
+
+@_jit
+def energy_offset(n: int) -> int:
+    """Where the energies start in the diagnostics of ``n`` UAVs."""
+    return 5 * n + 1
+
+
+@_jit
+def diagnostics_size(n: int) -> int:
+    """Length of the diagnostics of ``n`` UAVs."""
+    return 5 * n + 5
 
 
 @_jit
 def _rotations(x: FloatArray, R: FloatArray) -> None:
-    """R[b] = rotation body → ENU of body b from its (possibly not unit) quaternion."""
-    for b in range(N_BODIES):
+    """R[b] = rotation body → ENU of every body b from its (possibly not unit) quaternion."""
+    for b in range(R.shape[0]):
         o = b * BODY_SIZE + QUAT
         qw, qx, qy, qz = x[o], x[o + 1], x[o + 2], x[o + 3]
         s = 2.0 / (qw * qw + qx * qx + qy * qy + qz * qz)
@@ -169,29 +212,33 @@ def _apply_force(
 
 
 @_jit
-def _cable(x: FloatArray, P: FloatArray, R: FloatArray, c: int) -> tuple[float, float, float]:
-    """Cable c (0, 1: from UAV c to bar end c+1): (stretch [m], stretch rate [m/s],
-    length between the attachment points [m])."""
-    pc = OFF_CABLE + c * CABLE_BLOCK
+def _cable(
+    x: FloatArray, P: FloatArray, R: FloatArray, c: int
+) -> tuple[float, float, float, float, float, float]:
+    """Cable c (from UAV c+1 to its attachment on the payload): (stretch [m], stretch rate
+    [m/s], length between the attachment points [m], then the vector from the payload's
+    attachment to the UAV's [m] (3))."""
+    n = int(P[G_NUAV])
+    pc = cable_block(n, c)
     ou = c * BODY_SIZE
-    ob = 2 * BODY_SIZE
+    ob = n * BODY_SIZE
     ux, uy, uz = P[pc + C_UAVPT], P[pc + C_UAVPT + 1], P[pc + C_UAVPT + 2]
-    ex, ey, ez = P[pc + C_BARPT], P[pc + C_BARPT + 1], P[pc + C_BARPT + 2]
+    ex, ey, ez = P[pc + C_PAYLOADPT], P[pc + C_PAYLOADPT + 1], P[pc + C_PAYLOADPT + 2]
     ax = x[ou] + R[c, 0, 0] * ux + R[c, 0, 1] * uy + R[c, 0, 2] * uz
     ay = x[ou + 1] + R[c, 1, 0] * ux + R[c, 1, 1] * uy + R[c, 1, 2] * uz
     az = x[ou + 2] + R[c, 2, 0] * ux + R[c, 2, 1] * uy + R[c, 2, 2] * uz
-    bx = x[ob] + R[2, 0, 0] * ex + R[2, 0, 1] * ey + R[2, 0, 2] * ez
-    by = x[ob + 1] + R[2, 1, 0] * ex + R[2, 1, 1] * ey + R[2, 1, 2] * ez
-    bz = x[ob + 2] + R[2, 2, 0] * ex + R[2, 2, 1] * ey + R[2, 2, 2] * ez
+    bx = x[ob] + R[n, 0, 0] * ex + R[n, 0, 1] * ey + R[n, 0, 2] * ez
+    by = x[ob + 1] + R[n, 1, 0] * ex + R[n, 1, 1] * ey + R[n, 1, 2] * ez
+    bz = x[ob + 2] + R[n, 2, 0] * ex + R[n, 2, 1] * ey + R[n, 2, 2] * ez
     dx, dy, dz = ax - bx, ay - by, az - bz
     dist = math.sqrt(dx * dx + dy * dy + dz * dz)
     stretch = dist - P[pc + C_L0]
     if dist < 1e-12:
-        return stretch, 0.0, dist
+        return stretch, 0.0, dist, dx, dy, dz
     va = _point_velocity(x, R, c, ux, uy, uz)
-    vb = _point_velocity(x, R, 2, ex, ey, ez)
+    vb = _point_velocity(x, R, n, ex, ey, ez)
     rate = ((va[0] - vb[0]) * dx + (va[1] - vb[1]) * dy + (va[2] - vb[2]) * dz) / dist
-    return stretch, rate, dist
+    return stretch, rate, dist, dx, dy, dz
 
 
 @_jit
@@ -199,7 +246,7 @@ def _tension(P: FloatArray, c: int, stretch: float, rate: float) -> float:
     """Unilateral spring-damper: T = max(0, k s + c ṡ) when taut (s > 0), else 0 [N]."""
     if stretch <= 0.0:
         return 0.0
-    pc = OFF_CABLE + c * CABLE_BLOCK
+    pc = cable_block(int(P[G_NUAV]), c)
     T = P[pc + C_K] * stretch + P[pc + C_C] * rate
     return T if T > 0.0 else 0.0
 
@@ -216,28 +263,30 @@ def derivative(
     Tb: FloatArray,
     out: FloatArray,
 ) -> None:
-    """ẋ at time t [s] into ``out`` (shape (STATE_SIZE,)). ``cmd`` (8,) holds the
-    saturated commands [F1, τ1 (3), F2, τ2 (3)], ``ext`` the external loads (world force
-    and torque per body); R (3, 3, 3), Fw (3, 3), Tb (3, 3) are scratch space (rotations,
-    world forces, body torques)."""
-    g = P[OFF_GLOBAL + G_GRAV]
+    """ẋ at time t [s] into ``out`` (shape (state_size(N),)). ``cmd`` (4 N,) holds the
+    saturated commands [F1, τ1 (3), …, FN, τN (3)], ``ext`` the external loads (world
+    force and torque per body); R (N+1, 3, 3), Fw (N+1, 3), Tb (N+1, 3) are scratch space
+    (rotations, world forces, body torques)."""
+    n = int(P[G_NUAV])
+    g = P[G_GRAV]
     _rotations(x, R)
 
     # Wind (uniform in space): mean + a sum of sinusoids per axis.
-    K = int(P[OFF_GLOBAL + G_NWIND])
-    w0 = P[OFF_WIND]
-    w1 = P[OFF_WIND + 1]
-    w2 = P[OFF_WIND + 2]
-    base = OFF_WIND + 3
+    K = int(P[G_NWIND])
+    ow = wind_offset(n)
+    w0 = P[ow]
+    w1 = P[ow + 1]
+    w2 = P[ow + 2]
+    base = ow + 3
     for j in range(K):
         w0 += P[base + j] * math.sin(P[base + 3 * K + j] * t + P[base + 6 * K + j])
         w1 += P[base + K + j] * math.sin(P[base + 4 * K + j] * t + P[base + 7 * K + j])
         w2 += P[base + 2 * K + j] * math.sin(P[base + 5 * K + j] * t + P[base + 8 * K + j])
 
     # Gravity and drag at each CoM.
-    for b in range(N_BODIES):
+    for b in range(n + 1):
         o = b * BODY_SIZE
-        pb = b * BODY_BLOCK
+        pb = body_block(b)
         m = P[pb + B_MASS]
         rx = x[o + VEL] - w0
         ry = x[o + VEL + 1] - w1
@@ -257,8 +306,9 @@ def derivative(
         Tb[b, 2] = R[b, 0, 2] * tx + R[b, 1, 2] * ty + R[b, 2, 2] * tz
 
     # Rotor thrust along body +z (1b) and body torque, after the motor lag.
-    for i in range(2):
-        a = ACT_OFFSET + i * ACT_SIZE
+    act = actuator_offset(n)
+    for i in range(n):
+        a = act + i * ACT_SIZE
         F = x[a]
         Fw[i, 0] += F * R[i, 0, 2]
         Fw[i, 1] += F * R[i, 1, 2]
@@ -268,34 +318,26 @@ def derivative(
         Tb[i, 2] += x[a + 3]
 
     # Cables: tension along the line between the attachment points.
-    for c in range(2):
-        stretch, rate, dist = _cable(x, P, R, c)
+    for c in range(n):
+        stretch, rate, dist, dx, dy, dz = _cable(x, P, R, c)
         T = _tension(P, c, stretch, rate)
         if T > 0.0 and dist > 1e-12:
-            pc = OFF_CABLE + c * CABLE_BLOCK
-            ou = c * BODY_SIZE
-            ob = 2 * BODY_SIZE
+            pc = cable_block(n, c)
             ux, uy, uz = P[pc + C_UAVPT], P[pc + C_UAVPT + 1], P[pc + C_UAVPT + 2]
-            ex, ey, ez = P[pc + C_BARPT], P[pc + C_BARPT + 1], P[pc + C_BARPT + 2]
-            ax = x[ou] + R[c, 0, 0] * ux + R[c, 0, 1] * uy + R[c, 0, 2] * uz
-            ay = x[ou + 1] + R[c, 1, 0] * ux + R[c, 1, 1] * uy + R[c, 1, 2] * uz
-            az = x[ou + 2] + R[c, 2, 0] * ux + R[c, 2, 1] * uy + R[c, 2, 2] * uz
-            bx = x[ob] + R[2, 0, 0] * ex + R[2, 0, 1] * ey + R[2, 0, 2] * ez
-            by = x[ob + 1] + R[2, 1, 0] * ex + R[2, 1, 1] * ey + R[2, 1, 2] * ez
-            bz = x[ob + 2] + R[2, 2, 0] * ex + R[2, 2, 1] * ey + R[2, 2, 2] * ez
+            ex, ey, ez = P[pc + C_PAYLOADPT], P[pc + C_PAYLOADPT + 1], P[pc + C_PAYLOADPT + 2]
             s = T / dist
-            # n points from the bar end to the UAV: the bar is pulled along +n, the UAV
-            # along −n (the T n_i terms of (5b), (5e)).
-            fx, fy, fz = s * (ax - bx), s * (ay - by), s * (az - bz)
-            _apply_force(R, Fw, Tb, 2, ex, ey, ez, fx, fy, fz)
+            # d points from the payload's attachment to the UAV's: the payload is pulled
+            # along +n, the UAV along −n (the T n_i terms of (5b), (5e)).
+            fx, fy, fz = s * dx, s * dy, s * dz
+            _apply_force(R, Fw, Tb, n, ex, ey, ez, fx, fy, fz)
             _apply_force(R, Fw, Tb, c, ux, uy, uz, -fx, -fy, -fz)
 
     # Ground contact at z = 0: penalty spring-damper normal force, regularized Coulomb
-    # friction and rolling resistance at every contact point (feet, bar end spheres).
-    if P[OFF_GLOBAL + G_GROUND] > 0.5:
-        for b in range(N_BODIES):
+    # friction and rolling resistance at every contact point (feet, the payload's points).
+    if P[G_GROUND] > 0.5:
+        for b in range(n + 1):
             o = b * BODY_SIZE
-            pb = b * BODY_BLOCK
+            pb = body_block(b)
             rad = P[pb + B_CRAD]
             kn, cn, mu = P[pb + B_KN], P[pb + B_CN], P[pb + B_MU]
             for k in range(int(P[pb + B_NCONT])):
@@ -326,9 +368,9 @@ def derivative(
                     Tb[b, 2] -= tr * wz
 
     # Newton–Euler per body: ṗ = v, v̇ = F/m, q̇ = ½ q ⊗ (0, ω), J ω̇ = τ − ω × J ω.
-    for b in range(N_BODIES):
+    for b in range(n + 1):
         o = b * BODY_SIZE
-        pb = b * BODY_BLOCK
+        pb = body_block(b)
         if P[pb + B_ANCHOR] > 0.5:
             for k in range(BODY_SIZE):
                 out[o + k] = 0.0
@@ -360,9 +402,9 @@ def derivative(
 
     # First-order motor lag toward the saturated command; time constant 0 means the
     # state is the command itself (set by ``advance``), so it does not move here.
-    for i in range(2):
-        a = ACT_OFFSET + i * ACT_SIZE
-        pl = OFF_LAG + i * LAG_BLOCK
+    for i in range(n):
+        a = act + i * ACT_SIZE
+        pl = lag_block(n, i)
         tau_f, tau_t = P[pl + L_TAU_F], P[pl + L_TAU_T]
         out[a] = (cmd[4 * i] - x[a]) / tau_f if tau_f > 0.0 else 0.0
         for k in range(1, 4):
@@ -374,19 +416,22 @@ def advance(
     x: FloatArray, P: FloatArray, cmd: FloatArray, ext: FloatArray, t0: float, h: float, n: int
 ) -> None:
     """Integrate x (in place) over n fixed RK4 steps of h [s] from t0 [s], holding the
-    commands ``cmd`` (8,) and the external loads ``ext``; quaternions are renormalized
+    commands ``cmd`` (4 N,) and the external loads ``ext``; quaternions are renormalized
     after every step."""
-    R = np.empty((N_BODIES, 3, 3))
-    Fw = np.empty((N_BODIES, 3))
-    Tb = np.empty((N_BODIES, 3))
-    k1 = np.empty(STATE_SIZE)
-    k2 = np.empty(STATE_SIZE)
-    k3 = np.empty(STATE_SIZE)
-    k4 = np.empty(STATE_SIZE)
-    xt = np.empty(STATE_SIZE)
-    for i in range(2):
-        pl = OFF_LAG + i * LAG_BLOCK
-        a = ACT_OFFSET + i * ACT_SIZE
+    n_uavs = int(P[G_NUAV])
+    size = state_size(n_uavs)
+    act = actuator_offset(n_uavs)
+    R = np.empty((n_uavs + 1, 3, 3))
+    Fw = np.empty((n_uavs + 1, 3))
+    Tb = np.empty((n_uavs + 1, 3))
+    k1 = np.empty(size)
+    k2 = np.empty(size)
+    k3 = np.empty(size)
+    k4 = np.empty(size)
+    xt = np.empty(size)
+    for i in range(n_uavs):
+        pl = lag_block(n_uavs, i)
+        a = act + i * ACT_SIZE
         if P[pl + L_TAU_F] <= 0.0:
             x[a] = cmd[4 * i]
         if P[pl + L_TAU_T] <= 0.0:
@@ -397,19 +442,19 @@ def advance(
         # Time from the step index, not by accumulation, so it never drifts.
         t = t0 + step * h
         derivative(t, x, P, cmd, ext, R, Fw, Tb, k1)
-        for k in range(STATE_SIZE):
+        for k in range(size):
             xt[k] = x[k] + half * k1[k]
         derivative(t + half, xt, P, cmd, ext, R, Fw, Tb, k2)
-        for k in range(STATE_SIZE):
+        for k in range(size):
             xt[k] = x[k] + half * k2[k]
         derivative(t + half, xt, P, cmd, ext, R, Fw, Tb, k3)
-        for k in range(STATE_SIZE):
+        for k in range(size):
             xt[k] = x[k] + h * k3[k]
         derivative(t + h, xt, P, cmd, ext, R, Fw, Tb, k4)
         sixth = h / 6.0
-        for k in range(STATE_SIZE):
+        for k in range(size):
             x[k] += sixth * (k1[k] + 2.0 * k2[k] + 2.0 * k3[k] + k4[k])
-        for b in range(N_BODIES):
+        for b in range(n_uavs + 1):
             o = b * BODY_SIZE + QUAT
             norm = math.sqrt(x[o] ** 2 + x[o + 1] ** 2 + x[o + 2] ** 2 + x[o + 3] ** 2)
             for k in range(4):
@@ -419,29 +464,30 @@ def advance(
 @_jit
 def diagnostics(x: FloatArray, P: FloatArray, out: FloatArray) -> None:
     """Cable tensions/stretch/slack, ground-contact flags and the energy terms of state x
-    into ``out`` (DIAG_SIZE,); see the D_* offsets. Energies [J]: kinetic (translation +
-    rotation), gravitational (zero at z = 0, CoM heights), cable springs ½ k s² (taut
-    only) and ground springs ½ k δ² (penetrating points only)."""
-    R = np.empty((N_BODIES, 3, 3))
+    into ``out`` (diagnostics_size(N),); see the D_* offsets. Energies [J]: kinetic
+    (translation + rotation), gravitational (zero at z = 0, CoM heights), cable springs
+    ½ k s² (taut only) and ground springs ½ k δ² (penetrating points only)."""
+    n = int(P[G_NUAV])
+    R = np.empty((n + 1, 3, 3))
     _rotations(x, R)
-    g = P[OFF_GLOBAL + G_GRAV]
+    g = P[G_GRAV]
     spring = 0.0
-    for c in range(2):
-        stretch, rate, _ = _cable(x, P, R, c)
+    for c in range(n):
+        stretch, rate, _, _, _, _ = _cable(x, P, R, c)
         T = _tension(P, c, stretch, rate)
-        out[D_TENSION + c] = T
-        out[D_STRETCH + c] = stretch
-        out[D_STRETCH_RATE + c] = rate
-        out[D_SLACK + c] = 1.0 if stretch <= 0.0 else 0.0
+        out[D_TENSION * n + c] = T
+        out[D_STRETCH * n + c] = stretch
+        out[D_STRETCH_RATE * n + c] = rate
+        out[D_SLACK * n + c] = 1.0 if stretch <= 0.0 else 0.0
         if stretch > 0.0:
-            spring += 0.5 * P[OFF_CABLE + c * CABLE_BLOCK + C_K] * stretch * stretch
+            spring += 0.5 * P[cable_block(n, c) + C_K] * stretch * stretch
     kinetic = 0.0
     gravity = 0.0
     contact = 0.0
-    ground = P[OFF_GLOBAL + G_GROUND] > 0.5
-    for b in range(N_BODIES):
+    ground = P[G_GROUND] > 0.5
+    for b in range(n + 1):
         o = b * BODY_SIZE
-        pb = b * BODY_BLOCK
+        pb = body_block(b)
         m = P[pb + B_MASS]
         v2 = x[o + VEL] ** 2 + x[o + VEL + 1] ** 2 + x[o + VEL + 2] ** 2
         wx, wy, wz = x[o + RATES], x[o + RATES + 1], x[o + RATES + 2]
@@ -461,8 +507,9 @@ def diagnostics(x: FloatArray, P: FloatArray, out: FloatArray) -> None:
             if ground and z < 0.0:
                 touching = 1.0
                 contact += 0.5 * P[pb + B_KN] * z * z
-        out[D_ON_GROUND + b] = touching
-    out[D_KINETIC] = kinetic
-    out[D_GRAVITY] = gravity
-    out[D_CABLE_SPRING] = spring
-    out[D_CONTACT_SPRING] = contact
+        out[D_ON_GROUND * n + b] = touching
+    e = energy_offset(n)
+    out[e + D_KINETIC] = kinetic
+    out[e + D_GRAVITY] = gravity
+    out[e + D_CABLE_SPRING] = spring
+    out[e + D_CONTACT_SPRING] = contact

@@ -4,11 +4,12 @@ The defaults are the paper's lab (Section VI): Storm SRD370 quadrotors of 1.15 k
 J = diag(0.0348, 0.0459, 0.0977) kg m², a hollow bar of 0.39 kg and 1.47 m whose CoM is
 0.705 m from the end of cable 1 and 0.765 m from the end of cable 2, cables of about 1 m.
 Every value that the paper does not give is marked "NOT in the paper" with the reason for
-the chosen number.
+the chosen number. Beyond the paper, N UAVs (2 to 8) may carry any rigid payload
+(``PayloadBodyParams``: a plate, a frame), one cable from each UAV to its own attachment.
 
-Frames: arena ENU (z up); UAV body FLU (thrust along body +z); bar body frame with its
-origin at the bar's CoM and its x axis along the bar pointing from end 1 to end 2 (the
-paper's n_b).
+Frames: arena ENU (z up); UAV body FLU (thrust along body +z); payload body frame with its
+origin at the payload's CoM — the bar's x axis along the bar pointing from end 1 to end 2
+(the paper's n_b).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geometry.arrays import FloatArray
+from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
 
 Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
@@ -29,6 +31,12 @@ def diagonal(values: Vec3) -> Mat3:
     """A 3 × 3 diagonal matrix as nested tuples (for inertia fields)."""
     a, b, c = values
     return ((a, 0.0, 0.0), (0.0, b, 0.0), (0.0, 0.0, c))
+
+
+def as_mat3(J: FloatArray) -> Mat3:
+    """A 3 × 3 array as nested tuples (for inertia fields)."""
+    rows = [(float(r[0]), float(r[1]), float(r[2])) for r in J]
+    return (rows[0], rows[1], rows[2])
 
 
 def _check_inertia(name: str, inertia: Mat3) -> None:
@@ -171,6 +179,62 @@ class BarParams:
         axial = m * self.tube_radius_m**2
         return np.diag([axial, perpendicular, perpendicular])
 
+    def payload_body(self) -> PayloadBodyParams:
+        """The bar as a rigid payload: cables tied at the ends, resting on the ends."""
+        ends = ((-self.d1_m, 0.0, 0.0), (self.d2_m, 0.0, 0.0))
+        return PayloadBodyParams(
+            mass_kg=self.mass_kg,
+            inertia_kgm2=as_mat3(self.inertia_tensor_kgm2()),
+            attachments_body_m=ends,
+            contact_points_body_m=ends,
+            contact_radius_m=self.tube_radius_m,
+            drag_linear_n_s_per_m=self.drag_linear_n_s_per_m,
+            drag_quadratic_n_s2_per_m2=self.drag_quadratic_n_s2_per_m2,
+        )
+
+
+@dataclass(frozen=True)
+class PayloadBodyParams:
+    """A rigid payload hung by N cables: mass, the full inertia tensor about its CoM in its
+    own frame, and in that frame (origin at the CoM) the point where each cable is tied
+    (``attachments_body_m[i-1]``: cable i, from UAV i) and the points it rests on, each a
+    sphere of ``contact_radius_m`` (0: a point) — a plate's or a frame's corners, 1 to 8
+    of them. Drag acts at the CoM as on a UAV."""
+
+    mass_kg: float
+    inertia_kgm2: Mat3
+    attachments_body_m: tuple[Vec3, ...]
+    contact_points_body_m: tuple[Vec3, ...]
+    contact_radius_m: float = 0.0
+    drag_linear_n_s_per_m: float = 0.0
+    drag_quadratic_n_s2_per_m2: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check_positive("payload mass_kg", self.mass_kg)
+        _check_inertia("payload", self.inertia_kgm2)
+        if not MIN_VEHICLES <= len(self.attachments_body_m) <= MAX_VEHICLES:
+            raise ValueError(f"attachments_body_m: one per cable, {MIN_VEHICLES} to {MAX_VEHICLES}")
+        if not np.any(np.array(self.attachments_body_m, dtype=float)):
+            raise ValueError("the attachments must not all be at the payload's CoM")
+        if not 1 <= len(self.contact_points_body_m) <= 8:
+            raise ValueError("contact_points_body_m: 1 to 8 points")
+        _check_non_negative("contact_radius_m", self.contact_radius_m)
+        _check_non_negative("payload drag_linear_n_s_per_m", self.drag_linear_n_s_per_m)
+        _check_non_negative("payload drag_quadratic_n_s2_per_m2", self.drag_quadratic_n_s2_per_m2)
+
+    def with_mass_and_com_shift(self, mass_scale: float, com_shift_m: float) -> PayloadBodyParams:
+        """This payload ``mass_scale`` times heavier (its inertia too) with its CoM moved
+        by ``com_shift_m`` along its x axis: every point of its frame moves back by as much,
+        and the inertia gains m δ² about y and z (the nominal tensor about the new CoM)."""
+        shift = (com_shift_m, 0.0, 0.0)
+        return dataclasses.replace(
+            self,
+            mass_kg=self.mass_kg * mass_scale,
+            inertia_kgm2=_shifted_inertia(self.inertia_kgm2, self.mass_kg, mass_scale, com_shift_m),
+            attachments_body_m=_moved(self.attachments_body_m, shift),
+            contact_points_body_m=_moved(self.contact_points_body_m, shift),
+        )
+
 
 @dataclass(frozen=True)
 class CableParams:
@@ -242,6 +306,8 @@ UAV_CONTACT = ContactParams(
 )
 # Bar on its two ends: 5·10³ N/m per end sinks 0.4 mm; its pitch mode on the ground is
 # ω ≈ 280 rad/s. Rolling resistance μ_r = 0.02 stops the tube rolling in about a second.
+# It suits a plate or a frame of about a kilogram on three or four corners as well (sinks
+# < 0.5 mm, bounces at ω ≈ 150 rad/s); point corners (radius 0) do not roll.
 BAR_CONTACT = ContactParams(
     stiffness_n_per_m=5.0e3,
     damping_n_s_per_m=30.0,
@@ -297,45 +363,80 @@ class WindParams:
 @dataclass(frozen=True)
 class MismatchParams:
     """Deliberate differences between the plant and the nominal parameters it was built
-    from: scale factors on the masses (inertias scale with them) and a shift of the bar's
-    CoM along the bar towards end 2 [m]."""
+    from: scale factors on the masses (inertias scale with them), one per UAV, and a shift
+    of the payload's CoM along its x axis [m] (the bar's: towards end 2)."""
 
-    uav_mass_scale: tuple[float, float] = (1.0, 1.0)
+    uav_mass_scale: tuple[float, ...] = (1.0, 1.0)
     bar_mass_scale: float = 1.0
     bar_com_shift_m: float = 0.0
 
     @classmethod
     def random(
-        cls, seed: int, mass_sigma_rel: float = 0.05, com_sigma_m: float = 0.02
+        cls, seed: int, mass_sigma_rel: float = 0.05, com_sigma_m: float = 0.02, n_uavs: int = 2
     ) -> MismatchParams:
-        """Gaussian mass errors (relative σ) and CoM shift (σ [m]), deterministic for
-        ``seed``; scale factors are clipped to [0.5, 1.5]."""
+        """Gaussian mass errors (relative σ) and CoM shift (σ [m]) for ``n_uavs`` UAVs,
+        deterministic for ``seed``; scale factors are clipped to [0.5, 1.5]."""
         rng = np.random.default_rng(seed)
-        scales = np.clip(1.0 + mass_sigma_rel * rng.standard_normal(3), 0.5, 1.5)
+        scales = np.clip(1.0 + mass_sigma_rel * rng.standard_normal(n_uavs + 1), 0.5, 1.5)
         shift = float(com_sigma_m * rng.standard_normal())
-        return cls((float(scales[0]), float(scales[1])), float(scales[2]), shift)
+        return cls(tuple(float(s) for s in scales[:n_uavs]), float(scales[n_uavs]), shift)
 
 
 @dataclass(frozen=True)
 class PlantParams:
-    """Everything the plant needs. ``step_s`` is the fixed RK4 step (1 kHz default)."""
+    """Everything the plant needs. ``step_s`` is the fixed RK4 step (1 kHz default).
 
-    uavs: tuple[UavBodyParams, UavBodyParams] = (UavBodyParams(), UavBodyParams())
+    N = len(``uavs``) UAVs (2 to 8) carry the payload, cable i from UAV i. The payload is
+    ``payload`` when given, else ``bar`` (then N = 2); ``bar_contact`` is the payload's
+    ground contact at each of its contact points either way. The bodies are named "uav1"
+    … "uavN" and "bar", or "payload" for a payload that is not ``bar``.
+    """
+
+    uavs: tuple[UavBodyParams, ...] = (UavBodyParams(), UavBodyParams())
     bar: BarParams = field(default_factory=BarParams)
-    cables: tuple[CableParams, CableParams] = (CableParams(), CableParams())
+    cables: tuple[CableParams, ...] = (CableParams(), CableParams())
     uav_contact: ContactParams = UAV_CONTACT
     bar_contact: ContactParams = BAR_CONTACT
     wind: WindParams = field(default_factory=WindParams)
     gravity_mps2: float = 9.81
     step_s: float = 0.001
+    payload: PayloadBodyParams | None = None
 
     def __post_init__(self) -> None:
         _check_non_negative("gravity_mps2", self.gravity_mps2)
         _check_positive("step_s", self.step_s)
+        n = len(self.uavs)
+        if not MIN_VEHICLES <= n <= MAX_VEHICLES:
+            raise ValueError(f"the plant flies {MIN_VEHICLES} to {MAX_VEHICLES} UAVs, not {n}")
+        attachments = len(self.payload_body().attachments_body_m)
+        if len(self.cables) != n or attachments != n:
+            raise ValueError(
+                f"{n} UAVs need {n} cables and {n} attachments on the payload, not "
+                f"{len(self.cables)} and {attachments}"
+            )
+
+    @property
+    def n_uavs(self) -> int:
+        """N."""
+        return len(self.uavs)
+
+    @property
+    def payload_name(self) -> str:
+        """The payload body's name: "bar", or "payload" for one that is not ``bar``."""
+        return "bar" if self.payload is None else "payload"
+
+    def payload_body(self) -> PayloadBodyParams:
+        """The payload as a rigid body (``payload``, or ``bar``'s)."""
+        return self.bar.payload_body() if self.payload is None else self.payload
 
     def with_mismatch(self, mismatch: MismatchParams) -> PlantParams:
-        """These parameters with ``mismatch`` applied (masses and inertias scaled, bar CoM
-        shifted; an explicit bar inertia is shifted by the parallel-axis theorem)."""
+        """These parameters with ``mismatch`` applied (masses and inertias scaled, the
+        payload's CoM shifted; an explicit inertia is shifted by the parallel-axis
+        theorem)."""
+        if len(mismatch.uav_mass_scale) != self.n_uavs:
+            raise ValueError(
+                f"{len(mismatch.uav_mass_scale)} UAV mass scales for {self.n_uavs} UAVs"
+            )
         uavs = tuple(
             dataclasses.replace(
                 uav,
@@ -344,29 +445,39 @@ class PlantParams:
             )
             for uav, scale in zip(self.uavs, mismatch.uav_mass_scale, strict=True)
         )
+        if self.payload is not None:
+            payload = self.payload.with_mass_and_com_shift(
+                mismatch.bar_mass_scale, mismatch.bar_com_shift_m
+            )
+            return dataclasses.replace(self, uavs=uavs, payload=payload)
         bar = self.bar
-        new_com = bar.com_from_end1_m + mismatch.bar_com_shift_m
         inertia: Mat3 | None = None
         if bar.inertia_kgm2 is not None:
-            J = np.array(bar.inertia_kgm2) * mismatch.bar_mass_scale
-            # Moving the reference point by δ along x adds m δ² about y and z.
-            extra = bar.mass_kg * mismatch.bar_mass_scale * mismatch.bar_com_shift_m**2
-            J[1, 1] += extra
-            J[2, 2] += extra
-            inertia = _as_mat3(J)
+            inertia = _shifted_inertia(
+                bar.inertia_kgm2, bar.mass_kg, mismatch.bar_mass_scale, mismatch.bar_com_shift_m
+            )
         bar = dataclasses.replace(
             bar,
             mass_kg=bar.mass_kg * mismatch.bar_mass_scale,
-            com_from_end1_m=new_com,
+            com_from_end1_m=bar.com_from_end1_m + mismatch.bar_com_shift_m,
             inertia_kgm2=inertia,
         )
-        return dataclasses.replace(self, uavs=(uavs[0], uavs[1]), bar=bar)
-
-
-def _as_mat3(J: FloatArray) -> Mat3:
-    rows = [(float(r[0]), float(r[1]), float(r[2])) for r in J]
-    return (rows[0], rows[1], rows[2])
+        return dataclasses.replace(self, uavs=uavs, bar=bar)
 
 
 def _scaled(inertia: Mat3, scale: float) -> Mat3:
-    return _as_mat3(np.array(inertia, dtype=float) * scale)
+    return as_mat3(np.array(inertia, dtype=float) * scale)
+
+
+def _shifted_inertia(inertia: Mat3, mass_kg: float, mass_scale: float, shift_m: float) -> Mat3:
+    J = np.array(inertia) * mass_scale
+    # Moving the reference point by δ along x adds m δ² about y and z.
+    extra = mass_kg * mass_scale * shift_m**2
+    J[1, 1] += extra
+    J[2, 2] += extra
+    return as_mat3(J)
+
+
+def _moved(points: tuple[Vec3, ...], shift: Vec3) -> tuple[Vec3, ...]:
+    """``points`` seen from an origin moved by ``shift``."""
+    return tuple((p[0] - shift[0], p[1] - shift[1], p[2] - shift[2]) for p in points)

@@ -1,6 +1,6 @@
-"""What only the simulator can see about a flight: cable tension and slack while the bar
-hangs, and the UAVs' worst tilt. The closed-loop simulator and the real-time world keep
-the same figures, so that a flight on real PX4 is judged like a ``simulate`` run."""
+"""What only the simulator can see about a flight: cable tension and slack while the
+payload hangs, and the UAVs' worst tilt. The closed-loop simulator and the real-time world
+keep the same figures, so that a flight on real PX4 is judged like a ``simulate`` run."""
 
 from __future__ import annotations
 
@@ -16,38 +16,44 @@ BODIES = ("bar", "uav1", "uav2")
 
 @dataclass
 class TruthStats:
-    """Slack and tension count while the bar hangs: in an airborne mode with the bar more
-    than ``HANGING_CLEARANCE_M`` above its resting height (so touch-down and the first
-    centimetres of lift-off, where the ground carries the bar, are not counted as slack).
-    The descent rate counts in an airborne mode, for every body above ``DESCENT_FLOOR_M``."""
+    """Slack and tension count while the payload hangs: in an airborne mode with the
+    payload more than ``HANGING_CLEARANCE_M`` above its resting height ``bar_rest_z_m`` (so
+    touch-down and the first centimetres of lift-off, where the ground carries it, are not
+    counted as slack). The descent rate counts in an airborne mode, for every body above
+    ``DESCENT_FLOOR_M``. ``bodies`` are the plant's, the payload first, then the UAVs (the
+    bar's two by default)."""
 
     bar_rest_z_m: float
+    bodies: tuple[str, ...] = BODIES
     slack_events: int = 0
     max_tilt_deg: float = 0.0
     min_tension_n: float = math.inf
     min_tension_airborne_n: float = math.inf
     hanging_s: float = 0.0
     max_descent_mps: float = 0.0
-    descent_by_body_mps: dict[str, float] = field(
-        default_factory=lambda: dict.fromkeys(BODIES, 0.0)
-    )
+    descent_by_body_mps: dict[str, float] = field(init=False)
     """The fastest descent of each body (``max_descent_mps`` is the fastest of them): after
-    a lost link, the lost UAV comes down with its PX4's failsafe, the other with the MPC."""
-    _slack: tuple[bool, bool] = (False, False)
+    a lost link, the lost UAV comes down with its PX4's failsafe, the others with the MPC."""
+    _slack: tuple[bool, ...] = field(init=False)
     _last_hanging_s: float | None = None
+
+    def __post_init__(self) -> None:
+        self.descent_by_body_mps = dict.fromkeys(self.bodies, 0.0)
+        self._slack = (False,) * (len(self.bodies) - 1)
 
     def update(self, plant: Plant, airborne: bool) -> None:
         """Account for the plant's state now; ``airborne`` is the flight mode's view."""
         cables = plant.cables()
         self.min_tension_n = min(self.min_tension_n, *cables.tension_n)
         if airborne:
-            for name in BODIES:
+            for name in self.bodies:
                 body = plant.body(name)
                 if body.position_m[2] > DESCENT_FLOOR_M:
                     descent = max(self.descent_by_body_mps[name], -float(body.velocity_mps[2]))
                     self.descent_by_body_mps[name] = descent
                     self.max_descent_mps = max(self.max_descent_mps, descent)
-        hanging = plant.body("bar").position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
+        payload = self.bodies[0]
+        hanging = plant.body(payload).position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
         if not airborne or not hanging:
             self._slack = cables.slack
             self._last_hanging_s = None
@@ -60,17 +66,18 @@ class TruthStats:
             1 for now, before in zip(cables.slack, self._slack, strict=True) if now and not before
         )
         self._slack = cables.slack
-        for name in ("uav1", "uav2"):
+        for name in self.bodies[1:]:
             z_axis_z = float(plant.body(name).rotation[2, 2])
             tilt = math.degrees(math.acos(max(-1.0, min(1.0, z_axis_z))))
             self.max_tilt_deg = max(self.max_tilt_deg, tilt)
 
     def describe(self) -> str:
         """One line for the world's log (``benchmarks.tick`` reads it back)."""
+        payload = self.bodies[0]
         if self.hanging_s == 0.0:
-            return "truth: the bar has not hung yet"
+            return f"truth: the {payload} has not hung yet"
         return (
-            f"truth: bar hanging {self.hanging_s:.1f} s, min cable tension "
+            f"truth: {payload} hanging {self.hanging_s:.1f} s, min cable tension "
             f"{self.min_tension_airborne_n:.2f} N, slack events {self.slack_events}, "
             f"max UAV tilt {self.max_tilt_deg:.1f} deg, "
             f"max descent {self.max_descent_mps:.2f} m/s above {DESCENT_FLOOR_M} m ("

@@ -1,15 +1,19 @@
 """Physics invariants of the simulator's plant: pendulum frequencies, energy, free fall,
-resting, cables, motor lag, determinism. Oracles are closed-form mechanics, not
+resting, cables, motor lag, determinism — for the paper's two UAVs and bar, and for three
+and four UAVs carrying a plate and a frame. Oracles are closed-form mechanics, not
 snapshots."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
+from controllers.formation_params import FormationParams, PayloadParams
+from controllers.params import UavParams
 from geometry.frames import quaternion_from_euler_zyx, rotation_from_quaternion
 from sim.plant import (
     ACT_OFFSET,
@@ -18,14 +22,18 @@ from sim.plant import (
     Plant,
     actuator_slice,
     body_slice,
+    hanging_state,
 )
+from sim.plant_formation import plant_params_from_formation
 from sim.plant_params import (
     BarParams,
     CableParams,
     MismatchParams,
+    PayloadBodyParams,
     PlantParams,
     UavBodyParams,
     WindParams,
+    diagonal,
 )
 from sim.ports import AirframePort
 
@@ -34,7 +42,7 @@ UNDAMPED = PlantParams(cables=(CableParams(damping_n_s_per_m=0.0),) * 2)
 BAR = slice(26, 29)  # bar position in the state vector
 
 
-def hanging_under_anchors(params: PlantParams = UNDAMPED) -> tuple[Plant, tuple[float, float]]:
+def hanging_under_anchors(params: PlantParams = UNDAMPED) -> tuple[Plant, tuple[float, ...]]:
     """The bar hanging at rest on two vertical cables from UAVs held still at 2 m."""
     plant = Plant(params, anchored=(True, True))
     d1, d2 = params.bar.d1_m, params.bar.d2_m
@@ -272,7 +280,7 @@ def test_resting_on_the_ground_is_stable() -> None:
     start = {name: plant.body(name).position_m for name in BODY_NAMES}
     energy = plant.energy().total_j
     assert all(plant.cables().slack)
-    assert plant.on_ground(1) and plant.on_ground(2) and plant.bar_on_ground()
+    assert plant.on_ground(1) and plant.on_ground(2) and plant.payload_on_ground()
     for _ in range(100):
         plant.advance(0.1)
         assert plant.energy().total_j <= energy + 1e-12
@@ -444,3 +452,327 @@ def test_airframe_port_and_state_layout() -> None:
     x[BAR][2] = 0.5
     plant.set_state(x, time_s=3.0)
     assert plant.time_s == 3.0 and plant.body("bar").position_m[2] == 0.5
+
+
+# --- N UAVs and a rigid payload --------------------------------------------------------------
+
+
+def triangle_plate(cable: CableParams = UNDAMPED.cables[0]) -> PlantParams:
+    """Three 1.15 kg UAVs hanging a 0.6 kg equilateral plate (1 m sides) by its corners on
+    1 m cables. A thin triangular plate of side a: J = m a²/24 about its in-plane axes and
+    m a²/12 about its normal."""
+    a, m = 1.0, 0.6
+    corners = tuple(
+        (a / math.sqrt(3) * math.cos(t), a / math.sqrt(3) * math.sin(t), 0.0)
+        for t in (0.0, 2 * math.pi / 3, 4 * math.pi / 3)
+    )
+    plate = PayloadBodyParams(
+        m, diagonal((m * a * a / 24, m * a * a / 24, m * a * a / 12)), corners, corners, 0.005
+    )
+    return PlantParams(uavs=(UavBodyParams(),) * 3, cables=(cable,) * 3, payload=plate)
+
+
+def square_frame(cable: CableParams = UNDAMPED.cables[0]) -> PlantParams:
+    """Four UAVs hanging a 1 kg square frame (four 1.2 m rods) by its corners on 1 m
+    cables: J = m a²/6 about the in-plane axes through its centre, m a²/3 about its
+    normal."""
+    a, m = 1.2, 1.0
+    corners = tuple((x, y, 0.0) for x, y in ((0.6, 0.6), (-0.6, 0.6), (-0.6, -0.6), (0.6, -0.6)))
+    frame = PayloadBodyParams(
+        m, diagonal((m * a * a / 6, m * a * a / 6, m * a * a / 3)), corners, corners, 0.01
+    )
+    return PlantParams(uavs=(UavBodyParams(),) * 4, cables=(cable,) * 4, payload=frame)
+
+
+FORMATIONS = pytest.mark.parametrize("build", [triangle_plate, square_frame], ids=["N=3", "N=4"])
+DAMPED = CableParams()
+
+
+def hover_positions(
+    params: PlantParams, cone_rad: float = 0.3, height_m: float = 2.0
+) -> list[np.ndarray]:
+    """Each UAV a cable's length from its corner of the level payload (CoM at
+    ``height_m``), the cable leaning out from the centre by ``cone_rad``."""
+    positions = []
+    for corner, cable in zip(params.payload_body().attachments_body_m, params.cables, strict=True):
+        e = np.array(corner) + np.array([0.0, 0.0, height_m])
+        out = np.array([corner[0], corner[1], 0.0]) / math.hypot(corner[0], corner[1])
+        positions.append(
+            e
+            + cable.length_m
+            * (math.sin(cone_rad) * out + math.cos(cone_rad) * np.array([0.0, 0.0, 1.0]))
+        )
+    return positions
+
+
+def total_mass_kg(params: PlantParams) -> float:
+    return sum(uav.mass_kg for uav in params.uavs) + params.payload_body().mass_kg
+
+
+@FORMATIONS
+def test_n_uavs_have_their_bodies_ports_and_state_layout(build: Callable[..., PlantParams]) -> None:
+    params = build()
+    plant = Plant(params)
+    n = params.n_uavs
+    assert plant.layout.body_names == (*(f"uav{i}" for i in range(1, n + 1)), "payload")
+    assert plant.get_state().shape == (17 * n + 13,) == (plant.layout.state_size,)
+    assert set(plant.truth().bodies) == set(plant.layout.body_names)
+    assert plant.layout.actuator_slice(n).stop == plant.layout.state_size
+    for i in range(1, n + 1):
+        port = plant.uav(i)
+        assert port.number == i and port.state().on_ground
+        port.command(5.0 + i, np.array([0.0, 0.0, 9.0]))
+        assert plant.commanded(i)[0] == 5.0 + i and plant.commanded(i)[1][2] == 1.0
+    with pytest.raises(ValueError, match="numbered"):
+        plant.uav(n + 1)
+    with pytest.raises(ValueError, match="unknown body"):
+        plant.body("bar")
+    with pytest.raises(ValueError, match="one flag per UAV"):
+        Plant(params, anchored=(True, True))
+
+
+@FORMATIONS
+def test_hanging_state_is_a_static_equilibrium_of_n_uavs(build: Callable[..., PlantParams]) -> None:
+    """Cables leaning out 17°, tied 3 cm below the UAVs' CoMs, every UAV at its own yaw,
+    lagged motors, free bodies: the trim thrusts carry the whole weight, and with them
+    the placed state does not move (one step: no velocity above 1e-12 m/s, i.e. no
+    acceleration above 1e-9 m/s²; one second: nothing moves by 1e-8)."""
+    params = build()
+    uav = UavBodyParams(cable_attachment_body_m=(0.0, 0.0, -0.03))
+    params = dataclasses.replace(params, uavs=(uav,) * params.n_uavs)
+    plant = Plant(params)
+    yaws = [0.4 * i - 1.0 for i in range(params.n_uavs)]
+    trim = plant.place_hanging(hover_positions(params), yaws)
+    assert min(trim.tension_n) > 1.0
+    lift = sum(
+        thrust * plant.body(f"uav{i}").rotation[:, 2]
+        for i, thrust in enumerate(trim.thrust_n, start=1)
+    )
+    np.testing.assert_allclose(lift, [0.0, 0.0, total_mass_kg(params) * G], atol=1e-9)
+    for i, yaw in enumerate(yaws, start=1):
+        R = plant.body(f"uav{i}").rotation
+        assert math.atan2(R[1, 0], R[0, 0]) == pytest.approx(yaw, abs=1e-12)
+    start = plant.get_state()
+    plant.step(1)
+    for name in plant.layout.body_names:
+        body = plant.body(name)
+        assert np.max(np.abs(body.velocity_mps)) < 1e-12
+        assert np.max(np.abs(body.body_rates_radps)) < 1e-12
+    plant.advance(1.0)
+    np.testing.assert_allclose(plant.get_state(), start, atol=1e-8)
+    assert plant.cables().tension_n == pytest.approx(trim.tension_n, rel=1e-8)
+
+
+@FORMATIONS
+def test_energy_is_conserved_on_undamped_cables_with_n_uavs(
+    build: Callable[..., PlantParams],
+) -> None:
+    """UAVs as fixed anchors (no thrust, no work), undamped cables hanging vertically: the
+    payload swings sideways and turns about the vertical for 10 s on taut cables; its
+    energy above the rest state is conserved to 1e-5 relative (measured ~1e-7; RK4's own
+    dissipation of the barely excited stiff modes)."""
+    params = build()
+    plant = Plant(params, anchored=(True,) * params.n_uavs)
+    plant.place_hanging(hover_positions(params, cone_rad=0.0))
+    rest = plant.energy().total_j
+    plant.set_body(
+        "payload",
+        velocity_mps=np.array([0.08, 0.15, 0.0]),
+        body_rates_radps=np.array([0.0, 0.0, 0.3]),
+    )
+    start = plant.energy().total_j
+    swing = start - rest
+    assert swing > 1e-3
+    worst = 0.0
+    for _ in range(1000):
+        plant.step(10)
+        assert not any(plant.cables().slack)
+        worst = max(worst, abs(plant.energy().total_j - start))
+    assert worst / swing < 1e-5
+
+
+@FORMATIONS
+def test_damped_cables_only_take_energy_away(build: Callable[..., PlantParams]) -> None:
+    """The same swing on damped cables leaning out 17° (the swing stretches them): the
+    energy never rises (to 1e-12 J) and has fallen measurably after 10 s."""
+    params = build(DAMPED)
+    plant = Plant(params, anchored=(True,) * params.n_uavs)
+    plant.place_hanging(hover_positions(params))
+    plant.set_body(
+        "payload",
+        velocity_mps=np.array([0.08, 0.15, 0.0]),
+        body_rates_radps=np.array([0.0, 0.0, 0.3]),
+    )
+    start = previous = plant.energy().total_j
+    for _ in range(1000):
+        plant.step(10)
+        energy = plant.energy().total_j
+        assert energy <= previous + 1e-12
+        previous = energy
+    assert previous < start - 1e-5
+
+
+@FORMATIONS
+def test_cables_stay_taut_and_elastic_through_a_yank(build: Callable[..., PlantParams]) -> None:
+    """A hovering formation, every UAV's thrust 15 % above its trim for 0.3 s and back:
+    the payload follows on taut cables, lifted with the UAVs at 0.15 g, so each cable's
+    stretch stays between its static stretch T/k (less 1 %) and 1.25 times it (measured
+    1.00–1.15: the lagged motors barely ring the stiff cables)."""
+    params = build(DAMPED)
+    plant = Plant(params)
+    trim = plant.place_hanging(hover_positions(params))
+    static_m = np.array(trim.tension_n) / DAMPED.stiffness_n_per_m
+    z0 = plant.body("payload").position_m[2]
+    for boost, duration_s in ((1.15, 0.3), (1.0, 1.0)):
+        for i, (thrust, torque) in enumerate(
+            zip(trim.thrust_n, trim.torque_nm, strict=True), start=1
+        ):
+            plant.command(i, boost * thrust, torque)
+        for _ in range(round(duration_s / 0.002)):
+            plant.advance(0.002)
+            stretch = np.array(plant.cables().stretch_m) / static_m
+            assert np.all(stretch > 0.99) and np.all(stretch < 1.25)
+    assert plant.body("payload").position_m[2] > z0 + 0.3  # lifted with the UAVs
+
+
+@FORMATIONS
+@pytest.mark.parametrize("com_shift_m", [0.0, 0.15])
+def test_resting_n_uavs_stay_at_rest(build: Callable[..., PlantParams], com_shift_m: float) -> None:
+    """The resting state with the payload turned and moved, its CoM off the centre of its
+    corners or not (then it rests slightly tilted on unevenly loaded corners): everything
+    on the ground, cables slack; over 5 s nothing moves by 1 µm (measured 1e-11 m) and the
+    energy never rises."""
+    params = build()
+    shift = MismatchParams((1.0,) * params.n_uavs, 1.0, com_shift_m)
+    plant = Plant(params.with_mismatch(shift))
+    plant.place_resting((0.4, -0.3), 0.6)
+    np.testing.assert_allclose(plant.body("payload").position_m[:2], [0.4, -0.3])
+    start = {name: plant.body(name).position_m for name in plant.layout.body_names}
+    energy = plant.energy().total_j
+    assert all(plant.cables().slack) and plant.payload_on_ground()
+    assert all(plant.on_ground(i) for i in range(1, params.n_uavs + 1))
+    for _ in range(50):
+        plant.advance(0.1)
+        assert plant.energy().total_j <= energy + 1e-12
+    for name in plant.layout.body_names:
+        assert np.max(np.abs(plant.body(name).position_m - start[name])) < 1e-6
+
+
+@FORMATIONS
+def test_a_falling_formation_falls_at_g(build: Callable[..., PlantParams]) -> None:
+    """Released from hover with the motors cut, no ground: the stretched cables snap the
+    bodies together and ring, but they are internal forces: the formation's momentum is
+    −M g t and its CoM falls ½ g t² for 1 s."""
+    params = build()
+    x, _ = hanging_state(params, hover_positions(params))
+    layout = Plant(params).layout
+    x[layout.actuator_offset :] = 0.0
+    plant = Plant(params, ground=False, state=x)
+    masses = [uav.mass_kg for uav in params.uavs] + [params.payload_body().mass_kg]
+
+    def centre() -> tuple[np.ndarray, np.ndarray]:
+        bodies = [plant.body(name) for name in layout.body_names]
+        com = sum(m * b.position_m for m, b in zip(masses, bodies, strict=True)) / sum(masses)
+        momentum = sum(m * b.velocity_mps for m, b in zip(masses, bodies, strict=True))
+        return np.asarray(com), np.asarray(momentum)
+
+    com0, _ = centre()
+    plant.advance(1.0)
+    com, momentum = centre()
+    np.testing.assert_allclose(momentum, [0.0, 0.0, -sum(masses) * G], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(com - com0, [0.0, 0.0, -0.5 * G], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("lengths_m", [(0.8, 1.2), (1.0, 1.0001)])
+@pytest.mark.parametrize("yaw_rad", [0.0, 0.7])
+def test_hanging_state_with_unequal_cables(lengths_m: tuple[float, float], yaw_rad: float) -> None:
+    """Issue 33: each UAV straight above its bar end at its own cable's length (as a
+    hover at θ_l = 0 places them), cables of unequal length. The solver used to start
+    from a pitch of 1e-16 (rounding) and step it by 1e-24; now an equilibrium is found
+    and the free system stays put."""
+    params = PlantParams(cables=tuple(CableParams(length_m=length) for length in lengths_m))
+    axis = np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
+    ends = (-params.bar.d1_m * axis, params.bar.d2_m * axis)
+    positions = [
+        end + np.array([0.0, 0.0, 1.5 + length])
+        for end, length in zip(ends, lengths_m, strict=True)
+    ]
+    plant = Plant(params)
+    trim = plant.place_hanging(positions, (yaw_rad, yaw_rad))
+    bar = plant.body("bar").rotation
+    assert bar[:, 0] @ axis == pytest.approx(1.0, abs=1e-6)  # the ends hang straight below
+    assert math.atan2(bar[2, 1], bar[2, 2]) == pytest.approx(0.0, abs=1e-12)  # no roll
+    start = plant.get_state()
+    plant.advance(1.0)
+    np.testing.assert_allclose(plant.get_state(), start, atol=1e-8)
+    assert sum(trim.tension_n) == pytest.approx(params.bar.mass_kg * G, rel=1e-6)
+
+
+def test_a_payload_that_cannot_hang_is_refused() -> None:
+    params = triangle_plate()
+    positions = hover_positions(params)
+    positions[1] = positions[1] + np.array([3.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="UAV 2"):
+        hanging_state(params, positions)
+    with pytest.raises(ValueError, match="3 UAVs need 3 positions"):
+        hanging_state(params, positions[:2])
+
+
+def test_plant_parameters_of_n_uavs_are_consistent() -> None:
+    plate = triangle_plate().payload_body()
+    with pytest.raises(ValueError, match="need 3 cables"):
+        PlantParams(uavs=(UavBodyParams(),) * 3, payload=plate)
+    with pytest.raises(ValueError, match="need 2 cables and 2 attachments"):
+        PlantParams(uavs=(UavBodyParams(),) * 2, cables=(CableParams(),) * 2, payload=plate)
+    mismatch = MismatchParams((1.1, 1.0, 0.9), 1.2, 0.03)
+    shifted = triangle_plate().with_mismatch(mismatch).payload_body()
+    assert shifted.mass_kg == pytest.approx(0.72)
+    np.testing.assert_allclose(
+        np.array(shifted.attachments_body_m) - np.array(plate.attachments_body_m),
+        [[-0.03, 0.0, 0.0]] * 3,
+    )
+    assert shifted.inertia_kgm2[2][2] == pytest.approx(1.2 * 0.05 + 0.72 * 0.03**2)
+    with pytest.raises(ValueError, match="2 UAV mass scales for 3 UAVs"):
+        triangle_plate().with_mismatch(MismatchParams())
+    assert len(MismatchParams.random(7, n_uavs=3).uav_mass_scale) == 3
+    assert MismatchParams.random(7, n_uavs=2) == MismatchParams.random(7)
+
+
+def test_the_plant_of_a_formation() -> None:
+    """The controllers' formation becomes the plant's: masses, inertias, cable lengths
+    and attachments carried over, the rest from the plant's own templates. Two UAVs on a
+    bar along its x axis are the paper's bar, as ``plant_params_from_config`` builds it."""
+    uav = UavParams(1.15, (0.0348, 0.0459, 0.0977))
+    J_b = 0.0706
+    bar = FormationParams(
+        (uav, uav),
+        PayloadParams(
+            0.39,
+            ((0.0, 0.0, 0.0), (0.0, J_b, 0.0), (0.0, 0.0, J_b)),
+            ((-0.705, 0.0, 0.0), (0.765, 0.0, 0.0)),
+        ),
+        (1.0, 1.1),
+    )
+    airframe = UavBodyParams(thrust_time_constant_s=0.03, thrust_max_n=26.0)
+    params = plant_params_from_formation(bar, airframe=airframe)
+    assert params.payload is None and params.payload_name == "bar"
+    assert params.bar == BarParams(
+        mass_kg=0.39,
+        length_m=0.705 + 0.765,
+        com_from_end1_m=0.705,
+        inertia_kgm2=diagonal((0.39 * 0.01**2, J_b, J_b)),
+    )
+    assert (
+        params.uavs == (dataclasses.replace(airframe, inertia_kgm2=diagonal(uav.inertia_kgm2)),) * 2
+    )
+    assert [c.length_m for c in params.cables] == [1.0, 1.1]
+    with pytest.raises(ValueError, match="rests on its ends"):
+        plant_params_from_formation(bar, payload_contact_points_m=((0.0, 0.0, -0.1),))
+
+    plate = triangle_plate().payload_body()
+    formation = FormationParams(
+        (uav,) * 3, PayloadParams(0.6, plate.inertia_kgm2, plate.attachments_body_m), (1.0,) * 3
+    )
+    params = plant_params_from_formation(formation, payload_contact_radius_m=0.005)
+    assert params.payload_name == "payload" and params.payload_body() == plate
+    assert Plant(params).layout.body_names == ("uav1", "uav2", "uav3", "payload")

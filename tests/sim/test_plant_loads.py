@@ -4,13 +4,14 @@ work–energy theorem, not by snapshots."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 from sim.loads import ExternalLoad
 from sim.plant import BODY_NAMES, Plant
-from sim.plant_params import CableParams, PlantParams
+from sim.plant_params import CableParams, PayloadBodyParams, PlantParams, UavBodyParams
 
 UNDAMPED = PlantParams(cables=(CableParams(damping_n_s_per_m=0.0),) * 2)
 # Zero gravity, no ground, cables too long to tighten: three free bodies at rest.
@@ -109,9 +110,42 @@ def test_a_push_on_a_uav_pulls_the_bar_and_the_work_is_the_energy_gained() -> No
     assert np.linalg.norm(plant.body("bar").velocity_mps) > 0.1  # the bar was pulled
 
 
+def test_a_push_on_a_plate_moves_it_and_nothing_else() -> None:
+    """Three UAVs and a plate in zero gravity, cables too long to tighten: a push on the
+    payload for 0.2 s gives it the momentum F T and leaves the UAVs still; a world torque
+    on it gives it the angular momentum τ T."""
+    corners = tuple((0.5 * math.cos(t), 0.5 * math.sin(t), 0.0) for t in (0.0, 2.1, 4.2))
+    J = ((0.015, 0.001, 0.0), (0.001, 0.016, 0.0), (0.0, 0.0, 0.03))
+    plate = PayloadBodyParams(0.6, J, corners, corners)
+    params = PlantParams(
+        uavs=(UavBodyParams(),) * 3,
+        cables=(CableParams(length_m=5.0),) * 3,
+        gravity_mps2=0.0,
+        payload=plate,
+    )
+    plant = Plant(params, ground=False)
+    start = {n: plant.body(n).position_m for n in plant.layout.body_names}
+    plant.add_load(ExternalLoad("payload", (0.3, -0.6, 0.9), (0.01, 0.0, -0.02), 0.0, 0.2))
+    plant.advance(0.5)
+    payload = plant.body("payload")
+    assert all(plant.cables().slack)
+    np.testing.assert_allclose(0.6 * payload.velocity_mps, [0.06, -0.12, 0.18], rtol=1e-12)
+    np.testing.assert_allclose(
+        payload.rotation @ np.array(J) @ payload.body_rates_radps,
+        [0.002, 0.0, -0.004],
+        rtol=1e-7,
+        atol=1e-12,
+    )
+    for name in plant.layout.uav_names:
+        np.testing.assert_array_equal(plant.body(name).position_m, start[name])
+
+
 def test_bad_loads_are_refused() -> None:
     with pytest.raises(ValueError, match="body"):
-        ExternalLoad("uav3", (1.0, 0.0, 0.0))
+        ExternalLoad("uav9", (1.0, 0.0, 0.0))
+    for absent in ("uav3", "payload"):
+        with pytest.raises(ValueError, match="unknown body"):
+            Plant().add_load(ExternalLoad(absent, (1.0, 0.0, 0.0)))
     with pytest.raises(ValueError, match="gust needs a duration_s"):
         ExternalLoad("bar", (1.0, 0.0, 0.0), profile="gust")
     with pytest.raises(ValueError, match="finite"):

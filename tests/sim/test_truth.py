@@ -3,15 +3,18 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from benchmarks.tick import world_truth
 from sim.plant import Plant
+from sim.plant_params import CableParams, PayloadBodyParams, PlantParams, UavBodyParams, diagonal
 from sim.truth import TruthStats
 
 
-def hanging_plant() -> tuple[Plant, tuple[float, float]]:
+def hanging_plant() -> tuple[Plant, tuple[float, ...]]:
     plant = Plant()
     trim = plant.place_hanging((np.array([-0.72, 0.0, 2.0]), np.array([0.76, 0.0, 2.0])), (0, 0))
     return plant, trim.tension_n
@@ -57,3 +60,24 @@ def test_the_benchmark_reads_back_what_the_world_logs() -> None:
     assert figures["max_descent_mps"] == pytest.approx(
         max(truth.descent_by_body_mps.values()), abs=0.005
     )
+
+
+def test_three_uavs_and_a_plate_are_counted_like_the_bar() -> None:
+    """The payload named "payload" hangs from three UAVs: its hanging time, every cable's
+    tension, every UAV's tilt and every body's descent are counted."""
+    r = 1.0 / math.sqrt(3.0)
+    corners = tuple((r * math.cos(t), r * math.sin(t), 0.0) for t in (0.0, 2.1, 4.2))
+    plate = PayloadBodyParams(0.6, diagonal((0.025, 0.025, 0.05)), corners, corners)
+    params = PlantParams(uavs=(UavBodyParams(),) * 3, cables=(CableParams(),) * 3, payload=plate)
+    plant = Plant(params)
+    positions = [np.array(c) + np.array([0.0, 0.0, 2.5]) for c in corners]
+    trim = plant.place_hanging(positions)
+    truth = TruthStats(0.01, bodies=("payload", *plant.layout.uav_names))
+    for _ in range(20):
+        plant.advance(0.02)
+        truth.update(plant, airborne=True)
+    assert truth.hanging_s == pytest.approx(0.38, abs=1e-6)
+    assert truth.min_tension_airborne_n == pytest.approx(min(trim.tension_n), rel=1e-6)
+    assert truth.slack_events == 0 and truth.max_tilt_deg < 0.1
+    assert set(truth.descent_by_body_mps) == {"payload", "uav1", "uav2", "uav3"}
+    assert truth.describe().startswith("truth: payload hanging 0.4 s")
