@@ -6,10 +6,10 @@ project's writer."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
-import os
 import subprocess
-import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -22,6 +22,7 @@ from mocap.recording import read_recording, write_recording
 from supervisor.app.assembly import body_names_from_config, fusion_from_config
 from supervisor.app.config import load_config
 from supervisor.app.config_files import DEFAULT_SETUP
+from supervisor.cli.main import main
 from supervisor.flight.estimation import estimate_state
 from supervisor.flight.tick_record import TickRecord
 from supervisor.logs.flight_log import FlightLogWriter, mocap_recording_path, read_flight_log
@@ -31,15 +32,13 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    """The real command line, as an operator runs it."""
-    return subprocess.run(
-        [sys.executable, "-m", "supervisor.cli.main", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-    )
+    """The command line's entry point with an operator's arguments, in this process (a
+    fresh interpreter per call spent most of this module's time importing)."""
+    argv = [str(arg) for arg in args]
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main(argv)
+    return subprocess.CompletedProcess(argv, status, out.getvalue(), err.getvalue())
 
 
 def assert_refused_in_one_line(
