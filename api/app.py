@@ -49,7 +49,7 @@ from api.models import (
 )
 from api.world_reset import settle_after_reset
 from controllers.equilibria import EquilibriumError
-from controllers.params import BarSystemParams
+from controllers.formation_params import FormationParams
 from supervisor.flight import outcomes
 from supervisor.flight.equilibrium_summary import equilibrium_summary
 from supervisor.flight.feasibility import SetpointBounds
@@ -221,7 +221,7 @@ def _operation(access: Access, policy: HttpPolicy, *codes: int) -> dict[str, Any
 
 def create_app(
     flight: FlightClient,
-    params: BarSystemParams,
+    params: FormationParams,
     arena: Arena,
     bounds: SetpointBounds,
     policy: HttpPolicy,
@@ -305,7 +305,7 @@ def _access_table(app: FastAPI) -> dict[tuple[str, str], Access]:
 
 def _status_routes(
     flight: FlightClient,
-    params: BarSystemParams,
+    params: FormationParams,
     bounds: SetpointBounds,
     processes: Callable[[], dict[str, Any]] | None,
     policy: HttpPolicy,
@@ -420,7 +420,7 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
 
 def _setpoint_routes(
     flight: FlightClient,
-    params: BarSystemParams,
+    params: FormationParams,
     arena: Arena,
     bounds: SetpointBounds,
     policy: HttpPolicy,

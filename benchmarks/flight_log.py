@@ -2,7 +2,7 @@
 MCAP through ``foxglove-sdk``, in one run.
 
 Each tick's record (the bar hovering with noise, as the flight process logs it: the
-36-states, inputs, timings and the extra figures) is appended to all three writers in
+states, inputs, timings and the extra figures) is appended to all three writers in
 turn, the order rotating every tick so that all three see the same load; the time of each
 ``append`` is taken, wall and the thread's CPU time (the wall time of a shared machine is
 mostly other processes' preemption), the once-a-second chunk flush (MCAP) and the fsync
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.equilibria import Reference, bar_equilibrium
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from supervisor.app.config import load_config
 from supervisor.app.config_files import DEFAULT_SETUP
 from supervisor.flight.tick_record import TickRecord
@@ -36,12 +36,15 @@ TICK_S = 0.02
 
 def _records(ticks: int, seed: int = 0) -> list[TickRecord]:
     params = load_config(DEFAULT_SETUP).system.to_params()
-    ref = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    ref = formation_equilibrium(
+        params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0,) * params.n_vehicles)
+    ).x
     rng = np.random.default_rng(seed)
     records = []
     for k in range(ticks):
         state = ref + rng.normal(0.0, 0.01, ref.shape)
-        inputs = np.array([14.0, 0.01, -0.01, 0.0, 13.5, 0.0, 0.01, 0.0]) + rng.normal(0, 0.1, 8)
+        hover = np.array([14.0, 0.01, -0.01, 0.0, 13.5, 0.0, 0.01, 0.0])  # the lab's two UAVs
+        inputs = hover + rng.normal(0, 0.1, hover.size)
         records.append(
             TickRecord(
                 k / round(1.0 / TICK_S),  # exact at whole seconds, where the writers flush

@@ -22,17 +22,18 @@ from pathlib import Path
 
 import numpy as np
 
-from controllers.equilibria import Reference
-from controllers.linear_modes import BAR_YAW, physical_closed_loop_modes
+from controllers.formation_equilibria import FormationReference
+from controllers.linear_modes import PAYLOAD_YAW_MOTION, physical_closed_loop_modes
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
 from controllers.params import RECOMMENDED_LEAD, ReferenceLead
 from supervisor.app.config_files import CONFIG_DIR
 
 DEFAULT_CONFIG = CONFIG_DIR / "kth_sml.toml"
+# The lab's two UAVs.
 EQUILIBRIA = {
-    "hover": Reference((0.0, 0.0, 1.0)),
-    "theta_l 20°, turned": Reference((0.5, -0.3, 1.2), 0.8, (0.8, 1.4), math.radians(20)),
-    "theta_l 45°": Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), math.pi / 4),
+    "hover": FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0)),
+    "theta_l 20°, turned": FormationReference((0.5, -0.3, 1.2), 0.8, (0.8, 1.4), math.radians(20)),
+    "theta_l 45°": FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), math.pi / 4),
 }
 SHOWN = 3
 
@@ -66,7 +67,7 @@ def slowest_modes(config_path: Path) -> dict[str, dict[str, list[dict[str, float
                     "magnitude": mode.magnitude,
                     "frequency_hz": mode.frequency_hz,
                     "growth_per_s": mode.growth_per_s(settings.dt_s),
-                    "bar_yaw_share": float(np.linalg.norm(mode.shape[list(BAR_YAW)])),
+                    "bar_yaw_share": float(np.linalg.norm(mode.shape[list(PAYLOAD_YAW_MOTION)])),
                 }
                 conjugate = (
                     bool(rows)

@@ -26,33 +26,40 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.model import BarSystemModel
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_model import FormationModel
+from controllers.formation_params import FormationParams
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, agent_state, measured_yaws
-from controllers.params import BarSystemParams, MpcSettings
+from controllers.params import MpcSettings
 from controllers.qp.registry import BACKEND_NAMES
-from geometry.state import uav_slices
 from supervisor.app.config_files import DEFAULT_SETUP
 
 DEFAULT_CONFIG = DEFAULT_SETUP
 REFERENCE_BACKEND = "daqp"
 BASELINE_BACKEND = "osqp"
-Sequence = list[tuple[np.ndarray, Reference]]
+Sequence = list[tuple[np.ndarray, FormationReference]]
 
 
-def record_sequence(params: BarSystemParams, settings: MpcSettings, ticks: int) -> Sequence:
+def record_sequence(params: FormationParams, settings: MpcSettings, ticks: int) -> Sequence:
     """States and references of a closed loop on the nonlinear model (RK4, 4 substeps)."""
     controller = CentralizedMpc(params, settings, REFERENCE_BACKEND, clock=time.perf_counter)
-    f = BarSystemModel(params).dynamics
-    x = bar_equilibrium(params, Reference((0.4, -0.2, 1.2), math.radians(30), (0.5, -0.5))).x
+    f = FormationModel(params).dynamics
+    layout = params.layout
+    n = layout.n_vehicles
+    # UAV i starts 0.5 rad off the bar's 30° yaw, alternately either way.
+    start_yaws = tuple(0.5 * (-1.0) ** (i - 1) for i in layout.vehicles)
+    start = FormationReference((0.4, -0.2, 1.2), math.radians(30), start_yaws)
+    x = formation_equilibrium(params, start).x
     h = settings.dt_s / 4
     out: Sequence = []
     for k in range(ticks):
         yaw = 0.6 * math.sin(2 * math.pi * k / 400)  # ~0.2 rad/s: every yaw moves every tick
-        reference = Reference((0.0, 0.0, 1.0), yaw, (yaw, yaw), math.radians(20) * (k // 250 % 2))
-        if k % 100 == 50:  # a gust spins both UAVs: the torques saturate for a few ticks
-            x[uav_slices(1)[3]] += (3.0, -3.0, 2.0)
-            x[uav_slices(2)[3]] += (-3.0, 3.0, -2.0)
+        reference = FormationReference(
+            (0.0, 0.0, 1.0), yaw, (yaw,) * n, math.radians(20) * (k // 250 % 2)
+        )
+        if k % 100 == 50:  # a gust spins every UAV, alternately: the torques saturate a while
+            for i in layout.vehicles:
+                x[layout.uav_slices(i)[3]] += np.array((3.0, -3.0, 2.0)) * (-1.0) ** (i - 1)
         out.append((x.copy(), reference))
         u = controller.step(x, reference, k * settings.dt_s).u
         for _ in range(4):
@@ -75,23 +82,24 @@ def _time_ticks(tick: Callable[[int], np.ndarray], ticks: int) -> tuple[np.ndarr
 
 
 def centralized_run(
-    params: BarSystemParams, settings: MpcSettings, backend: str, seq: Sequence
+    params: FormationParams, settings: MpcSettings, backend: str, seq: Sequence
 ) -> tuple[np.ndarray, np.ndarray]:
     controller = CentralizedMpc(params, settings, backend, clock=time.perf_counter)
     return _time_ticks(lambda k: controller.step(seq[k][0], seq[k][1], 0.02 * k).u, len(seq))
 
 
 def decentralized_run(
-    params: BarSystemParams, settings: MpcSettings, backend: str, seq: Sequence
+    params: FormationParams, settings: MpcSettings, backend: str, seq: Sequence
 ) -> tuple[np.ndarray, np.ndarray]:
-    """UAV 1's agent alone: its full tick from the 36-state to its u*."""
+    """UAV 1's agent alone: its full tick from the formation's state to its u*."""
     agent = DecentralizedMpc(params, settings, backend, clock=time.perf_counter).agents[0]
 
     def tick(k: int) -> np.ndarray:
         state, reference = seq[k]
-        eq = bar_equilibrium(params, reference)
-        psi_b, psi_uav = measured_yaws(state)
-        lin = bar_equilibrium(params, reference.with_yaws(psi_b, psi_uav))
+        eq = formation_equilibrium(params, reference)
+        lin = formation_equilibrium(
+            params, reference.with_yaws(*measured_yaws(state, params.layout))
+        )
         result = agent.solve(agent_state(state, params, 1), eq, agent.linearize(lin))
         if isinstance(result, str):
             return np.full(4, np.nan)
@@ -132,7 +140,7 @@ def run_benchmark(
     result: dict[str, object] = {}
     saturated_ticks: dict[str, int] = {}
     for label, run, scale, settings in (
-        ("centralized", centralized_run, np.tile(per_uav, 2), central),
+        ("centralized", centralized_run, np.tile(per_uav, params.n_vehicles), central),
         ("decentralized", decentralized_run, per_uav, decentral),
     ):
         ordered = [REFERENCE_BACKEND] + [b for b in backends if b != REFERENCE_BACKEND]

@@ -38,7 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from geometry.state import bar_ends, bar_position, uav_position
+from controllers.formation_params import FormationParams
+from geometry.state import payload_points, payload_position
 from supervisor.app.config import load_config
 from supervisor.app.config_files import CONFIG_DIR
 from supervisor.flight.core import TickResult
@@ -76,9 +77,9 @@ class Recorder:
         self,
         thrust_bounds_n: tuple[float, float],
         torque_max_nm: float,
-        arms_m: tuple[float, float],
+        params: FormationParams,
     ) -> None:
-        self._arms = arms_m
+        self._params = params
         self.cable_lags_deg: list[float] = []
         self._thrust = thrust_bounds_n
         self._torque = torque_max_nm
@@ -91,7 +92,7 @@ class Recorder:
         if result.plan is None:
             return
         self.mpc_ticks += 1
-        u = np.asarray(result.record.inputs).reshape(2, 4)
+        u = np.asarray(result.record.inputs).reshape(self._params.n_vehicles, -1)
         at_bound = (
             np.any(u[:, 0] <= self._thrust[0] + SATURATION_MARGIN)
             or np.any(u[:, 0] >= self._thrust[1] - SATURATION_MARGIN)
@@ -100,18 +101,19 @@ class Recorder:
         self.saturated += int(at_bound)
         state = np.asarray(result.record.state)
         reference = np.asarray(result.record.state_ref)
-        self.errors.append(bar_position(state) - bar_position(reference))
+        self.errors.append(payload_position(state) - payload_position(reference))
         self.cable_lags_deg.append(self.cable_angle_deg(state) - self.cable_angle_deg(reference))
         self.inputs.append(u)
 
     def cable_angle_deg(self, x: np.ndarray) -> float:
-        """The two cables' mean angle from the vertical [°] in the 36-state ``x``."""
-        ends = bar_ends(x, self._arms)
+        """The cables' mean angle from the vertical [°] in the state ``x``."""
+        layout = self._params.layout
+        ends = payload_points(x, self._params.payload.attachments_m)
         angles = []
-        for i in (1, 2):
-            cable = uav_position(x, i) - ends[i - 1]
+        for i in layout.vehicles:
+            cable = layout.uav_position(x, i) - ends[i - 1]
             angles.append(math.degrees(math.atan2(math.hypot(cable[0], cable[1]), cable[2])))
-        return sum(angles) / 2
+        return sum(angles) / layout.n_vehicles
 
 
 def fly(
@@ -123,7 +125,7 @@ def fly(
     recorder = Recorder(
         (limits.thrust_min_n, limits.thrust_max_n),
         limits.torque_max_nm,
-        config.system.to_params().arms_m,
+        config.system.to_params(),
     )
     result = run_scenario(config, scenario, controller, seed=seed, observe=recorder)
     errors = np.array(recorder.errors) if recorder.errors else np.zeros((1, 3))

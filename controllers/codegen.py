@@ -1,6 +1,6 @@
 """Fast numeric evaluation of CasADi functions on the tick path.
 
-CasADi's SX virtual machine takes ~60 µs for the 36-state Jacobians and creating DM
+CasADi's SX virtual machine takes ~60 µs for the two-UAV formation's Jacobians and creating DM
 outputs another ~70 µs; the same function generated as C and compiled once takes ~1 µs.
 ``NumericFunction`` compiles with the system C compiler into a per-user cache (keyed by the
 hash of the generated source, so a parameter change recompiles) and evaluates through

@@ -7,9 +7,9 @@ prediction from the delayed state answers motions that are ``delay_s`` old: from
 25 ms the centralized roll loop rings in a limit cycle at the torque bound (issue 19).
 
 ``DelayPredictor`` keeps the inputs sent and their times, and integrates the controllers'
-nonlinear model (5)–(8) (``controllers.model``) from the estimate, taken as the state
-``delay_s`` ago, across the delay with the inputs that were in force then (zero-order
-hold, RK4). Time is an argument; it holds no clock.
+nonlinear model (``controllers.formation_model``; (5)–(8) for the bar) from the estimate,
+taken as the state ``delay_s`` ago, across the delay with the inputs that were in force
+then (zero-order hold, RK4). Time is an argument; it holds no clock.
 """
 
 from __future__ import annotations
@@ -21,10 +21,9 @@ import casadi as ca
 import numpy as np
 
 from controllers.codegen import NumericFunction
-from controllers.model import BarSystemModel
-from controllers.params import BarSystemParams
+from controllers.formation_model import FormationModel
+from controllers.formation_params import FormationParams
 from geometry.arrays import FloatArray
-from geometry.state import BAR_INPUTS, BAR_STATES
 
 # RK4 steps of at most this: the fastest modes the prediction carries (the UAVs' attitude
 # under the torque bound) change over tens of ms; 5 ms keeps the RK4 error at 45 ms far
@@ -32,17 +31,17 @@ from geometry.state import BAR_INPUTS, BAR_STATES
 MAX_STEP_S = 0.005
 
 
-def _rk4_step(model: BarSystemModel) -> ca.Function:
-    """``(x, u, h) -> x(t + h)``: one classical RK4 step of the 36-state model."""
-    x = ca.SX.sym("x", BAR_STATES)
-    u = ca.SX.sym("u", BAR_INPUTS)
+def _rk4_step(model: FormationModel) -> ca.Function:
+    """``(x, u, h) -> x(t + h)``: one classical RK4 step of the formation's model."""
+    x = ca.SX.sym("x", model.layout.n_states)
+    u = ca.SX.sym("u", model.layout.n_inputs)
     h = ca.SX.sym("h")
     f = model.dynamics
     k1 = f(x, u)
     k2 = f(x + h / 2 * k1, u)
     k3 = f(x + h / 2 * k2, u)
     k4 = f(x + h * k3, u)
-    return ca.Function("bar_system_rk4", [x, u, h], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+    return ca.Function("formation_rk4", [x, u, h], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
 
 
 # How long inputs are kept beyond the delay: what ``advance`` may integrate over behind
@@ -52,18 +51,19 @@ HISTORY_S = 0.1
 
 
 class DelayPredictor:
-    """The 36-state ``delay_s`` [s] ahead of an estimate, with the inputs already sent.
+    """The state ``delay_s`` [s] ahead of an estimate, with the inputs already sent.
 
-    ``sent(t_s, u)`` records the input (8,) [N, N m] applied from ``t_s`` on; ``predict``
+    ``sent(t_s, u)`` records the input (4N,) [N, N m] applied from ``t_s`` on; ``predict``
     integrates across the delay, ``advance`` between any two times of the last
     ``HISTORY_S`` + ``delay_s``. Older inputs are forgotten.
     """
 
-    def __init__(self, params: BarSystemParams, delay_s: float) -> None:
+    def __init__(self, params: FormationParams, delay_s: float) -> None:
         if not (math.isfinite(delay_s) and delay_s >= 0.0):
             raise ValueError(f"the delay to predict across must be finite and >= 0, got {delay_s}")
         self.delay_s = delay_s
-        self._step = NumericFunction(_rk4_step(BarSystemModel(params)))
+        self.layout = params.layout
+        self._step = NumericFunction(_rk4_step(FormationModel(params)))
         self._sent: deque[tuple[float, FloatArray]] = deque()
 
     def reset(self) -> None:
@@ -71,7 +71,7 @@ class DelayPredictor:
         self._sent.clear()
 
     def sent(self, t_s: float, u: FloatArray) -> None:
-        """The input ``u`` (8,) is in force from ``t_s`` [s] until the next one."""
+        """The input ``u`` (4N,) is in force from ``t_s`` [s] until the next one."""
         if self._sent and t_s < self._sent[-1][0]:
             self._sent.clear()  # time went backwards: a new flight, the old inputs are void
         self._sent.append((t_s, np.array(u, dtype=float)))
@@ -81,7 +81,7 @@ class DelayPredictor:
             self._sent.popleft()
 
     def predict(self, x: FloatArray, now_s: float) -> FloatArray:
-        """``x`` (36,), the estimate at ``now_s`` taken as the state ``delay_s`` earlier,
+        """``x`` (12 + 12N,), the estimate at ``now_s`` taken as the state ``delay_s`` earlier,
         carried to ``now_s`` by the model under the inputs sent. Unchanged (a copy) when
         there is no delay, no input was sent yet, or ``x`` is not finite: the MPC then
         reports what is wrong with it as before."""
@@ -90,7 +90,7 @@ class DelayPredictor:
         return self.advance(x, now_s - self.delay_s, now_s)
 
     def advance(self, x: FloatArray, from_s: float, to_s: float) -> FloatArray:
-        """``x`` (36,), the state at ``from_s``, carried to ``to_s`` [s] by the model under
+        """``x`` (12 + 12N,), the state at ``from_s``, carried to ``to_s`` [s] by the model under
         the inputs in force in between (the oldest input kept stands for any time before
         it). A copy of ``x`` when no input was sent, ``to_s`` is not after ``from_s``, or
         ``x`` (or the result) is not finite."""

@@ -8,8 +8,12 @@ no net moment about it, so the payload is in equilibrium as soon as the forces b
 vertical loads V are the least-norm deviation from the equal share m g / N that does so;
 C's depth follows from the cone angle, chosen so that the mean of the cables'
 cotangents is its cotangent. A symmetric geometry then has every cable at exactly the
-cone angle, and the two-cable bar is ``controllers.equilibria.bar_equilibrium`` (any
-d1, d2, masses and cable lengths).
+cone angle. For the paper's two-cable bar this is Section IV's equilibrium, generalized
+to any d1, d2, masses and cable lengths: the bar level with its cables in its vertical
+plane, each carrying the vertical load (13), both the same horizontal pull
+(m_b g / 2) tan θ_l, so that the cable angles equal θ_l (the cone angle) exactly when the
+setup is symmetric (Proposition 1). Every UAV tilts its thrust along its own cable's
+horizontal direction, whatever its yaw, which takes roll and pitch together.
 
 Scalar and small numpy arithmetic only: a relinearized tick comes here.
 """
@@ -17,16 +21,17 @@ Scalar and small numpy arithmetic only: a relinearized tick comes here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from functools import lru_cache
+from dataclasses import dataclass, replace
+from functools import cached_property, lru_cache
 
 import numpy as np
 
 from controllers.equilibria import EquilibriumError, tilt_to_euler
 from controllers.formation_params import BAR_TOLERANCE_M, FormationParams
+from controllers.vectors import cross3
 from geometry.arrays import FloatArray
 from geometry.formation import FormationLayout
-from geometry.state import P_B, TH_B, V_B, W_B
+from geometry.state import AGENT_STATES, P_B, P_P, TH_B, UAV_BLOCK, V_B, V_P, W_B
 
 _BALANCE_RTOL = 1e-9
 
@@ -36,11 +41,17 @@ class FormationReference:
     """What the operator asks for: the payload's CoM [m] and yaw, each UAV's yaw, and the
     cone angle of the cables [rad] (θ_l's generalization).
 
-    ``velocity_mps``, ``payload_yaw_rate_radps``, ``uav_yaw_rates_radps`` (None: none
-    turns) and ``cone_angle_rate_radps`` make it a moving reference, a feed-forward as in
-    ``controllers.equilibria.Reference``: the formation translates, turns about the
-    payload's CoM, each UAV about its own vertical, and the cables swing along the
-    equilibrium family.
+    ``velocity_mps`` (default zero) makes it a steady translation of the whole formation
+    (a relative equilibrium: with no drag, x_eq + v t solves the model with the same u_eq),
+    so that the MPC tracks a moving reference without a velocity-induced lag.
+    ``payload_yaw_rate_radps`` and ``uav_yaw_rates_radps`` (empty, the default: none
+    turns; given as zeros once constructed) add the turn rates of a turning reference the
+    same way: the formation turns about the payload's CoM and each UAV about its own
+    vertical axis. That is a feed-forward, not an equilibrium: the centripetal and
+    gyroscopic terms it leaves out are O(ψ̇²), 0.1 m/s² at 20°/s.
+    ``cone_angle_rate_radps`` is how fast the cone angle moves: the UAVs' velocities along
+    the equilibrium family (each cable swinging outward), a feed-forward in the same
+    sense; without it a θ_l ramp is tracked with a lag of about two seconds (issue 19).
     """
 
     payload_position_m: tuple[float, float, float]
@@ -49,8 +60,25 @@ class FormationReference:
     cone_angle_rad: float = 0.0
     velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     payload_yaw_rate_radps: float = 0.0
-    uav_yaw_rates_radps: tuple[float, ...] | None = None
+    uav_yaw_rates_radps: tuple[float, ...] = ()
     cone_angle_rate_radps: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.uav_yaw_rates_radps:
+            # One spelling of "none turns", so that equal references compare equal.
+            object.__setattr__(self, "uav_yaw_rates_radps", (0.0,) * len(self.uav_yaw_rad))
+
+    def with_yaws(
+        self, payload_yaw_rad: float, uav_yaw_rad: tuple[float, ...]
+    ) -> FormationReference:
+        """The same equilibrium family, turned to other yaw angles."""
+        return replace(self, payload_yaw_rad=payload_yaw_rad, uav_yaw_rad=uav_yaw_rad)
+
+    def at_rest(self) -> FormationReference:
+        """The same reference with zero velocity and rates (where it will stop)."""
+        return FormationReference(
+            self.payload_position_m, self.payload_yaw_rad, self.uav_yaw_rad, self.cone_angle_rad
+        )
 
 
 @dataclass(frozen=True)
@@ -70,7 +98,8 @@ class FormationEquilibrium:
     from the vertical; ``tilts_rad`` of each UAV's thrust from the vertical;
     ``attachments_m`` the world positions e_i; ``payload_force_n[i-1]`` the horizontal
     pull of the rest of the payload on attachment i (−H_i, the decentralized model's
-    ``f_ext``); ``payload_mass_share_kg[i-1]`` = V_i / g.
+    ``f_ext``); ``payload_mass_share_kg[i-1]`` = V_i / g, the vertical load of cable i
+    (the generalization of (13)). The arrays of the tuples are read-only.
     """
 
     x: FloatArray
@@ -82,6 +111,29 @@ class FormationEquilibrium:
     attachments_m: tuple[FloatArray, ...]
     payload_force_n: tuple[FloatArray, ...]
     payload_mass_share_kg: tuple[float, ...]
+
+    @cached_property
+    def layout(self) -> FormationLayout:
+        """The layout of ``x`` and ``u``."""
+        return FormationLayout(len(self.thrusts_n))
+
+    def uav_position(self, i: int) -> FloatArray:
+        """p_i of UAV ``i`` [m] (a copy)."""
+        position: FloatArray = self.layout.uav_position(self.x, i).copy()
+        return position
+
+    def agent_state(self, i: int) -> FloatArray:
+        """The decentralized agent ``i``'s x_i ∈ R^18 at this equilibrium: UAV i, and its
+        attachment e_i with that point's velocity v_b + ω_b × (e_i − p_b)."""
+        x_i = np.zeros(AGENT_STATES)
+        x_i[UAV_BLOCK] = self.x[self.layout.uav_block(i)]
+        x_i[P_P] = self.attachments_m[i - 1]
+        x_i[V_P] = self.x[V_B] + cross3(self.x[W_B], self.attachments_m[i - 1] - self.x[P_B])
+        return x_i
+
+    def agent_input(self, i: int) -> FloatArray:
+        """The decentralized agent ``i``'s u_i = (F_i, τ_i) at this equilibrium."""
+        return self.u[self.layout.uav_input_slice(i)].copy()
 
 
 @dataclass(frozen=True)
@@ -95,7 +147,7 @@ class _CableLoads:
 
 def _check_reference(reference: FormationReference, n: int) -> None:
     rates = reference.uav_yaw_rates_radps
-    if len(reference.uav_yaw_rad) != n or (rates is not None and len(rates) != n):
+    if len(reference.uav_yaw_rad) != n or len(rates) != n:
         raise EquilibriumError(f"a formation of {n} UAVs needs {n} UAV yaws and yaw rates")
     values = (
         *reference.payload_position_m,
@@ -104,7 +156,7 @@ def _check_reference(reference: FormationReference, n: int) -> None:
         reference.cone_angle_rad,
         *reference.velocity_mps,
         reference.payload_yaw_rate_radps,
-        *(rates or ()),
+        *rates,
         reference.cone_angle_rate_radps,
     )
     if not all(math.isfinite(v) for v in values):
@@ -187,17 +239,30 @@ def formation_equilibrium(
     [0°, 90°) or one that puts the cables' common point above an attachment, a payload
     that cannot hang level or whose CoM lies outside its attachments' support (naming the
     cable), or, given ``limits``, a UAV whose thrust or tilt would break them (naming the
-    UAV and the bound).
+    UAV and the bound). A tick asks for the same reference more than once (safety,
+    controller, the record), so recent answers are kept: callers get their own x and u.
     """
-    layout = FormationLayout(params.n_vehicles)
-    _check_reference(reference, layout.n_vehicles)
+    _check_reference(reference, params.n_vehicles)
+    cached = _cached_equilibrium(params, reference, limits)
+    return replace(cached, x=cached.x.copy(), u=cached.u.copy())
+
+
+@lru_cache(maxsize=8)
+def _cached_equilibrium(
+    params: FormationParams,
+    reference: FormationReference,
+    limits: FormationLimits | None,
+) -> FormationEquilibrium:
+    layout = params.layout
     loads = _cable_loads(params, reference.cone_angle_rad)
+    verticals, tans = loads.vertical_n.tolist(), loads.tan_angle.tolist()
+    tan_rates = loads.tan_angle_per_cone_rad.tolist()
     g = params.gravity_mps2
     psi_b, psi_b_rate = reference.payload_yaw_rad, reference.payload_yaw_rate_radps
     cos_b, sin_b = math.cos(psi_b), math.sin(psi_b)
     bx, by, bz = reference.payload_position_m
     vx, vy, vz = reference.velocity_mps
-    uav_rates = reference.uav_yaw_rates_radps or (0.0,) * layout.n_vehicles
+    uav_rates = reference.uav_yaw_rates_radps
 
     x = np.zeros(layout.n_states)
     u = np.zeros(layout.n_inputs)
@@ -213,7 +278,7 @@ def formation_equilibrium(
         rho_x, rho_y = cos_b * ax - sin_b * ay, sin_b * ax + cos_b * ay  # R(ψ_b) a_i, level
         reach = math.hypot(rho_x, rho_y)
         out_x, out_y = (rho_x / reach, rho_y / reach) if reach > BAR_TOLERANCE_M else (0.0, 0.0)
-        vertical, tan_angle = float(loads.vertical_n[k]), float(loads.tan_angle[k])
+        vertical, tan_angle = verticals[k], tans[k]
         angle = math.atan(tan_angle)
         sin_a, cos_a = math.sin(angle), math.cos(angle)
         tension = vertical / cos_a
@@ -232,7 +297,7 @@ def formation_equilibrium(
         x[p_i] = (px, py, end[2] + cable * n_z)
         # The formation turning about the payload's CoM at ψ̇_b, and the cable swinging
         # outward at θ̇_i = cos²θ_i d(tan θ_i)/d(cone) · cone rate: l θ̇_i ∂n_i/∂θ_i.
-        swing = cable * cos_a**2 * loads.tan_angle_per_cone_rad[k] * reference.cone_angle_rate_radps
+        swing = cable * cos_a**2 * tan_rates[k] * reference.cone_angle_rate_radps
         x[v_i] = (
             vx - psi_b_rate * (py - by) + swing * cos_a * out_x,
             vy + psi_b_rate * (px - bx) + swing * cos_a * out_y,
@@ -254,6 +319,8 @@ def formation_equilibrium(
         tilts.append(tilt)
         ends.append(np.array(end))
         forces.append(np.array((-tension * n_x, -tension * n_y, 0.0)))
+    for array in (*ends, *forces):
+        array.setflags(write=False)
     return FormationEquilibrium(
         x=x,
         u=u,
@@ -263,8 +330,15 @@ def formation_equilibrium(
         tilts_rad=tuple(tilts),
         attachments_m=tuple(ends),
         payload_force_n=tuple(forces),
-        payload_mass_share_kg=tuple(float(v) / g for v in loads.vertical_n),
+        payload_mass_share_kg=tuple(v / g for v in verticals),
     )
+
+
+def hanging_mass_shares_kg(params: FormationParams) -> tuple[float, ...]:
+    """Each cable's share of the payload's mass [kg] when it hangs still on vertical cables
+    (a cone angle of 0), V_i / g: the generalization of (13), m_b d_j / (d1 + d2)."""
+    hanging = FormationReference((0.0, 0.0, 0.0), 0.0, (0.0,) * params.n_vehicles)
+    return formation_equilibrium(params, hanging).payload_mass_share_kg
 
 
 def _check_limits(limits: FormationLimits, i: int, thrust_n: float, tilt_rad: float) -> None:

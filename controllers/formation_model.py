@@ -3,7 +3,7 @@
 The generalization of the UAV–bar model (5)–(8): one constraint (7) per cable,
 |p_i − e_i| = l_i with the attachment e_i = p_b + R(Θ_b) a_i, and the tensions T ∈ R^N
 from the constraints' second derivatives, M T = λ (derivation: ``docs/model.md``, "N
-cables"). For two cables on a bar it is ``controllers.model.BarSystemModel``.
+cables"). For two cables on a bar it is (5)–(8) exactly.
 
 The payload's attitude is Z-Y-X Euler Θ_b with the inertial rate ω_b (H^E of (6)); its
 rotation follows Euler's equation in the inertial frame, J_w ω̇ = Σ_j q_j × T_j n_j − ω × J_w ω

@@ -9,12 +9,13 @@ inertia about the perpendicular axes enters (``controllers.formation_model``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-from controllers.params import BarSystemParams, UavParams
+from controllers.params import UavParams
 from geometry.arrays import FloatArray
-from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
+from geometry.formation import MAX_VEHICLES, MIN_VEHICLES, FormationLayout
 
 Vector3 = tuple[float, float, float]
 
@@ -130,18 +131,65 @@ class FormationParams:
         """N."""
         return len(self.uavs)
 
+    @cached_property
+    def layout(self) -> FormationLayout:
+        """The state and input layout for this formation's N."""
+        return FormationLayout(self.n_vehicles)
 
-def formation_from_bar(params: BarSystemParams) -> FormationParams:
-    """The paper's UAV–bar system as a formation of two: attachments (−d1, 0, 0) and
-    (d2, 0, 0), inertia diag(0, J_b, J_b) (the bar's x axis from cable 1 to cable 2)."""
-    J_b = params.bar_inertia_kgm2
+    @property
+    def is_symmetric(self) -> bool:
+        """Assumption 1, for N UAVs: equal UAV masses, equal cable lengths, and the
+        attachments equally far from the payload's CoM, their centroid (so that every
+        cable carries the same share, at the same angle), to ``BAR_TOLERANCE_M``."""
+        a = np.array(self.payload.attachments_m, dtype=float)
+        distances = np.linalg.norm(a, axis=1)
+        return (
+            len({uav.mass_kg for uav in self.uavs}) == 1
+            and len(set(self.cable_lengths_m)) == 1
+            and float(np.ptp(distances)) <= BAR_TOLERANCE_M
+            and float(np.abs(a.mean(axis=0)).max()) <= BAR_TOLERANCE_M
+        )
+
+    @property
+    def bar_arms_m(self) -> tuple[float, float]:
+        """(d1, d2) of the paper's UAV–bar system (``formation_from_bar``): the distances
+        from the bar's CoM to cables 1 and 2 along its x axis. Raises ``ValueError`` for
+        any other formation."""
+        if self.n_vehicles == 2:
+            (x1, y1, z1), (x2, y2, z2) = self.payload.attachments_m
+            if not any((y1, z1, y2, z2)) and x1 < x2:
+                return -x1, x2
+        raise ValueError(
+            "only a bar carried by two UAVs, along its x axis from cable 1 to cable 2, "
+            "has the arms d1 and d2"
+        )
+
+
+def formation_from_bar(
+    uavs: tuple[UavParams, UavParams],
+    bar_mass_kg: float,
+    d1_m: float,
+    d2_m: float,
+    bar_inertia_kgm2: float,
+    cable_lengths_m: tuple[float, float],
+    gravity_mps2: float = 9.81,
+) -> FormationParams:
+    """The paper's UAV–bar system (Section II-B) as a formation of two: the bar's CoM
+    ``d1_m``/``d2_m`` from the attachments of cables 1 and 2, J_b = ``bar_inertia_kgm2``
+    about an axis through its CoM perpendicular to it (5g). The attachments are (−d1, 0, 0)
+    and (d2, 0, 0), the inertia diag(0, J_b, J_b): the bar's x axis points from cable 1's
+    attachment to cable 2's."""
     return FormationParams(
-        uavs=params.uavs,
+        uavs=uavs,
         payload=PayloadParams(
-            mass_kg=params.bar_mass_kg,
-            inertia_kgm2=((0.0, 0.0, 0.0), (0.0, J_b, 0.0), (0.0, 0.0, J_b)),
-            attachments_m=((-params.d1_m, 0.0, 0.0), (params.d2_m, 0.0, 0.0)),
+            mass_kg=bar_mass_kg,
+            inertia_kgm2=(
+                (0.0, 0.0, 0.0),
+                (0.0, bar_inertia_kgm2, 0.0),
+                (0.0, 0.0, bar_inertia_kgm2),
+            ),
+            attachments_m=((-d1_m, 0.0, 0.0), (d2_m, 0.0, 0.0)),
         ),
-        cable_lengths_m=params.cable_lengths_m,
-        gravity_mps2=params.gravity_mps2,
+        cable_lengths_m=cable_lengths_m,
+        gravity_mps2=gravity_mps2,
     )

@@ -1,18 +1,18 @@
-"""Integral action on the reference: offset-free tracking of the bar and the UAVs' yaws.
+"""Integral action on the reference: offset-free tracking of the payload and the UAVs' yaws.
 
 Both MPCs regulate to the equilibrium their model computes for the reference. When the
-plant differs from the model — a bar heavier than configured, a steady push on a body — the
-equilibrium input is wrong, and the quadratic cost balances the missing force against a
-position error: a bar 50 % heavier than configured hangs 12–17 cm low for as long as the
-reference is held (issue 19). ``ReferenceIntegrator`` integrates the error between the
-held reference and the estimate (bar position, bar yaw, each UAV's yaw) and moves the
-reference the MPC regulates to by that integral times a gain, so a steady error cannot
-remain: the equilibrium the MPC is given then asks for the missing force.
+plant differs from the model — a payload heavier than configured, a steady push on a
+body — the equilibrium input is wrong, and the quadratic cost balances the missing force
+against a position error: a bar 50 % heavier than configured hangs 12–17 cm low for as long
+as the reference is held (issue 19). ``ReferenceIntegrator`` integrates the error between
+the held reference and the estimate (payload position, payload yaw, each UAV's yaw) and
+moves the reference the MPC regulates to by that integral times a gain, so a steady error
+cannot remain: the equilibrium the MPC is given then asks for the missing force.
 
-It integrates only while the reference is held (no velocity, no turn or θ_l rate, the same
-as the tick before): the lag of a moving reference is no offset, and integrating it would wind
-up. The integral is kept through moves and bounded (``IntegralLimits``), so a wrong model
-can shift the reference by at most that much. Time is an argument.
+It integrates only while the reference is held (no velocity, no turn or cone-angle rate,
+the same as the tick before): the lag of a moving reference is no offset, and integrating
+it would wind up. The integral is kept through moves and bounded (``IntegralLimits``), so
+a wrong model can shift the reference by at most that much. Time is an argument.
 """
 
 from __future__ import annotations
@@ -22,14 +22,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from controllers.equilibria import Reference
+from controllers.formation_equilibria import FormationReference
 from geometry.arrays import FloatArray
-from geometry.state import bar_position, bar_yaw, uav_yaws
+from geometry.formation import FormationLayout
+from geometry.state import payload_position, payload_yaw
 
 
 @dataclass(frozen=True)
 class IntegralLimits:
-    """The most the integral may move the reference: bar position [m], yaws [rad]."""
+    """The most the integral may move the reference: payload position [m], yaws [rad]."""
 
     position_m: float = 0.3
     yaw_rad: float = math.radians(15.0)
@@ -37,20 +38,27 @@ class IntegralLimits:
 
 class ReferenceIntegrator:
     """Moves the MPC's reference by ``gain_per_s`` × the integral of the held reference's
-    error (bar position, bar yaw, UAV yaws); a gain of 0 leaves it as it is."""
+    error (payload position, payload yaw, UAV yaws); a gain of 0 leaves it as it is."""
 
-    def __init__(self, gain_per_s: float, limits: IntegralLimits = IntegralLimits()) -> None:
+    def __init__(
+        self,
+        layout: FormationLayout,
+        gain_per_s: float,
+        limits: IntegralLimits = IntegralLimits(),
+    ) -> None:
         if not (math.isfinite(gain_per_s) and gain_per_s >= 0.0):
             raise ValueError(f"the integral gain must be finite and >= 0, got {gain_per_s}")
         self.gain_per_s = gain_per_s
         self.limits = limits
+        self._layout = layout
         self._position_m = np.zeros(3)  # the reference's shift: gain × ∫ error dt
-        self._yaws_rad = np.zeros(3)  # bar, UAV 1, UAV 2
-        self._last: tuple[float, Reference] | None = None
+        self._yaws_rad = np.zeros(1 + layout.n_vehicles)  # payload, UAV 1, …, UAV N
+        self._last: tuple[float, FormationReference] | None = None
 
     @property
     def shift(self) -> tuple[FloatArray, FloatArray]:
-        """The present shift: bar position (3,) [m], yaws (bar, UAV 1, UAV 2) (3,) [rad]."""
+        """The present shift: payload position (3,) [m], yaws (payload, UAV 1, …, UAV N)
+        (1 + N,) [rad]."""
         return self._position_m.copy(), self._yaws_rad.copy()
 
     def reset(self) -> None:
@@ -59,8 +67,10 @@ class ReferenceIntegrator:
         self._yaws_rad[:] = 0.0
         self._last = None
 
-    def shifted(self, reference: Reference, x: FloatArray, now_s: float) -> Reference:
-        """``reference`` moved by the integral, after integrating the error of ``x`` (36,)
+    def shifted(
+        self, reference: FormationReference, x: FloatArray, now_s: float
+    ) -> FormationReference:
+        """``reference`` moved by the integral, after integrating the error of ``x`` (12 + 12N,)
         since the last call when ``reference`` is held. A non-finite ``x`` integrates
         nothing."""
         if self.gain_per_s == 0.0:
@@ -70,14 +80,15 @@ class ReferenceIntegrator:
             last is not None
             and last[1] == reference
             and not any(reference.velocity_mps)
-            and not any(reference.yaw_rates_radps)
-            and not reference.theta_l_rate_radps
+            and not reference.payload_yaw_rate_radps
+            and not any(reference.uav_yaw_rates_radps)
+            and not reference.cone_angle_rate_radps
         )
         if held and last is not None and np.all(np.isfinite(x)):
             dt = max(0.0, now_s - last[0])
-            position_error = np.asarray(reference.bar_position_m) - bar_position(x)
-            measured_yaws = (bar_yaw(x), *uav_yaws(x))
-            wanted_yaws = (reference.bar_yaw_rad, *reference.uav_yaw_rad)
+            position_error = np.asarray(reference.payload_position_m) - payload_position(x)
+            measured_yaws = (payload_yaw(x), *self._layout.uav_yaws(x))
+            wanted_yaws = (reference.payload_yaw_rad, *reference.uav_yaw_rad)
             yaw_errors = np.array(
                 [
                     math.remainder(w - m, 2.0 * math.pi)
@@ -88,13 +99,13 @@ class ReferenceIntegrator:
             p_max, yaw_max = self.limits.position_m, self.limits.yaw_rad
             self._position_m = np.clip(self._position_m + k * position_error, -p_max, p_max)
             self._yaws_rad = np.clip(self._yaws_rad + k * yaw_errors, -yaw_max, yaw_max)
-        p = np.asarray(reference.bar_position_m) + self._position_m
+        p = np.asarray(reference.payload_position_m) + self._position_m
         return replace(
             reference,
-            bar_position_m=(float(p[0]), float(p[1]), float(p[2])),
-            bar_yaw_rad=reference.bar_yaw_rad + float(self._yaws_rad[0]),
-            uav_yaw_rad=(
-                reference.uav_yaw_rad[0] + float(self._yaws_rad[1]),
-                reference.uav_yaw_rad[1] + float(self._yaws_rad[2]),
+            payload_position_m=(float(p[0]), float(p[1]), float(p[2])),
+            payload_yaw_rad=reference.payload_yaw_rad + float(self._yaws_rad[0]),
+            uav_yaw_rad=tuple(
+                yaw + float(shift)
+                for yaw, shift in zip(reference.uav_yaw_rad, self._yaws_rad[1:], strict=True)
             ),
         )

@@ -1,13 +1,14 @@
-"""Modes of a controller's linear closed loop at an equilibrium of the bar system: which
+"""Modes of a controller's linear closed loop at an equilibrium of the formation: which
 motions the MPC damps, and how fast, at a given reference (``benchmarks/modes.py`` prints
 them; ``tests/controllers/test_closed_loop_modes.py`` checks them).
 
-The plant is the 36-state model's Jacobian at the equilibrium, discretized exactly (zero-order
-hold over one tick, not the controllers' first-order A = I + A_c h); the controller enters
-by its gain, probed by finite differences of its own ``step`` (so the real MPC and QP
-back-end are measured, not a textbook LQR). A mode is physical when it keeps both cable
-lengths (the index-reduced model also has modes that stretch a cable) and does more than
-spin the bar about its own axis (a free rotation nothing acts on).
+The plant is the formation model's Jacobian at the equilibrium, discretized exactly
+(zero-order hold over one tick, not the controllers' first-order A = I + A_c h); the
+controller enters by its gain, probed by finite differences of its own ``step`` (so the
+real MPC and QP back-end are measured, not a textbook LQR). A mode is physical when it
+keeps every cable's length (the index-reduced model also has modes that stretch a cable)
+and, for a bar, does more than spin the bar about its own axis (a free rotation nothing
+acts on).
 """
 
 from __future__ import annotations
@@ -19,15 +20,17 @@ import numpy as np
 from scipy.linalg import expm
 
 from controllers.codegen import NumericFunction
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.linearization import bar_jacobians
-from controllers.model import BarSystemModel
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_model import FormationModel
+from controllers.formation_params import FormationParams
+from controllers.linearization import formation_jacobians
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, agent_state
-from controllers.params import BarSystemParams
-from geometry.state import P_I, P_P
+from geometry.state import P_I, P_P, PAYLOAD_YAW, TH_B, W_B
 
-BAR_SPIN = (6, 9)  # φ_b and ω_b,x: the bar's rotation about its own axis
-BAR_YAW = (8, 11)  # ψ_b and ω_b,z
+# φ_b and ω_b,x: a bar's rotation about its own axis (formation_from_bar's bar lies along
+# the payload's x axis).
+BAR_SPIN = (TH_B.start, W_B.start)
+PAYLOAD_YAW_MOTION = (PAYLOAD_YAW, W_B.stop - 1)  # ψ_b and ω_b,z
 
 
 @dataclass(frozen=True)
@@ -53,7 +56,9 @@ def zero_order_hold(A_c: np.ndarray, B_c: np.ndarray, h: float) -> tuple[np.ndar
 
 
 def probed_gain(
-    controller: CentralizedMpc | DecentralizedMpc, x_eq: np.ndarray, reference: Reference
+    controller: CentralizedMpc | DecentralizedMpc,
+    x_eq: np.ndarray,
+    reference: FormationReference,
 ) -> np.ndarray:
     """K with u ≈ u_eq − K Δx near the equilibrium, from one-sided differences of ``step``."""
     delta = 1e-5
@@ -68,12 +73,12 @@ def probed_gain(
     return gain
 
 
-def _cable_lengths(state: np.ndarray, params: BarSystemParams) -> np.ndarray:
-    ends = (agent_state(state, params, i) for i in (1, 2))
+def _cable_lengths(state: np.ndarray, params: FormationParams) -> np.ndarray:
+    ends = (agent_state(state, params, i) for i in params.layout.vehicles)
     return np.array([np.linalg.norm(x_i[P_I] - x_i[P_P]) for x_i in ends])
 
 
-def _cable_length_jacobian(x: np.ndarray, params: BarSystemParams) -> np.ndarray:
+def _cable_length_jacobian(x: np.ndarray, params: FormationParams) -> np.ndarray:
     delta = 1e-7
     base = _cable_lengths(x, params)
     columns = []
@@ -86,18 +91,19 @@ def _cable_length_jacobian(x: np.ndarray, params: BarSystemParams) -> np.ndarray
 
 def physical_closed_loop_modes(
     controller: CentralizedMpc | DecentralizedMpc,
-    params: BarSystemParams,
-    reference: Reference,
+    params: FormationParams,
+    reference: FormationReference,
 ) -> list[ClosedLoopMode]:
     """The physical modes of ``controller`` closing the loop at ``reference``'s
     equilibrium, fastest-growing first."""
-    eq = bar_equilibrium(params, reference)
-    A_c, B_c = NumericFunction(bar_jacobians(BarSystemModel(params)))(eq.x, eq.u)
+    eq = formation_equilibrium(params, reference)
+    A_c, B_c = NumericFunction(formation_jacobians(FormationModel(params)))(eq.x, eq.u)
     dt = controller.settings.dt_s
     A, B = zero_order_hold(np.asarray(A_c), np.asarray(B_c), dt)
     values, vectors = np.linalg.eig(A - B @ probed_gain(controller, eq.x, reference))
     stretch = _cable_length_jacobian(eq.x, params)
-    others = [j for j in range(eq.x.size) if j not in BAR_SPIN]
+    spin = BAR_SPIN if params.payload.is_bar else ()
+    others = [j for j in range(eq.x.size) if j not in spin]
     modes = []
     for value, vector in zip(values, vectors.T, strict=True):
         shape = vector / np.linalg.norm(vector)

@@ -1,8 +1,8 @@
 """Analytic linearization (Section IV): CasADi's exact Jacobians, generated once.
 
-A_c = ∂ẋ/∂x and B_c = ∂ẋ/∂u at an equilibrium; the yaw angles enter through the
-linearization point, so the same generated function serves every tick. The discrete model
-is the paper's first-order one, A = I + A_c h, B = B_c h.
+A_c = ∂ẋ/∂x and B_c = ∂ẋ/∂u at an equilibrium, per parameter set; the yaw angles enter
+through the linearization point, so the same generated function serves every tick. The
+discrete model is the paper's first-order one, A = I + A_c h, B = B_c h.
 """
 
 from __future__ import annotations
@@ -12,18 +12,20 @@ from functools import cache
 import casadi as ca
 import numpy as np
 
-from controllers.model import BarSystemModel, PayloadModel
+from controllers.formation_model import FormationModel
+from controllers.model import PayloadModel
 from geometry.arrays import FloatArray
 
 
 @cache
-def bar_jacobians(model: BarSystemModel) -> ca.Function:
-    """``(x, u) -> (A_c, B_c)`` of the UAV–bar model, shapes (36, 36) and (36, 8)."""
-    x = ca.SX.sym("x", model.dynamics.size1_in(0))
-    u = ca.SX.sym("u", model.dynamics.size1_in(1))
+def formation_jacobians(model: FormationModel) -> ca.Function:
+    """``(x, u) -> (A_c, B_c)`` of the formation's model, shapes (12 + 12N, 12 + 12N) and
+    (12 + 12N, 4N)."""
+    x = ca.SX.sym("x", model.layout.n_states)
+    u = ca.SX.sym("u", model.layout.n_inputs)
     xdot = model.dynamics(x, u)
     return ca.Function(
-        "bar_system_jac",
+        "formation_jac",
         [x, u],
         [ca.jacobian(xdot, x), ca.jacobian(xdot, u)],
         ["x", "u"],

@@ -17,6 +17,9 @@ uses that model when its own measured yaws and its reference's θ_l lie within
 within the same number, in m/s and rad/s) — A and B do not depend on where the formation
 is — so between a mocap frame and the input sent to the vehicles only the state-dependent
 part of the tick remains. Otherwise it linearizes anew.
+
+Both controllers serve any formation of ``FormationParams`` (N UAVs, one rigid payload):
+the centralized MPC plans the whole 12 + 12N-state, the decentralized one runs N agents.
 """
 
 from __future__ import annotations
@@ -30,34 +33,36 @@ import casadi as ca
 import numpy as np
 
 from controllers.codegen import NumericFunction
-from controllers.equilibria import Equilibrium, Reference, bar_equilibrium
-from controllers.linearization import bar_jacobians, discretize, payload_jacobians
-from controllers.model import BarSystemModel, payload_model_for
-from controllers.params import BarSystemParams, Clock, MpcSettings, ReferenceLead, StateBound
+from controllers.formation_equilibria import (
+    FormationEquilibrium,
+    FormationReference,
+    formation_equilibrium,
+    hanging_mass_shares_kg,
+)
+from controllers.formation_model import FormationModel
+from controllers.formation_params import FormationParams
+from controllers.linearization import discretize, formation_jacobians, payload_jacobians
+from controllers.model import PayloadModel
+from controllers.params import Clock, MpcSettings, ReferenceLead, StateBound
 from controllers.qp.base import OcpQp, QpBackend, QpStatus
 from controllers.qp.registry import make_backend
-from controllers.vectors import cross3
+from controllers.vectors import cross3, rotate_zyx
 from geometry.arrays import FloatArray
+from geometry.formation import FormationLayout
 from geometry.state import (
-    BAR_INPUTS,
-    BAR_PITCH,
-    BAR_STATES,
-    BAR_YAW,
+    AGENT_INPUTS,
+    AGENT_STATES,
+    AGENT_YAW_INDICES,
     P_B,
     P_P,
-    PAYLOAD_INPUTS,
-    PAYLOAD_STATES,
-    PAYLOAD_YAW_INDICES,
+    PAYLOAD_PITCH,
+    PAYLOAD_YAW,
+    TH_B,
     UAV_BLOCK,
     V_B,
     V_P,
     W_B,
-    YAW_INDICES,
-    bar_axis,
-    bar_yaw,
-    uav_block,
-    uav_slices,
-    uav_yaws,
+    payload_yaw,
 )
 
 
@@ -79,8 +84,9 @@ class PlanStatus(Enum):
 @dataclass(frozen=True)
 class Plan:
     """One tick's result. ``u`` (nu,) is the absolute input to apply now [N, N m];
-    ``u_pred`` (N, nu) and ``x_pred`` (N + 1, nx) are the absolute predictions (for the
-    decentralized controller x_pred stacks the two agents' 18-states side by side)."""
+    ``u_pred`` (horizon, nu) and ``x_pred`` (horizon + 1, nx) are the absolute predictions
+    (for the decentralized controller x_pred stacks the agents' 18-states side by side,
+    ``geometry.state.stacked_agent_slice``)."""
 
     u: FloatArray
     u_pred: FloatArray
@@ -223,26 +229,28 @@ def _hold_plan(u_eq: FloatArray, x_eq: FloatArray, horizon: int, now_s: float) -
     )
 
 
-def measured_yaws(state: FloatArray) -> tuple[float, tuple[float, float]]:
-    """(ψ_b, (ψ_1, ψ_2)) of a 36-state."""
-    return bar_yaw(state), uav_yaws(state)
+def measured_yaws(state: FloatArray, layout: FormationLayout) -> tuple[float, tuple[float, ...]]:
+    """(ψ_b, (ψ_1, …, ψ_N)) of a state."""
+    return payload_yaw(state), layout.uav_yaws(state)
 
 
-def yaws_ahead(state: FloatArray, dt_s: float) -> tuple[float, tuple[float, float]]:
-    """(ψ_b, (ψ_1, ψ_2)) of a 36-state ``dt_s`` later at its current yaw rates, from the
-    rates it holds: the bar's ω in the inertial frame, each UAV's in its body frame (the
+def yaws_ahead(
+    state: FloatArray, layout: FormationLayout, dt_s: float
+) -> tuple[float, tuple[float, ...]]:
+    """(ψ_b, (ψ_1, …, ψ_N)) of a state ``dt_s`` later at its current yaw rates, from the
+    rates it holds: the payload's ω in the inertial frame, each UAV's in its body frame (the
     third rows of H^E of (6) and H of (4), Z-Y-X Euler angles)."""
-    theta_b, psi_b = state[BAR_PITCH], state[BAR_YAW]
+    theta_b, psi_b = state[PAYLOAD_PITCH], state[PAYLOAD_YAW]
     w_x, w_y, w_z = state[W_B]
-    bar_rate = math.tan(theta_b) * (math.cos(psi_b) * w_x + math.sin(psi_b) * w_y) + w_z
+    payload_rate = math.tan(theta_b) * (math.cos(psi_b) * w_x + math.sin(psi_b) * w_y) + w_z
     yaws = []
-    for i in (1, 2):
-        _, _, euler, rates = uav_slices(i)
+    for i in layout.vehicles:
+        _, _, euler, rates = layout.uav_slices(i)
         phi, theta, psi = state[euler]
         _, q_rate, r_rate = state[rates]
         rate = (math.sin(phi) * q_rate + math.cos(phi) * r_rate) / math.cos(theta)
         yaws.append(float(psi + dt_s * rate))
-    return float(psi_b + dt_s * bar_rate), (yaws[0], yaws[1])
+    return float(psi_b + dt_s * payload_rate), tuple(yaws)
 
 
 @dataclass(frozen=True)
@@ -250,27 +258,37 @@ class _PreparedModel:
     """A linearization made ahead of its tick: the reference turned to the yaws it used,
     and (A, B) for each QP of the controller."""
 
-    reference: Reference
+    reference: FormationReference
     models: tuple[tuple[FloatArray, FloatArray], ...]
 
-    def fits(self, reference: Reference, tolerance: float) -> bool:
+    def fits(self, reference: FormationReference, tolerance: float) -> bool:
         """Whether it may stand for the linearization at ``reference`` (turned to the
-        measured yaws): yaws and θ_l within ``tolerance`` [rad], and the reference's
-        velocity [m/s] and turn and θ_l rates [rad/s] within the same number."""
+        measured yaws): yaws and the cone angle within ``tolerance`` [rad], and the
+        reference's velocity [m/s] and turn and cone-angle rates [rad/s] within the same
+        number."""
         mine = self.reference
         angles = zip(
-            (mine.bar_yaw_rad, *mine.uav_yaw_rad, mine.theta_l_rad),
-            (reference.bar_yaw_rad, *reference.uav_yaw_rad, reference.theta_l_rad),
+            (mine.payload_yaw_rad, *mine.uav_yaw_rad, mine.cone_angle_rad),
+            (reference.payload_yaw_rad, *reference.uav_yaw_rad, reference.cone_angle_rad),
             strict=True,
         )
         if any(abs(math.remainder(a - b, 2.0 * math.pi)) > tolerance for a, b in angles):
             return False
         rates = zip(
-            (*mine.velocity_mps, *mine.yaw_rates_radps, mine.theta_l_rate_radps),
-            (*reference.velocity_mps, *reference.yaw_rates_radps, reference.theta_l_rate_radps),
+            (*mine.velocity_mps, *_rates(mine)),
+            (*reference.velocity_mps, *_rates(reference)),
             strict=True,
         )
         return all(abs(a - b) <= tolerance for a, b in rates)
+
+
+def _rates(reference: FormationReference) -> tuple[float, ...]:
+    """The reference's turn and cone-angle rates [rad/s]."""
+    return (
+        reference.payload_yaw_rate_radps,
+        *reference.uav_yaw_rates_radps,
+        reference.cone_angle_rate_radps,
+    )
 
 
 Models = tuple[tuple[FloatArray, FloatArray], ...]
@@ -282,10 +300,12 @@ class _ModelPreparation:
 
     def __init__(
         self,
+        layout: FormationLayout,
         settings: MpcSettings,
-        linearize: Callable[[Reference], Models],
+        linearize: Callable[[FormationReference], Models],
         mpcs: tuple[LinearMpc, ...],
     ) -> None:
+        self._layout = layout
         self._settings = settings
         self._linearize = linearize
         self._mpcs = mpcs
@@ -293,13 +313,13 @@ class _ModelPreparation:
         self.last_was_used = False
         """Whether the last ``models`` call gave the prepared models."""
 
-    def prepare(self, state: FloatArray, reference: Reference) -> None:
+    def prepare(self, state: FloatArray, reference: FormationReference) -> None:
         """Linearize at ``state``'s yaws one step ahead and prepare the back-ends; never
         raises (the next step then linearizes itself, and reports what fails)."""
         self._prepared = None
         if self._settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
             return
-        turned = reference.with_yaws(*yaws_ahead(state, self._settings.dt_s))
+        turned = reference.with_yaws(*yaws_ahead(state, self._layout, self._settings.dt_s))
         try:
             models = self._linearize(turned)
             for mpc, (A, B) in zip(self._mpcs, models, strict=True):
@@ -310,11 +330,11 @@ class _ModelPreparation:
             return
         self._prepared = _PreparedModel(turned, models)
 
-    def models(self, state: FloatArray, reference: Reference) -> Models:
+    def models(self, state: FloatArray, reference: FormationReference) -> Models:
         """The models for a step at ``state``: the prepared ones when they fit its measured
         yaws, else a new linearization. A preparation serves one step."""
         prepared, self._prepared = self._prepared, None
-        turned = reference.with_yaws(*measured_yaws(state))
+        turned = reference.with_yaws(*measured_yaws(state, self._layout))
         tolerance = self._settings.prepared_yaw_tolerance_rad
         self.last_was_used = prepared is not None and prepared.fits(turned, tolerance)
         if prepared is not None and self.last_was_used:
@@ -323,11 +343,12 @@ class _ModelPreparation:
 
 
 class CentralizedMpc:
-    """The 36-state MPC of Section IV (Table I); ``clock`` times each step (see ``Clock``)."""
+    """The MPC of Section IV (Table I) on the whole 12 + 12N-state of the formation (the
+    bar system's 36-state for N = 2); ``clock`` times each step (see ``Clock``)."""
 
     def __init__(
         self,
-        params: BarSystemParams,
+        params: FormationParams,
         settings: MpcSettings,
         backend: str | None = None,
         *,
@@ -336,14 +357,17 @@ class CentralizedMpc:
         self.params = params
         self.settings = settings
         self._clock = clock
-        jacobians = bar_jacobians(BarSystemModel(params))
+        self._layout = params.layout
+        jacobians = formation_jacobians(FormationModel(params))
         a_pattern, b_pattern = _patterns(jacobians)
         self._jacobians = NumericFunction(jacobians)
-        self._mpc = LinearMpc(BAR_STATES, BAR_INPUTS, settings, a_pattern, b_pattern, backend)
-        self._u_lb, self._u_ub = _input_bounds(settings, 2)
+        self._mpc = LinearMpc(
+            self._layout.n_states, self._layout.n_inputs, settings, a_pattern, b_pattern, backend
+        )
+        self._u_lb, self._u_ub = _input_bounds(settings, self._layout.n_vehicles)
         self._plans = _PlanKeeper()
         self._preparation = _ModelPreparation(
-            settings, lambda turned: (self._linearize(turned),), (self._mpc,)
+            self._layout, settings, lambda turned: (self._linearize(turned),), (self._mpc,)
         )
 
     def reset(self) -> None:
@@ -351,18 +375,17 @@ class CentralizedMpc:
         self._plans.previous = None
 
     def linearization(
-        self, state: FloatArray, reference: Reference
+        self, state: FloatArray, reference: FormationReference
     ) -> tuple[FloatArray, FloatArray]:
         """(A, B) of the discrete model at the reference equilibrium turned to the measured yaws."""
-        psi_b, psi_uav = measured_yaws(state)
-        return self._linearize(reference.with_yaws(psi_b, psi_uav))
+        return self._linearize(reference.with_yaws(*measured_yaws(state, self._layout)))
 
-    def _linearize(self, turned: Reference) -> tuple[FloatArray, FloatArray]:
-        lin = bar_equilibrium(self.params, turned)
+    def _linearize(self, turned: FormationReference) -> tuple[FloatArray, FloatArray]:
+        lin = formation_equilibrium(self.params, turned)
         A_c, B_c = self._jacobians(lin.x, lin.u)
         return discretize(A_c, B_c, self.settings.dt_s)
 
-    def prepare(self, state: FloatArray, reference: Reference) -> None:
+    def prepare(self, state: FloatArray, reference: FormationReference) -> None:
         """Linearize for the next tick at ``state``'s yaws one step ahead and prepare the
         back-end for that model (see the module's docstring); never raises."""
         self._preparation.prepare(state, reference)
@@ -372,11 +395,11 @@ class CentralizedMpc:
         """Whether the last ``step`` used the model of a ``prepare``."""
         return self._preparation.last_was_used
 
-    def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
-        """One tick: u* for the 36-state ``state`` (paper order) tracking ``reference``."""
+    def step(self, state: FloatArray, reference: FormationReference, now_s: float) -> Plan:
+        """One tick: u* for ``state`` (12 + 12N,, paper order) tracking ``reference``."""
         started = self._clock()
         try:
-            eq = bar_equilibrium(self.params, reference)
+            eq = formation_equilibrium(self.params, reference)
         except ValueError as error:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_BAD_STATE, self._no_plan(now_s), str(error)
@@ -388,7 +411,7 @@ class CentralizedMpc:
             )
         try:
             A, B = self._preparation.models(state, reference)[0]
-            dx0 = wrap_angles(state - eq.x, YAW_INDICES)
+            dx0 = wrap_angles(state - eq.x, self._layout.yaw_indices)
             qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x)
             solution = self._mpc.backend.solve(qp)
         except Exception as error:
@@ -416,25 +439,26 @@ class CentralizedMpc:
         return self._plans.accept(plan)
 
     def _no_plan(self, now_s: float) -> Plan:
-        N = self.settings.horizon
-        return Plan(
-            np.zeros(BAR_INPUTS),
-            np.zeros((N, BAR_INPUTS)),
-            np.zeros((N + 1, BAR_STATES)),
-            PlanStatus.EQUILIBRIUM,
-            now_s,
-        )
+        return _empty_plan(self._layout.n_states, self._layout.n_inputs, self.settings, now_s)
 
 
-def agent_state(state: FloatArray, params: BarSystemParams, i: int) -> FloatArray:
-    """UAV ``i``'s decentralized state x_i = (p_i, v_i, Θ_i, ω_i, p_p, v_p) from a 36-state:
-    its bar end e_i = p_b + s_i d_i n_b and that end's velocity."""
-    n_b = bar_axis(state)
-    sign, d = (-1.0, params.d1_m) if i == 1 else (1.0, params.d2_m)
-    x_i = np.empty(PAYLOAD_STATES)
-    x_i[UAV_BLOCK] = state[uav_block(i)]
-    x_i[P_P] = state[P_B] + sign * d * n_b
-    x_i[V_P] = state[V_B] + sign * d * cross3(state[W_B], n_b)
+def _empty_plan(nx: int, nu: int, settings: MpcSettings, now_s: float) -> Plan:
+    """All zeros: what a first step holds when its reference has no equilibrium."""
+    N = settings.horizon
+    return Plan(
+        np.zeros(nu), np.zeros((N, nu)), np.zeros((N + 1, nx)), PlanStatus.EQUILIBRIUM, now_s
+    )
+
+
+def agent_state(state: FloatArray, params: FormationParams, i: int) -> FloatArray:
+    """UAV ``i``'s decentralized state x_i = (p_i, v_i, Θ_i, ω_i, p_p, v_p) from the
+    formation's state: its cable's attachment e_i = p_b + q_i, q_i = R(Θ_b) a_i, and that
+    point's velocity v_b + ω_b × q_i."""
+    q_i = rotate_zyx(state[TH_B], params.payload.attachments_m[i - 1])
+    x_i = np.empty(AGENT_STATES)
+    x_i[UAV_BLOCK] = state[params.layout.uav_block(i)]
+    x_i[P_P] = state[P_B] + q_i
+    x_i[V_P] = state[V_B] + cross3(state[W_B], q_i)
     return x_i
 
 
@@ -444,57 +468,77 @@ def agent_state(state: FloatArray, params: BarSystemParams, i: int) -> FloatArra
 YAW_LEAD_FADE_RAD = math.pi / 4
 
 
-def led_reference(reference: Reference, state: FloatArray, lead: ReferenceLead) -> Reference:
-    """``reference`` moved along the bar's measured motion (``ReferenceLead``): position by
-    ``lead.position_s`` × (v_b − v_ref), yaw by the faded ``lead.yaw_s`` × (ω_b,z − ψ̇_ref)."""
+def led_reference(
+    reference: FormationReference, state: FloatArray, lead: ReferenceLead
+) -> FormationReference:
+    """``reference`` moved along the payload's measured motion (``ReferenceLead``): position
+    by ``lead.position_s`` × (v_b − v_ref), yaw by the faded ``lead.yaw_s`` × (ω_b,z − ψ̇_ref)."""
     if lead.position_s == 0.0 and lead.yaw_s == 0.0:
         return reference
     velocity_error = state[V_B] - np.asarray(reference.velocity_mps)
-    yaw_rate_error = float(state[W_B][2]) - reference.yaw_rates_radps[0]
+    yaw_rate_error = float(state[W_B][2]) - reference.payload_yaw_rate_radps
     if not (_finite(velocity_error) and math.isfinite(yaw_rate_error)):
         return reference  # the step reports the bad state
-    position = np.asarray(reference.bar_position_m) + lead.position_s * velocity_error
-    fade = max(0.0, 1.0 - reference.theta_l_rad / YAW_LEAD_FADE_RAD)
+    position = np.asarray(reference.payload_position_m) + lead.position_s * velocity_error
+    fade = max(0.0, 1.0 - reference.cone_angle_rad / YAW_LEAD_FADE_RAD)
     return replace(
         reference,
-        bar_position_m=(float(position[0]), float(position[1]), float(position[2])),
-        bar_yaw_rad=reference.bar_yaw_rad + fade * lead.yaw_s * yaw_rate_error,
+        payload_position_m=(float(position[0]), float(position[1]), float(position[2])),
+        payload_yaw_rad=reference.payload_yaw_rad + fade * lead.yaw_s * yaw_rate_error,
     )
 
 
 class _Agent:
-    """UAV i's own MPC on its 18-state UAV–payload model (Table II)."""
+    """UAV i's own MPC on its 18-state UAV–payload model (Table II): its cable's attachment
+    as a point mass, the cable's share of the payload's weight hanging still with vertical
+    cables (``payload_mass_kg``; (13) for the bar)."""
 
     def __init__(
-        self, params: BarSystemParams, settings: MpcSettings, i: int, backend: str | None
+        self,
+        params: FormationParams,
+        settings: MpcSettings,
+        i: int,
+        payload_mass_kg: float,
+        backend: str | None,
     ) -> None:
         self.i = i
         self.params = params
         self.settings = settings
-        jacobians = payload_jacobians(payload_model_for(params, i))
+        self.payload_mass_kg = payload_mass_kg
+        model = PayloadModel(
+            params.uavs[i - 1], payload_mass_kg, params.cable_lengths_m[i - 1], params.gravity_mps2
+        )
+        jacobians = payload_jacobians(model)
         a_pattern, b_pattern = _patterns(jacobians)
         self._jacobians = NumericFunction(jacobians)
-        self.mpc = LinearMpc(
-            PAYLOAD_STATES, PAYLOAD_INPUTS, settings, a_pattern, b_pattern, backend
-        )
+        self.mpc = LinearMpc(AGENT_STATES, AGENT_INPUTS, settings, a_pattern, b_pattern, backend)
         self.u_lb, self.u_ub = _input_bounds(settings, 1)
 
-    def linearize(self, lin: Equilibrium) -> tuple[FloatArray, FloatArray]:
+    def external_force(self, lin: FormationEquilibrium) -> FloatArray:
+        """f_ext [N] that makes ``lin`` a fixed point of this agent's model: the pull of the
+        rest of the payload, and the difference between the vertical load the cable carries
+        at ``lin`` and the model's weight (zero for a bar, and at a cone angle of 0)."""
+        i = self.i
+        force = lin.payload_force_n[i - 1].copy()
+        force[2] = (self.payload_mass_kg - lin.payload_mass_share_kg[i - 1]) * (
+            self.params.gravity_mps2
+        )
+        return force
+
+    def linearize(self, lin: FormationEquilibrium) -> tuple[FloatArray, FloatArray]:
         """(A, B) of the discrete 18-state model at the equilibrium ``lin``."""
         i = self.i
-        A_c, B_c = self._jacobians(
-            lin.payload_state(i), lin.payload_input(i), lin.payload_force_n[i - 1]
-        )
+        A_c, B_c = self._jacobians(lin.agent_state(i), lin.agent_input(i), self.external_force(lin))
         return discretize(A_c, B_c, self.settings.dt_s)
 
     def solve(
-        self, x_i: FloatArray, eq: Equilibrium, model: tuple[FloatArray, FloatArray]
+        self, x_i: FloatArray, eq: FormationEquilibrium, model: tuple[FloatArray, FloatArray]
     ) -> tuple[FloatArray, FloatArray, int] | str:
         """(u_pred, x_pred, iterations) in absolute terms, or the failure text."""
         i = self.i
-        x_eq, u_eq = eq.payload_state(i), eq.payload_input(i)
+        x_eq, u_eq = eq.agent_state(i), eq.agent_input(i)
         A, B = model
-        dx0 = wrap_angles(x_i - x_eq, PAYLOAD_YAW_INDICES)
+        dx0 = wrap_angles(x_i - x_eq, AGENT_YAW_INDICES)
         solution = self.mpc.backend.solve(
             self.mpc.qp(A, B, dx0, self.u_lb - u_eq, self.u_ub - u_eq, x_eq)
         )
@@ -505,12 +549,12 @@ class _Agent:
 
 
 class DecentralizedMpc:
-    """Two independent 18-state MPCs of Section V; each sees only its UAV and its bar end.
-    ``clock`` times each step (see ``Clock``)."""
+    """N independent 18-state MPCs of Section V; each sees only its UAV and its cable's
+    attachment. ``clock`` times each step (see ``Clock``)."""
 
     def __init__(
         self,
-        params: BarSystemParams,
+        params: FormationParams,
         settings: MpcSettings,
         backend: str | None = None,
         *,
@@ -519,22 +563,26 @@ class DecentralizedMpc:
         self.params = params
         self.settings = settings
         self._clock = clock
-        self.agents = (_Agent(params, settings, 1, backend), _Agent(params, settings, 2, backend))
+        self._layout = params.layout
+        shares = hanging_mass_shares_kg(params)
+        self.agents = tuple(
+            _Agent(params, settings, i, shares[i - 1], backend) for i in self._layout.vehicles
+        )
         self._plans = _PlanKeeper()
         self._preparation = _ModelPreparation(
-            settings, self._linearize, tuple(agent.mpc for agent in self.agents)
+            self._layout, settings, self._linearize, tuple(agent.mpc for agent in self.agents)
         )
 
     def reset(self) -> None:
         """Forget the previous plan (e.g. after a controller switch)."""
         self._plans.previous = None
 
-    def _linearize(self, turned: Reference) -> Models:
-        lin = bar_equilibrium(self.params, turned)
+    def _linearize(self, turned: FormationReference) -> Models:
+        lin = formation_equilibrium(self.params, turned)
         return tuple(agent.linearize(lin) for agent in self.agents)
 
-    def prepare(self, state: FloatArray, reference: Reference) -> None:
-        """Linearize both agents for the next tick at ``state``'s yaws one step ahead and
+    def prepare(self, state: FloatArray, reference: FormationReference) -> None:
+        """Linearize every agent for the next tick at ``state``'s yaws one step ahead and
         prepare their back-ends (see the module's docstring); never raises."""
         self._preparation.prepare(state, reference)
 
@@ -543,20 +591,19 @@ class DecentralizedMpc:
         """Whether the last ``step`` used the models of a ``prepare``."""
         return self._preparation.last_was_used
 
-    def step(self, state: FloatArray, reference: Reference, now_s: float) -> Plan:
-        """One tick for both agents; ``state`` is the 36-state (each agent takes its part).
-        The agents regulate to ``reference`` moved by the settings' ``reference_lead``."""
+    def step(self, state: FloatArray, reference: FormationReference, now_s: float) -> Plan:
+        """One tick for every agent; ``state`` is the formation's (each agent takes its
+        part). The agents regulate to ``reference`` moved by the settings'
+        ``reference_lead``."""
         started = self._clock()
         reference = led_reference(reference, state, self.settings.reference_lead)
         try:
-            eq = bar_equilibrium(self.params, reference)
+            eq = formation_equilibrium(self.params, reference)
         except ValueError as error:
-            N = self.settings.horizon
-            empty = Plan(
-                np.zeros(8), np.zeros((N, 8)), np.zeros((N + 1, 36)), PlanStatus.EQUILIBRIUM, now_s
-            )
+            stacked = AGENT_STATES * self._layout.n_vehicles
+            empty = _empty_plan(stacked, self._layout.n_inputs, self.settings, now_s)
             return self._plans.fallback(now_s, PlanStatus.SHIFTED_BAD_STATE, empty, str(error))
-        stacked_eq = np.concatenate([eq.payload_state(1), eq.payload_state(2)])
+        stacked_eq = np.concatenate([eq.agent_state(agent.i) for agent in self.agents])
         hold = _hold_plan(eq.u, stacked_eq, self.settings.horizon, now_s)
         if not _finite(state):
             return self._plans.fallback(
@@ -579,8 +626,8 @@ class DecentralizedMpc:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_LATE, hold, f"tick took {elapsed * 1e3:.1f} ms"
             )
-        u_pred = np.hstack([solved[0][0], solved[1][0]])
-        x_pred = np.hstack([solved[0][1], solved[1][1]])
+        u_pred = np.hstack([u for u, _, _ in solved])
+        x_pred = np.hstack([x for _, x, _ in solved])
         plan = Plan(
             u_pred[0].copy(),
             u_pred,
@@ -588,6 +635,6 @@ class DecentralizedMpc:
             PlanStatus.OPTIMAL,
             now_s,
             elapsed,
-            solved[0][2] + solved[1][2],
+            sum(iterations for _, _, iterations in solved),
         )
         return self._plans.accept(plan)

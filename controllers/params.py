@@ -20,44 +20,6 @@ class UavParams:
 
 
 @dataclass(frozen=True)
-class BarSystemParams:
-    """The UAV–bar system of Section II-B.
-
-    ``d1_m``/``d2_m`` are the distances from the bar's CoM to the attachments of cables 1
-    and 2; ``bar_inertia_kgm2`` is J_b, the bar's moment of inertia about an axis through
-    its CoM perpendicular to the bar (5g).
-    """
-
-    uavs: tuple[UavParams, UavParams]
-    bar_mass_kg: float
-    d1_m: float
-    d2_m: float
-    bar_inertia_kgm2: float
-    cable_lengths_m: tuple[float, float]
-    gravity_mps2: float = 9.81
-
-    @property
-    def arms_m(self) -> tuple[float, float]:
-        """(d1, d2)."""
-        return (self.d1_m, self.d2_m)
-
-    @property
-    def is_symmetric(self) -> bool:
-        """Assumption 1: d1 = d2, l1 = l2, m1 = m2."""
-        return (
-            self.d1_m == self.d2_m
-            and self.cable_lengths_m[0] == self.cable_lengths_m[1]
-            and self.uavs[0].mass_kg == self.uavs[1].mass_kg
-        )
-
-    def payload_mass_kg(self, i: int) -> float:
-        """Equation (13): the share of the bar's weight carried by cable ``i`` (1 or 2)
-        when both cables hang vertically, m_b d_j / (d1 + d2) with j the other end."""
-        d1, d2 = self.arms_m
-        return self.bar_mass_kg * (d2 if i == 1 else d1) / (d1 + d2)
-
-
-@dataclass(frozen=True)
 class MpcWeights:
     """Diagonal weights of (MPC): Q, R_MPC and Q_N = terminal_scale * Q."""
 
@@ -78,7 +40,7 @@ class InputLimits:
 @dataclass(frozen=True)
 class StateBound:
     """One entry of the state set X (or X_N): ``lower ≤ x[index] ≤ upper`` in absolute
-    state coordinates (e.g. index 2, the bar's height)."""
+    state coordinates (e.g. index 2, the payload's height)."""
 
     index: int
     lower: float
@@ -87,11 +49,11 @@ class StateBound:
 
 @dataclass(frozen=True)
 class ReferenceLead:
-    """Beyond the paper, for the decentralized MPC only: the setpoint both agents regulate
-    to is moved along the bar's measured motion, its position by ``position_s`` times the
-    bar's velocity error and its yaw by ``yaw_s`` times the bar's yaw-rate error. Each
+    """Beyond the paper, for the decentralized MPC only: the setpoint every agent regulates
+    to is moved along the payload's measured motion, its position by ``position_s`` times
+    the payload's velocity error and its yaw by ``yaw_s`` times its yaw-rate error. Each
     agent's model, cost and constraints stay those of Section V; what the agents share is
-    the bar's velocity and yaw rate. Zero (the default) is Section V as published."""
+    the payload's velocity and yaw rate. Zero (the default) is Section V as published."""
 
     position_s: float = 0.0
     yaw_s: float = 0.0

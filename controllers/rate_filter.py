@@ -24,14 +24,12 @@ import numpy as np
 
 from controllers.delay import HISTORY_S, DelayPredictor
 from geometry.arrays import FloatArray
+from geometry.formation import FormationLayout
 from geometry.frames import (
     quaternion_from_rotation,
     rotation_from_euler_zyx,
     rotation_vector_from_quaternion,
 )
-from geometry.state import uav_slices
-
-RATES = [index for i in (1, 2) for index in range(36)[uav_slices(i)[3]]]
 
 
 class RateFilter:
@@ -45,6 +43,7 @@ class RateFilter:
             )
         self.model_weight = model_weight
         self._predictor = predictor
+        self._rates = predictor.layout.uav_rate_indices
         self._last: tuple[float, FloatArray] | None = None
 
     def reset(self) -> None:
@@ -52,7 +51,7 @@ class RateFilter:
         self._last = None
 
     def filtered(self, x: FloatArray, t_s: float) -> FloatArray:
-        """``x`` (36,), the estimate of the state at ``t_s`` [s], with its UAV body rates
+        """``x`` (12 + 12N,), the estimate of the state at ``t_s`` [s], with its UAV body rates
         filtered. The first estimate, one after a gap of more than ``HISTORY_S``, and a
         non-finite one pass through (and restart the filter)."""
         out = np.array(x, dtype=float)
@@ -64,7 +63,8 @@ class RateFilter:
         if last is not None and 0.0 < t_s - last[0] <= HISTORY_S:
             prior = self._predictor.advance(last[1], last[0], t_s)
             w = self.model_weight
-            out[RATES] = w * prior[RATES] + (1.0 - w) * out[RATES]
+            rates = self._rates
+            out[rates] = w * prior[rates] + (1.0 - w) * out[rates]
         self._last = (t_s, out.copy())
         return out
 
@@ -84,14 +84,16 @@ class RateCrossover:
     Only the UAVs' rates are changed; every other entry stays as it came.
     """
 
-    def __init__(self, time_constant_s: float) -> None:
+    def __init__(self, layout: FormationLayout, time_constant_s: float) -> None:
         if not (math.isfinite(time_constant_s) and time_constant_s >= 0.0):
             raise ValueError(
                 f"the rate crossover's time constant must be ≥ 0 s, got {time_constant_s}"
             )
         self.time_constant_s = time_constant_s
+        self._layout = layout
+        self._rates = layout.uav_rate_indices
         self._last: tuple[float, FloatArray] | None = None
-        self._correction = np.zeros(len(RATES))
+        self._correction = np.zeros(len(self._rates))
 
     def reset(self) -> None:
         """Start anew from the next estimate."""
@@ -99,7 +101,7 @@ class RateCrossover:
         self._correction[:] = 0.0
 
     def corrected(self, x: FloatArray, t_s: float) -> FloatArray:
-        """``x`` (36,), the estimate at ``t_s`` [s], with its UAV body rates corrected. The
+        """``x`` (12 + 12N,), the estimate at ``t_s`` [s], with its UAV body rates corrected. The
         first estimate after a reset, one more than ``HISTORY_S`` after the last and a
         non-finite one restart the filter; ``time_constant_s`` 0 passes ``x`` through."""
         out = np.array(x, dtype=float)
@@ -117,12 +119,12 @@ class RateCrossover:
         discrepancy = np.concatenate(
             [
                 mean_body_rate(before[angles], out[angles], h) - 0.5 * (before[rates] + out[rates])
-                for angles, rates in (uav_slices(i)[2:] for i in (1, 2))
+                for angles, rates in (self._layout.uav_slices(i)[2:] for i in self._layout.vehicles)
             ]
         )
         blend = h / (self.time_constant_s + h)
         self._correction += blend * (discrepancy - self._correction)
-        out[RATES] += self._correction
+        out[self._rates] += self._correction
         return out
 
 

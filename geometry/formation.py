@@ -2,16 +2,20 @@
 
 x = (p_b, v_b, Θ_b, ω_b, then for each UAV i = 1..N: p_i, v_i, Θ_i, ω_i) ∈ R^(12 + 12N),
 u = (F_1, τ_1, …, F_N, τ_N) ∈ R^(4N). Units and frames as in ``geometry.state``: the
-payload's ω_b is inertial, each UAV's ω_i is in its body frame. For N = 2 this is exactly
-the bar system's 36-state and 8-input layout of ``geometry.state``; the payload's block
-is that of the bar (``P_B``, ``V_B``, ``TH_B``, ``W_B``).
+payload's ω_b is inertial, each UAV's ω_i is in its body frame. The payload's block
+(``P_B``, ``V_B``, ``TH_B``, ``W_B``) is ``geometry.state``'s; for N = 2 this is the
+paper's UAV–bar 36-state and 8-input layout.
+
+Accessors work on numpy arrays and on CasADi symbols alike where they only slice.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
-from geometry.state import BAR_YAW, W_B
+from geometry.arrays import FloatArray
+from geometry.state import PAYLOAD_YAW, W_B
 
 MIN_VEHICLES = 2
 MAX_VEHICLES = 8
@@ -70,12 +74,12 @@ class FormationLayout:
 
     def uav_yaw_index(self, i: int) -> int:
         """Index of ψ_i."""
-        return self._uav_offset(i) + BAR_YAW
+        return self._uav_offset(i) + PAYLOAD_YAW
 
     @property
     def yaw_indices(self) -> tuple[int, ...]:
         """(ψ_b, ψ_1, …, ψ_N)."""
-        return (BAR_YAW, *(self.uav_yaw_index(i) for i in self.vehicles))
+        return (PAYLOAD_YAW, *(self.uav_yaw_index(i) for i in self.vehicles))
 
     def thrust_index(self, i: int) -> int:
         """Index of F_i in u."""
@@ -91,3 +95,25 @@ class FormationLayout:
         """(F_i, τ_i) in u."""
         start = self.thrust_index(i)
         return slice(start, start + _UAV_INPUTS)
+
+    # ---- readings of a state ------------------------------------------------------------
+    def uav_position(self, x: Any, i: int) -> Any:
+        """p_i [m] (a view)."""
+        return x[self.uav_slices(i)[0]]
+
+    def uav_velocity(self, x: Any, i: int) -> Any:
+        """v_i [m/s] (a view)."""
+        return x[self.uav_slices(i)[1]]
+
+    def uav_euler(self, x: Any, i: int) -> Any:
+        """Θ_i = (φ_i, θ_i, ψ_i) [rad] (a view)."""
+        return x[self.uav_slices(i)[2]]
+
+    def uav_yaws(self, x: FloatArray) -> tuple[float, ...]:
+        """(ψ_1, …, ψ_N) [rad]."""
+        return tuple(float(x[self.uav_yaw_index(i)]) for i in self.vehicles)
+
+    @property
+    def uav_rate_indices(self) -> list[int]:
+        """The indices of every UAV's body rates ω_i, UAV 1's first."""
+        return [k for i in self.vehicles for k in range(self.n_states)[self.uav_slices(i)[3]]]

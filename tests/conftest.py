@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.params import BarSystemParams, UavParams
-from geometry.state import bar_ends, uav_slices
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams, formation_from_bar
+from controllers.params import UavParams
+from geometry.state import payload_points
 from supervisor.app.config import CONFIG_DIR, load_config
 from supervisor.flight.estimation import Estimate
 
@@ -20,20 +21,20 @@ LAB_INERTIA = (0.0348, 0.0459, 0.0977)
 
 
 @pytest.fixture(scope="session")
-def lab_params() -> BarSystemParams:
+def lab_params() -> FormationParams:
     """The paper's lab (configs/kth_sml.toml): asymmetric bar, d1 = 0.705, d2 = 0.765."""
     return load_config(CONFIGS / "kth_sml.toml").system.to_params()
 
 
-def symmetric_params(m_uav: float = 1.52, m_b: float = 0.41, d: float = 0.735) -> BarSystemParams:
+def symmetric_params(m_uav: float = 1.52, m_b: float = 0.41, d: float = 0.735) -> FormationParams:
     """A setup that satisfies Assumption 1 (Section VII's masses by default)."""
     uav = UavParams(m_uav, LAB_INERTIA)
-    return BarSystemParams((uav, uav), m_b, d, d, m_b * (2 * d) ** 2 / 12.0, (1.0, 1.0), 9.81)
+    return formation_from_bar((uav, uav), m_b, d, d, m_b * (2 * d) ** 2 / 12.0, (1.0, 1.0), 9.81)
 
 
-def uneven_params() -> BarSystemParams:
+def uneven_params() -> FormationParams:
     """Everything different between the two sides: masses, arms, cable lengths."""
-    return BarSystemParams(
+    return formation_from_bar(
         (UavParams(1.15, LAB_INERTIA), UavParams(1.4, (0.04, 0.05, 0.09))),
         0.39,
         0.6,
@@ -44,12 +45,20 @@ def uneven_params() -> BarSystemParams:
     )
 
 
-def resting_estimate(params: BarSystemParams) -> Estimate:
+def hover_reference(params: FormationParams, z_m: float = 1.0) -> FormationReference:
+    """The payload level at (0, 0, ``z_m``), every yaw 0, the cables vertical."""
+    return FormationReference((0.0, 0.0, z_m), 0.0, (0.0,) * params.n_vehicles)
+
+
+def resting_estimate(params: FormationParams) -> Estimate:
     """A fresh, healthy estimate of the system resting on the ground: the bar level at
-    2 cm, each UAV standing on its own bar end."""
-    x = bar_equilibrium(params, Reference((0.0, 0.0, 0.02))).x
-    for i, end in enumerate(bar_ends(x, params.arms_m), start=1):
-        x[uav_slices(i)[0]] = end + np.array([0.0, 0.0, 0.05])
+    2 cm, each UAV standing on its own cable's attachment."""
+    x = formation_equilibrium(params, hover_reference(params, 0.02)).x
+    layout = params.layout
+    for i, end in zip(
+        layout.vehicles, payload_points(x, params.payload.attachments_m), strict=True
+    ):
+        x[layout.uav_slices(i)[0]] = end + np.array([0.0, 0.0, 0.05])
     return Estimate(x, 0.005, ())
 
 

@@ -78,8 +78,8 @@ PURE = {
     "sim/faults.py": NO_IO,
     "supervisor/logs/view_seal.py": NO_IO,
 }
-# The 36-state is indexed by name (geometry.state); a literal index or slice into a vector
-# called x / state / x_eq anywhere else is what this rule catches.
+# The state is indexed by name (geometry.state, geometry.formation); a literal index or
+# slice into a vector called x / state / x_eq anywhere else is what this rule catches.
 LITERAL_STATE_INDEX = re.compile(
     r"\b(?:x|state|x_eq|x_ref|state_ref)\[\s*-?\d+\s*(?::\s*\d+\s*)?\]"
 )

@@ -13,7 +13,7 @@ import pytest
 
 from benchmarks.service import running_service
 from benchmarks.tick import world_truth
-from geometry.state import bar_ends, uav_position
+from geometry.state import payload_points
 from supervisor.app.config import CONFIG_DIR, load_config
 from supervisor.flight.safety import SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
@@ -150,13 +150,16 @@ async def test_one_vehicle_lost_the_other_sets_the_bar_down_and_both_end_disarme
     end = log.plan_status.index("descend", start)
     params = load_config(CONFIG_DIR / "sim.toml").system.to_params()
     states = np.asarray(log.state)[start:end]
+    attachments = params.payload.attachments_m
     slack_2 = [
         params.cable_lengths_m[1]
-        - float(np.linalg.norm(uav_position(x, 2) - bar_ends(x, params.arms_m)[1]))
+        - float(
+            np.linalg.norm(params.layout.uav_position(x, 2) - payload_points(x, attachments)[1])
+        )
         for x in states
     ]
     assert max(slack_2) < 0.02, max(slack_2)  # UAV 2's cable taut while it sets down
-    assert bar_ends(states[-1], params.arms_m)[1][2] < 0.1  # and its end is down
+    assert payload_points(states[-1], attachments)[1][2] < 0.1  # and its end is down
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth
     assert truth["max_descent_mps"] <= 1.0, truth  # UAV 1: its PX4's failsafe landing

@@ -15,9 +15,9 @@ from typing import Literal
 
 import numpy as np
 
-from controllers.equilibria import Reference, bar_equilibrium
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from geometry import frames
-from geometry.state import TH_B, bar_position, uav_euler, uav_position
+from geometry.state import TH_B, payload_position
 from mocap.client import QtmClient
 from mocap.fusion import MocapFusion
 from mocap.qtm_protocol import BodyPose, ComponentType, encode_packet, packet_from_poses
@@ -36,16 +36,20 @@ PARAMS = CONFIG.system.to_params()
 NAMES = tuple(CONFIG.mocap.bodies)
 BAR, UAV1, _ = NAMES
 LOCALHOST = "127.0.0.1"
-HOVER = bar_equilibrium(PARAMS, Reference((0.0, 0.5, 1.0), 0.3)).x
+HOVER = formation_equilibrium(PARAMS, FormationReference((0.0, 0.5, 1.0), 0.3, (0.0, 0.0))).x
+LAYOUT = PARAMS.layout
 
 
 def hover_poses(rng: np.random.Generator, jump: Mapping[str, float]) -> dict[str, BodyPose]:
     """The system hovering at its equilibrium, with the simulated mocap's noise (0.5 mm,
     0.1°); ``jump``: bodies whose reported height is raised [m]."""
     truth = {
-        BAR: (bar_position(HOVER), frames.quaternion_from_euler_zyx(0.0, *HOVER[TH_B][1:])),
+        BAR: (payload_position(HOVER), frames.quaternion_from_euler_zyx(0.0, *HOVER[TH_B][1:])),
         **{
-            name: (uav_position(HOVER, i), frames.quaternion_from_euler_zyx(*uav_euler(HOVER, i)))
+            name: (
+                LAYOUT.uav_position(HOVER, i),
+                frames.quaternion_from_euler_zyx(*LAYOUT.uav_euler(HOVER, i)),
+            )
             for i, name in ((1, NAMES[1]), (2, NAMES[2]))
         },
     }
@@ -74,7 +78,7 @@ class Hover:
         return estimate_state(self.fusion.states(time.monotonic()), body_names_from_config(CONFIG))
 
     def bar_error_m(self) -> float:
-        return float(np.linalg.norm(bar_position(self.estimate().x) - bar_position(HOVER)))
+        return float(np.linalg.norm(payload_position(self.estimate().x) - payload_position(HOVER)))
 
 
 @contextlib.asynccontextmanager
@@ -153,7 +157,7 @@ async def test_a_jump_from_the_servers_own_stream_is_refused_and_if_it_persists_
             while not faults:
                 await asyncio.sleep(0.002)
                 estimate = hover.estimate()
-                error = uav_position(estimate.x, 1) - uav_position(HOVER, 1)
+                error = LAYOUT.uav_position(estimate.x, 1) - LAYOUT.uav_position(HOVER, 1)
                 worst_m = max(worst_m, float(np.linalg.norm(error)))
                 faults = [f for f in mocap_faults(hover, monitor) if "refused" in f.message]
         refused = hover.fusion.refused()["position"] - refused_before
@@ -207,5 +211,5 @@ async def test_the_relay_passes_on_only_poses_the_gate_takes() -> None:
     for frame in jumped:  # whatever got through is where the body is
         pose = frame.bodies[UAV1]
         if pose.tracked:
-            assert np.linalg.norm(pose.position_m - uav_position(HOVER, 1)) < 0.01
+            assert np.linalg.norm(pose.position_m - LAYOUT.uav_position(HOVER, 1)) < 0.01
     assert after and all(f.bodies[UAV1].tracked for f in after[1:])

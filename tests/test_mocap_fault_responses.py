@@ -18,7 +18,6 @@ import pytest
 
 from benchmarks.service import running_service
 from benchmarks.tick import world_truth
-from geometry.state import uav_position
 from supervisor.app.assembly import (
     body_names_from_config,
     flight_core_from_config,
@@ -29,7 +28,7 @@ from supervisor.app.config_files import DEFAULT_SETUP
 from supervisor.cli.output import format_status
 from supervisor.flight.modes import Mode
 from supervisor.flight.safety import Response, SafetyLimits
-from supervisor.logs.flight_log import read_flight_log
+from supervisor.logs.flight_log import LOG_LAYOUT, read_flight_log
 from supervisor.logs.mocap_replay import check_flight, describe, flight_recording
 from tests.test_fault_responses import TICK_MS
 from tests.test_faults_e2e import fault
@@ -90,8 +89,8 @@ async def test_a_lost_frozen_or_jumping_mocap_hands_over_to_px4_at_its_limit(
     # No refused pose reached the estimate the MPC flew on: from the hover to the hand-over,
     # no tick-to-tick step of a UAV beyond what 20 ms of hovering allow (a jump is 1 m).
     hovering = [k for k in range(handed + 1) if log.modes[k] == "hover" or k == handed]
-    for i in (1, 2):
-        positions = uav_position(log.state[hovering].T, i).T
+    for i in LOG_LAYOUT.vehicles:
+        positions = LOG_LAYOUT.uav_position(log.state[hovering].T, i).T
         steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
         assert np.max(steps) < 0.02, (i, np.max(steps))
     truth = world_truth(service.output)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from benchmarks.service import RunningService, all_connected, running_service
-from controllers.params import BarSystemParams
-from geometry.state import P_B, bar_ends, uav_position
+from controllers.formation_params import FormationParams
+from geometry.state import P_B, payload_points
 from sim.px4_firmware import FirmwareError, resolve_px4_dir
 from supervisor.app.config import CONFIG_DIR, load_config
 from supervisor.logs.flight_log import FlightLog, read_flight_log
@@ -75,14 +75,13 @@ def require_px4() -> None:
         pytest.skip(f"real PX4 firmware not available: {missing}")
 
 
-def slack_while_airborne(log: FlightLog, params: BarSystemParams) -> float:
+def slack_while_airborne(log: FlightLog, params: FormationParams) -> float:
     """The largest cable slack [m] the mocap saw while the bar was off the ground: cable
     length minus the UAV-to-bar-end distance."""
     worst = 0.0
-    arms = (params.d1_m, params.d2_m)
     for x in log.state[np.asarray(log.state)[:, P_B][:, 2] > 0.1]:
-        for i, end in enumerate(bar_ends(x, arms), start=1):
-            chord = float(np.linalg.norm(uav_position(x, i) - end))
+        for i, end in enumerate(payload_points(x, params.payload.attachments_m), start=1):
+            chord = float(np.linalg.norm(params.layout.uav_position(x, i) - end))
             worst = max(worst, params.cable_lengths_m[i - 1] - chord)
     return worst
 

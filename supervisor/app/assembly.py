@@ -11,6 +11,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from controllers.formation_equilibria import hanging_mass_shares_kg
 from controllers.params import Clock
 from mocap.client import QtmClient
 from mocap.fusion import FusionConfig, MocapFusion
@@ -141,14 +142,16 @@ def plant_params_from_config(
         )
         for uav in params.uavs
     )
-    length = params.d1_m + params.d2_m
-    perpendicular = params.bar_inertia_kgm2
+    # The simulated world is the paper's: two UAVs and a bar (sim.plant).
+    d1, d2 = params.bar_arms_m
+    bar_mass = params.payload.mass_kg
+    perpendicular = params.payload.perpendicular_inertia_kgm2
     bar = BarParams(
-        mass_kg=params.bar_mass_kg,
-        length_m=length,
-        com_from_end1_m=params.d1_m,
+        mass_kg=bar_mass,
+        length_m=d1 + d2,
+        com_from_end1_m=d1,
         inertia_kgm2=diagonal(
-            (params.bar_mass_kg * BarParams().tube_radius_m ** 2, perpendicular, perpendicular)
+            (bar_mass * BarParams().tube_radius_m ** 2, perpendicular, perpendicular)
         ),
         drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
     )
@@ -243,7 +246,7 @@ def px4_params_from_config(config: Config, uav: int) -> Px4Params:
     params = config.system.to_params()
     k = uav - 1
     inertia = params.uavs[k].inertia_kgm2
-    carried_kg = params.uavs[k].mass_kg + params.payload_mass_kg(uav)  # (13)
+    carried_kg = params.uavs[k].mass_kg + hanging_mass_shares_kg(params)[k]  # (13)
     thrust_max_n = _per_vehicle(config.vehicles.thrust_max_n)[k]
     thrust_scale = config.sim.px4_thrust_scale[k]
     hover_thrust_n = carried_kg * params.gravity_mps2

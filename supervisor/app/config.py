@@ -27,8 +27,8 @@ from pydantic import (
     model_validator,
 )
 
+from controllers.formation_params import FormationParams, formation_from_bar
 from controllers.params import (
-    BarSystemParams,
     InputLimits,
     MpcSettings,
     MpcWeights,
@@ -107,12 +107,12 @@ class SystemSection(_Section):
             raise ValueError("bar_d1 + bar_d2 (the bar's length) must be > 0")
         return self
 
-    def to_params(self) -> BarSystemParams:
+    def to_params(self) -> FormationParams:
         """The controllers' plain parameter object."""
         m1, m2 = _one_or_two(self.uav_mass, "uav_mass")
         l1, l2 = _one_or_two(self.cable_length, "cable_length")
         inertia = (self.uav_inertia[0], self.uav_inertia[1], self.uav_inertia[2])
-        return BarSystemParams(
+        return formation_from_bar(
             uavs=(UavParams(m1, inertia), UavParams(m2, inertia)),
             bar_mass_kg=self.bar_mass,
             d1_m=self.bar_d1,

@@ -127,7 +127,7 @@ def _live_view(config: Config, token: str) -> FoxgloveLiveView | None:
     if not config.foxglove.enabled:
         return None
     try:
-        arms_m = config.system.to_params().arms_m
+        arms_m = config.system.to_params().bar_arms_m
         view = FoxgloveLiveView("127.0.0.1", 0, arms_m, view_keys(token))
     except RuntimeError as error:
         log.warning("Foxglove view off: cannot serve on loopback (%s)", error)

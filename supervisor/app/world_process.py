@@ -16,6 +16,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from controllers.formation_equilibria import hanging_mass_shares_kg
 from sim.faults import FaultError, parse_fault
 from sim.hil_sensors import HilSensors
 from sim.motor_mixer import QuadMixer
@@ -114,11 +115,12 @@ def _px4_sitl_vehicles(
     log folder (PX4's console output in ``px4.log`` there), booting with a lab's parameters."""
     instances = free_instances(2)
     params = config.system.to_params()
+    shares_kg = hanging_mass_shares_kg(params)
     unit_torque = mixer.unit_torque_nm()
 
     def vehicle(plant: Plant, uav: int) -> SimulatedVehicle:
         k = uav - 1
-        carried_n = (params.uavs[k].mass_kg + params.payload_mass_kg(uav)) * params.gravity_mps2
+        carried_n = (params.uavs[k].mass_kg + shares_kg[k]) * params.gravity_mps2
         folder = Path(config.log.folder).resolve() / "px4" / f"uav{uav}"
         folder.mkdir(parents=True, exist_ok=True)
         for stored in folder.glob("parameters*.bson"):

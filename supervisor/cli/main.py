@@ -93,7 +93,8 @@ def _equilibria(args: argparse.Namespace) -> int:
     import json
     import math
 
-    from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
+    from controllers.equilibria import EquilibriumError
+    from controllers.formation_equilibria import FormationReference, formation_equilibrium
     from supervisor.flight.equilibrium_summary import equilibrium_summary
 
     config = _config(args)
@@ -105,20 +106,24 @@ def _equilibria(args: argparse.Namespace) -> int:
         result = equilibrium_summary(params, math.radians(theta_l_deg), config.setpoint_bounds())
     except EquilibriumError as error:
         raise UsageError(str(error)) from error
-    eq = bar_equilibrium(params, Reference((0.0, 0.0, 0.0), 0.0, (0.0, 0.0), result["theta_l"]))
+    layout = params.layout
+    eq = formation_equilibrium(
+        params,
+        FormationReference((0.0, 0.0, 0.0), 0.0, (0.0,) * layout.n_vehicles, result["theta_l"]),
+    )
     theta_f = result["theta_f"]
     if args.json:
         print(json.dumps(result))
         return 0
     print(f"setup {config.name}: θ_l = {theta_l_deg:.2f}° (bar along x, yaw 0, centre at origin)")
     print(f"  θ_f (Proposition 1)  {math.degrees(theta_f):8.4f}°  ({theta_f:.6f} rad)")
-    for k in range(2):
-        x, y, z = eq.uav_position(k + 1)
-        tilt_deg = math.degrees(eq.theta_f_rad[k])
+    for i in layout.vehicles:
+        x, y, z = eq.uav_position(i)
+        tilt_deg = math.degrees(eq.tilts_rad[i - 1])
         print(
-            f"  UAV {k + 1}: thrust {eq.thrusts_n[k]:7.3f} N, tilt θ_f {tilt_deg:7.3f}°,"
-            f" cable {math.degrees(eq.theta_l_rad[k]):6.2f}° T = {eq.tensions_n[k]:6.3f} N,"
-            f" position ({x:+.4f}, {y:+.4f}, {z:+.4f}) m"
+            f"  UAV {i}: thrust {eq.thrusts_n[i - 1]:7.3f} N, tilt θ_f {tilt_deg:7.3f}°,"
+            f" cable {math.degrees(eq.cable_angles_rad[i - 1]):6.2f}°"
+            f" T = {eq.tensions_n[i - 1]:6.3f} N, position ({x:+.4f}, {y:+.4f}, {z:+.4f}) m"
         )
     if not params.is_symmetric:
         print("  (asymmetric setup: per-cable angles from the general static equilibrium)")

@@ -18,31 +18,22 @@ from enum import StrEnum
 import numpy as np
 
 from controllers.delay import DelayPredictor
-from controllers.equilibria import Reference, bar_equilibrium
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
 from controllers.integral_action import ReferenceIntegrator
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
-from controllers.params import BarSystemParams, Clock, MpcSettings
+from controllers.params import Clock, MpcSettings
 from controllers.rate_filter import RateCrossover, RateFilter
 from controllers.uav_pd import UavPdGains, uav_pd_control
 from geometry.arrays import FloatArray
 from geometry.frames import rotation_from_euler_zyx
 from geometry.state import (
-    BAR_INPUTS,
-    BAR_STATES,
     W_I,
-    bar_axis,
-    bar_axis_from_angles,
-    bar_ends,
-    bar_position,
-    bar_velocity,
-    bar_yaw,
+    payload_points,
+    payload_position,
+    payload_velocity,
+    payload_yaw,
     stacked_agent_slice,
-    thrust_index,
-    torque_slice,
-    uav_position,
-    uav_slices,
-    uav_velocity,
-    uav_yaws,
 )
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
@@ -123,16 +114,17 @@ class TickResult:
     """Everything one tick decided: ``events`` moved the mode, ``notices`` are what the
     safety monitors forced."""
 
-    commands: tuple[UavCommand, UavCommand]
+    commands: tuple[UavCommand, ...]
+    """One per UAV, UAV 1's first."""
     mode: Mode
     phase: Phase
     plan: Plan | None
-    reference: Reference | None
+    reference: FormationReference | None
     faults: list[Fault]
     record: TickRecord
     events: list[Event] = field(default_factory=list)
     notices: list[Notice] = field(default_factory=list)
-    commanded: tuple[bool, bool] = (True, True)
+    commanded: tuple[bool, ...] = (True, True)
     """Which vehicles are sent this tick's command (False: left to its PX4's failsafe)."""
 
 
@@ -142,7 +134,7 @@ class FlightCore:
 
     def __init__(
         self,
-        params: BarSystemParams,
+        params: FormationParams,
         mpc_settings: dict[str, MpcSettings],
         arena: Arena,
         controller: str = "centralized",
@@ -154,6 +146,7 @@ class FlightCore:
         if controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}")
         self.params = params
+        self._layout = params.layout
         self.settings = settings or CoreSettings()
         self.arena = arena
         self.controllers: dict[str, CentralizedMpc | DecentralizedMpc] = {
@@ -179,21 +172,23 @@ class FlightCore:
         self.phase = Phase.GROUND
         self._limits = mpc_settings["centralized"].limits
         self._shaper: ReferenceShaper | None = None
-        self._hold_target: Reference | None = None
+        self._hold_target: FormationReference | None = None
+        n = self._layout.n_vehicles
         self._ground_bar_z = 0.0
-        self._ground_uav_z = (0.0, 0.0)
-        self._yaw_hold = (0.0, 0.0)
-        self._pd_targets: list[FloatArray] = [np.zeros(3), np.zeros(3)]
-        self._last_u = np.zeros(BAR_INPUTS)
-        self._delay = DelayPredictor(params, mpc_settings["centralized"].delay_s)
-        self._rate_filter = RateFilter(self._delay, mpc_settings["centralized"].rate_filter_weight)
-        self._rate_crossover = RateCrossover(mpc_settings["centralized"].rate_crossover_s)
+        self._ground_uav_z = (0.0,) * n
+        self._yaw_hold = (0.0,) * n
+        self._pd_targets: list[FloatArray] = [np.zeros(3) for _ in range(n)]
+        self._last_u = np.zeros(self._layout.n_inputs)
+        centralized = mpc_settings["centralized"]
+        self._delay = DelayPredictor(params, centralized.delay_s)
+        self._rate_filter = RateFilter(self._delay, centralized.rate_filter_weight)
+        self._rate_crossover = RateCrossover(self._layout, centralized.rate_crossover_s)
         self._mpc_state: FloatArray | None = None  # the state the last MPC step started from
-        self._integral = ReferenceIntegrator(mpc_settings["centralized"].integral_gain_per_s)
+        self._integral = ReferenceIntegrator(self._layout, centralized.integral_gain_per_s)
         self._blend_from: FloatArray | None = None
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
-        self._mpc_reference: Reference | None = None
+        self._mpc_reference: FormationReference | None = None
         self.mpc_was_prepared: bool | None = None
         """Whether this tick's MPC used the model prepared after the last (None: no MPC)."""
         self._last_tick_s: float | None = None
@@ -276,17 +271,18 @@ class FlightCore:
         return Transition(True, self.modes.mode)
 
     def start_in_hover(
-        self, estimate: Estimate, now_s: float, ground_z_m: tuple[float, float, float]
+        self, estimate: Estimate, now_s: float, ground_z_m: tuple[float, ...]
     ) -> None:
         """Begin airborne, hovering where the system is (simulations that start in the air,
-        as the paper's Section VII does); ``ground_z_m`` are the heights of the bar's and
-        the UAVs' centres when they rest on the ground, which a landing returns to. Not an
-        operator request: the mode table has no way from the ground to hover but take-off."""
+        as the paper's Section VII does); ``ground_z_m`` are the heights of the payload's
+        and then each UAV's centre when they rest on the ground, which a landing returns to.
+        Not an operator request: the mode table has no way from the ground to hover but
+        take-off."""
         self.modes = FlightModes(Mode.HOVER)
         self._ground_bar_z = ground_z_m[0]
-        self._ground_uav_z = (ground_z_m[1], ground_z_m[2])
+        self._ground_uav_z = tuple(ground_z_m[1:])
         self._last_estimate = estimate
-        self._yaw_hold = uav_yaws(estimate.x)
+        self._yaw_hold = self._layout.uav_yaws(estimate.x)
         self._entered(Mode.HOVER, now_s)
 
     def queue_setpoints(self, setpoints: list[Setpoint]) -> None:
@@ -341,7 +337,7 @@ class FlightCore:
         self,
         now_s: float,
         estimate: Estimate,
-        links_connected: tuple[bool, bool] = (True, True),
+        links_connected: tuple[bool, ...] = (True, True),
         lateness_s: float = 0.0,
     ) -> TickResult:
         """Decide this tick's commands from the estimate at ``now_s``."""
@@ -354,12 +350,12 @@ class FlightCore:
         events: list[Event] = []
         mode = self.modes.mode
         plan: Plan | None = None
-        reference: Reference | None = None
+        reference: FormationReference | None = None
         if mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
-            commands = (UavCommand.off(), UavCommand.off())
+            commands = self._off()
             self._remember_ground(estimate)
         elif mode is Mode.PX4_LANDING:  # nothing is sent (the flight process stops streaming)
-            commands = (UavCommand.off(), UavCommand.off())
+            commands = self._off()
         elif mode is Mode.TAKEOFF:
             commands, plan, reference = self._takeoff(now_s, estimate, events)
         elif mode in (Mode.HOVER, Mode.TRACKING):
@@ -373,18 +369,18 @@ class FlightCore:
             self.modes.mode,
             plan.status if plan else None,
             links_connected,
-            reference.bar_yaw_rad if reference is not None else None,
+            reference.payload_yaw_rad if reference is not None else None,
         )
         notices = self._respond(faults, links_connected, now_s)
         self.notices.extend((now_s, notice) for notice in notices)
         # A vehicle whose link is lost is left to its own failsafe: it gets no commands.
-        commanded = (
-            links_connected[0] and self.left_to_px4 != 1,
-            links_connected[1] and self.left_to_px4 != 2,
+        commanded = tuple(
+            connected and self.left_to_px4 != i
+            for i, connected in enumerate(links_connected, start=1)
         )
-        commands = (
-            commands[0] if commanded[0] else UavCommand.off(),
-            commands[1] if commanded[1] else UavCommand.off(),
+        commands = tuple(
+            command if sent else UavCommand.off()
+            for command, sent in zip(commands, commanded, strict=True)
         )
         for event in events:
             before = self.modes.mode
@@ -394,9 +390,9 @@ class FlightCore:
         self._last_u = u
         self._delay.sent(now_s, u)
         state_ref = (
-            bar_equilibrium(self.params, reference).x
+            formation_equilibrium(self.params, reference).x
             if reference is not None
-            else np.full(BAR_STATES, np.nan)
+            else np.full(self._layout.n_states, np.nan)
         )
         record = TickRecord(
             t_s=now_s,
@@ -425,7 +421,7 @@ class FlightCore:
         )
 
     def _respond(
-        self, faults: list[Fault], links_connected: tuple[bool, bool], now_s: float
+        self, faults: list[Fault], links_connected: tuple[bool, ...], now_s: float
     ) -> list[Notice]:
         """Carry out the one response the faults call for (``chosen_response``)."""
         response = chosen_response(faults)
@@ -439,7 +435,7 @@ class FlightCore:
             notice = self.hand_over_to_px4(blind, now_s)
             return [notice] if notice is not None else []
         if response is Response.LAND_OTHER and self.left_to_px4 is None:
-            lost = 1 if not links_connected[0] else 2
+            lost = links_connected.index(False) + 1
             return self._land_other(lost, now_s)
         airborne = mode.airborne and mode not in (Mode.ABORT, Mode.PX4_LANDING)
         if response is Response.ABORT and airborne:
@@ -451,7 +447,8 @@ class FlightCore:
     def _land_other(self, lost: int, now_s: float) -> list[Notice]:
         """Vehicle ``lost`` is gone: leave it to its PX4's failsafe landing for the rest of
         the flight and let the other set its bar end down alone (``set_down``), or, when
-        the UAVs fly alone anyway, descend with the abort."""
+        the UAVs fly alone anyway, descend with the abort. Two UAVs only: with more, which
+        would set the payload down is not decided yet (issue 31)."""
         mode = self.modes.mode
         if not mode.airborne or mode is Mode.PX4_LANDING:
             return []
@@ -464,10 +461,10 @@ class FlightCore:
         hanging = self.phase in (Phase.LIFT, Phase.HOVER, Phase.TRACKING, Phase.LOWER)
         if hanging and x is not None and np.all(np.isfinite(x)):
             self._enter_phase(Phase.SET_DOWN)
-            self._set_down_end = bar_ends(x, self.params.arms_m)[other - 1].copy()
-            self._set_down_yaw = bar_yaw(x)
+            self._set_down_end = self._attachments(x)[other - 1].copy()
+            self._set_down_yaw = payload_yaw(x)
             self._set_down_speed = 0.0
-            self._yaw_hold = uav_yaws(x)
+            self._yaw_hold = self._layout.uav_yaws(x)
             self.set_controller("decentralized", now_s)  # its agent models one UAV alone
             action = f"UAV {other} sets its bar end down alone"
         else:
@@ -525,42 +522,56 @@ class FlightCore:
             return self.settings.takeoff_rates
         return self.settings.flight_rates
 
+    def _off(self) -> tuple[UavCommand, ...]:
+        return tuple(UavCommand.off() for _ in self._layout.vehicles)
+
+    def _attachments(self, x: FloatArray) -> list[FloatArray]:
+        """Where the cables are fixed to the payload, e_i [m], cable 1's first."""
+        return payload_points(x, self.params.payload.attachments_m)
+
     def _remember_ground(self, estimate: Estimate) -> None:
         x = estimate.x
         if np.all(np.isfinite(x)):
-            self._ground_bar_z = float(bar_position(x)[2])
-            self._ground_uav_z = (float(uav_position(x, 1)[2]), float(uav_position(x, 2)[2]))
-            self._yaw_hold = uav_yaws(x)
+            self._ground_bar_z = float(payload_position(x)[2])
+            self._ground_uav_z = tuple(
+                float(self._layout.uav_position(x, i)[2]) for i in self._layout.vehicles
+            )
+            self._yaw_hold = self._layout.uav_yaws(x)
 
     def _set_climb_targets(self, x: FloatArray) -> None:
-        end_1, end_2 = bar_ends(x, self.params.arms_m)
         self._pd_targets = [
             end + np.array([0.0, 0.0, length + 0.02])
-            for end, length in zip((end_1, end_2), self.params.cable_lengths_m, strict=True)
+            for end, length in zip(self._attachments(x), self.params.cable_lengths_m, strict=True)
         ]
 
     def _set_descend_targets(self, x: FloatArray) -> None:
+        """Each UAV above its cable's attachment moved ``landing_clearance_m`` outward, away
+        from the payload's CoM (for the bar: along the bar, beyond its ends)."""
         self._low_since_s = None  # a new descent: not settled yet
-        end_1, end_2 = bar_ends(x, self.params.arms_m)
-        n_b = bar_axis(x)
         out = self.settings.landing_clearance_m
-        self._pd_targets = [
-            np.array([*(end_1 - out * n_b)[0:2], uav_position(x, 1)[2]]),
-            np.array([*(end_2 + out * n_b)[0:2], uav_position(x, 2)[2]]),
-        ]
+        centre = payload_position(x)
+        self._pd_targets = []
+        for i, end in zip(self._layout.vehicles, self._attachments(x), strict=True):
+            offset = end - centre
+            distance = float(np.linalg.norm(offset))
+            outward = offset / distance if distance > 0.0 else np.zeros(3)
+            self._pd_targets.append(
+                np.array([*(end + out * outward)[0:2], self._layout.uav_position(x, i)[2]])
+            )
 
-    def _current_reference(self, x: FloatArray) -> Reference:
-        p_b = bar_position(x)
-        return Reference(
-            (float(p_b[0]), float(p_b[1]), float(p_b[2])), bar_yaw(x), uav_yaws(x), 0.0
+    def _current_reference(self, x: FloatArray) -> FormationReference:
+        p_b = payload_position(x)
+        return FormationReference(
+            (float(p_b[0]), float(p_b[1]), float(p_b[2])),
+            payload_yaw(x),
+            self._layout.uav_yaws(x),
+            0.0,
         )
 
-    def _pd_commands(
-        self, x: FloatArray, extra_load: tuple[float, float]
-    ) -> tuple[UavCommand, UavCommand]:
+    def _pd_commands(self, x: FloatArray, extra_load: tuple[float, ...]) -> tuple[UavCommand, ...]:
         commands = []
         for k, uav in enumerate(self.params.uavs):
-            position, velocity, euler, rates_now = uav_slices(k + 1)
+            position, velocity, euler, rates_now = self._layout.uav_slices(k + 1)
             thrust, torque, rates = uav_pd_control(
                 x[position],
                 x[velocity],
@@ -576,9 +587,9 @@ class FlightCore:
                 self.params.gravity_mps2,
             )
             commands.append(UavCommand(thrust, torque, rates, True))
-        return commands[0], commands[1]
+        return tuple(commands)
 
-    def _mpc_commands(self, plan: Plan) -> tuple[UavCommand, UavCommand]:
+    def _mpc_commands(self, plan: Plan) -> tuple[UavCommand, ...]:
         u = plan.u.copy()
         if self._blend_from is not None:  # bumpless transfer after a controller switch
             self._blend_tick += 1
@@ -592,24 +603,29 @@ class FlightCore:
         ahead = min(self.settings.rate_lookahead_steps, len(plan.x_pred) - 1)
         next_x = plan.x_pred[ahead]
 
+        layout = self._layout
+
         def predicted_rates(i: int) -> FloatArray:
             rates: FloatArray = (
-                next_x[uav_slices(i)[3]]
+                next_x[layout.uav_slices(i)[3]]
                 if self.controller == "centralized"
                 else next_x[stacked_agent_slice(i)][W_I]
             )
             return rates.copy()
 
-        return tuple(  # type: ignore[return-value]
+        return tuple(
             UavCommand(
-                float(u[thrust_index(i)]), u[torque_slice(i)].copy(), predicted_rates(i), True
+                float(u[layout.thrust_index(i)]),
+                u[layout.torque_slice(i)].copy(),
+                predicted_rates(i),
+                True,
             )
-            for i in (1, 2)
+            for i in layout.vehicles
         )
 
     def _mpc(
-        self, now_s: float, x: FloatArray, reference: Reference
-    ) -> tuple[tuple[UavCommand, UavCommand], Plan]:
+        self, now_s: float, x: FloatArray, reference: FormationReference
+    ) -> tuple[tuple[UavCommand, ...], Plan]:
         controller = self.controllers[self.controller]
         # The estimate is the state the mocap latency ago; the MPC plans from now on.
         if self._model_predicts(x):
@@ -630,9 +646,9 @@ class FlightCore:
     def _model_predicts(self, x: FloatArray) -> bool:
         """Whether the model describes what the inputs sent did: the bar hanging clear of
         the ground (the model has no ground contact: a bar still resting on it would be
-        predicted falling) and both UAVs flown by this core (not one left to its PX4)."""
+        predicted falling) and every UAV flown by this core (not one left to its PX4)."""
         hanging = self.phase in (Phase.LIFT, Phase.HOVER, Phase.TRACKING, Phase.LOWER)
-        clear = float(bar_position(x)[2]) > self._ground_bar_z + GROUND_CLEARANCE_M
+        clear = float(payload_position(x)[2]) > self._ground_bar_z + GROUND_CLEARANCE_M
         return hanging and clear and self.left_to_px4 is None
 
     def prepare_next(self) -> None:
@@ -644,17 +660,18 @@ class FlightCore:
 
     def _takeoff(
         self, now_s: float, estimate: Estimate, events: list[Event]
-    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+    ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
         x = estimate.x
+        layout = self._layout
         if self.phase is Phase.CLIMB:
-            commands = self._pd_commands(x, (0.0, 0.0))
-            ends = bar_ends(x, self.params.arms_m)
+            commands = self._pd_commands(x, (0.0,) * layout.n_vehicles)
+            ends = self._attachments(x)
             taut = all(
-                np.linalg.norm(uav_position(x, i) - ends[i - 1])
+                np.linalg.norm(layout.uav_position(x, i) - ends[i - 1])
                 >= self.params.cable_lengths_m[i - 1] - 0.03
-                for i in (1, 2)
+                for i in layout.vehicles
             )
-            speeds = [np.linalg.norm(uav_velocity(x, i)) for i in (1, 2)]
+            speeds = [np.linalg.norm(layout.uav_velocity(x, i)) for i in layout.vehicles]
             if taut and max(speeds) < 0.3:
                 self._enter_phase(Phase.LIFT)
                 self._shaper = ReferenceShaper(
@@ -662,10 +679,10 @@ class FlightCore:
                 )
             return commands, None, None
         assert self._shaper is not None
-        p_b = bar_position(x)
-        target = Reference(
+        p_b = payload_position(x)
+        target = FormationReference(
             (float(p_b[0]), float(p_b[1]), self._ground_bar_z + self.settings.takeoff_height_m),
-            bar_yaw(x),
+            payload_yaw(x),
             self._yaw_hold,
             0.0,
         )
@@ -677,9 +694,11 @@ class FlightCore:
             events.append(Event.AIRBORNE)
         return commands, plan, reference
 
-    def _reached(self, x: FloatArray, reference: Reference) -> bool:
-        position_error = np.linalg.norm(bar_position(x) - np.asarray(reference.bar_position_m))
-        yaw_error = abs(math.remainder(bar_yaw(x) - reference.bar_yaw_rad, 2 * math.pi))
+    def _reached(self, x: FloatArray, reference: FormationReference) -> bool:
+        position_error = np.linalg.norm(
+            payload_position(x) - np.asarray(reference.payload_position_m)
+        )
+        yaw_error = abs(math.remainder(payload_yaw(x) - reference.payload_yaw_rad, 2 * math.pi))
         return bool(
             position_error < self.settings.reached_position_m
             and yaw_error < self.settings.reached_yaw_rad
@@ -687,7 +706,7 @@ class FlightCore:
 
     def _fly(
         self, now_s: float, estimate: Estimate, events: list[Event]
-    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+    ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
         x = estimate.x
         if self._shaper is None:
             self._shaper = ReferenceShaper(self._current_reference(x), self.settings.flight_rates)
@@ -695,12 +714,13 @@ class FlightCore:
             self._hold_target = self._shaper.current
         target = self._hold_target
         active = self.queue.active
+        n = self._layout.n_vehicles
         if active is not None:
-            target = active.reference()
+            target = active.reference(n)
         reached = self._shaper.current == target and self._reached(x, target)
         setpoint = self.queue.update(reached, now_s)
         if setpoint is not None:
-            target = setpoint.reference()
+            target = setpoint.reference(n)
             if self.modes.mode is Mode.HOVER:
                 events.append(Event.TRACK)
         elif self.modes.mode is Mode.TRACKING:
@@ -712,7 +732,7 @@ class FlightCore:
 
     def _land(
         self, now_s: float, estimate: Estimate, events: list[Event]
-    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+    ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
         x = estimate.x
         if self.phase is Phase.SET_DOWN:
             return self._set_down(now_s, x)
@@ -722,30 +742,30 @@ class FlightCore:
                     self._current_reference(x), self._rates(self.modes.mode)
                 )
             current = self._shaper.current
-            target = Reference(
-                (current.bar_position_m[0], current.bar_position_m[1], self._ground_bar_z),
-                current.bar_yaw_rad,
+            target = FormationReference(
+                (current.payload_position_m[0], current.payload_position_m[1], self._ground_bar_z),
+                current.payload_yaw_rad,
                 current.uav_yaw_rad,
                 0.0,
             )
             reference = self._shaper.update(target, now_s)
             commands, plan = self._mpc(now_s, x, reference)
-            bar_z, bar_vz = bar_position(x)[2], bar_velocity(x)[2]
+            bar_z, bar_vz = payload_position(x)[2], payload_velocity(x)[2]
             if bar_z < self._ground_bar_z + 0.03 or (reference == target and abs(bar_vz) < 0.05):
                 self._enter_phase(Phase.DESCEND)
-                self._yaw_hold = uav_yaws(x)
+                self._yaw_hold = self._layout.uav_yaws(x)
                 self._set_descend_targets(x)
             return commands, plan, reference
         dt_descend = self.settings.descend_speed_mps * self._dt_s
         for k, ground_z in enumerate(self._ground_uav_z):
             self._pd_targets[k][2] = max(ground_z - 0.05, self._pd_targets[k][2] - dt_descend)
-        commands = self._pd_commands(x, (0.0, 0.0))
-        # Down once both have stayed at their ground height for a while: velocity
+        commands = self._pd_commands(x, (0.0,) * self._layout.n_vehicles)
+        # Down once all have stayed at their ground height for a while: velocity
         # estimates are too noisy near zero to decide on one tick. A vehicle left to its
         # PX4 lands on its own.
         low = all(
-            uav_position(x, i)[2] < self._ground_uav_z[i - 1] + 0.05
-            for i in (1, 2)
+            self._layout.uav_position(x, i)[2] < self._ground_uav_z[i - 1] + 0.05
+            for i in self._layout.vehicles
             if i != self.left_to_px4
         )
         if not low:
@@ -755,19 +775,19 @@ class FlightCore:
         settled_since = self._low_since_s
         if settled_since is not None and now_s - settled_since >= self.settings.settle_on_ground_s:
             events.append(Event.LANDED)
-            return (UavCommand.off(), UavCommand.off()), None, None
+            return self._off(), None, None
         return commands, None, None
 
     def _set_down(
         self, now_s: float, x: FloatArray
-    ) -> tuple[tuple[UavCommand, UavCommand], Plan | None, Reference | None]:
+    ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
         """The connected UAV lowers its bar end to the ground at the abort rate, slower
         (``SET_DOWN_BEHIND_MPS``) while the other end, with the lost UAV's failsafe
         landing, is lower; its decentralized agent tracks the end (with the descent as the
         reference's velocity, so it does not lag), the bar level at the held yaw."""
         assert self.left_to_px4 is not None
         other = 3 - self.left_to_px4
-        ends = bar_ends(x, self.params.arms_m)
+        ends = self._attachments(x)
         mine, theirs = ends[other - 1], ends[self.left_to_px4 - 1]
         behind = mine[2] - theirs[2] > SET_DOWN_LEVEL_M
         wanted = SET_DOWN_BEHIND_MPS if behind else self.settings.abort_rates.position_mps
@@ -778,10 +798,10 @@ class FlightCore:
         z = max(self._ground_bar_z, self._set_down_end[2] - self._set_down_speed * self._dt_s)
         speed = self._set_down_speed if z > self._ground_bar_z else 0.0
         self._set_down_end[2] = z
-        n_b = bar_axis_from_angles(0.0, self._set_down_yaw)
-        arm = self.params.arms_m[other - 1]
-        centre = self._set_down_end + (arm if other == 1 else -arm) * n_b
-        reference = Reference(
+        # The payload level at the held yaw, its attachment ``other`` at the end's target.
+        level = rotation_from_euler_zyx(0.0, 0.0, self._set_down_yaw)
+        centre = self._set_down_end - level @ self.params.payload.attachments_m[other - 1]
+        reference = FormationReference(
             (float(centre[0]), float(centre[1]), float(centre[2])),
             self._set_down_yaw,
             self._yaw_hold,
@@ -791,6 +811,6 @@ class FlightCore:
         commands, plan = self._mpc(now_s, x, reference)
         if mine[2] < self._ground_bar_z + 0.03:
             self._enter_phase(Phase.DESCEND)
-            self._yaw_hold = uav_yaws(x)
+            self._yaw_hold = self._layout.uav_yaws(x)
             self._set_descend_targets(x)
         return commands, plan, reference

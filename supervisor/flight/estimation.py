@@ -1,4 +1,5 @@
-"""Estimation: fused rigid-body states → the paper's 36-state vector.
+"""Estimation: fused rigid-body states → the formation's state vector (the paper's
+36-state for the bar and two UAVs).
 
 Rigid bodies (QTM names, configurable): ``bar`` (origin at the bar's CoM, body x axis from
 cable 1's end to cable 2's end), ``uav1``, ``uav2`` (origin at the CoM, FLU). The bar's
@@ -14,7 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from geometry.arrays import FloatArray
-from geometry.state import BAR_STATES, P_B, TH_B, V_B, W_B, bar_axis_from_angles, uav_slices
+from geometry.formation import FormationLayout
+from geometry.frames import rotation_from_euler_zyx
+from geometry.state import P_B, TH_B, V_B, W_B
 from mocap.fusion import BodyState
 
 
@@ -26,8 +29,13 @@ class BodyNames:
     uav1: str = "uav1"
     uav2: str = "uav2"
 
-    def all(self) -> tuple[str, str, str]:
-        return (self.bar, self.uav1, self.uav2)
+    @property
+    def uavs(self) -> tuple[str, ...]:
+        """The UAVs' names, UAV 1's first."""
+        return (self.uav1, self.uav2)
+
+    def all(self) -> tuple[str, ...]:
+        return (self.bar, *self.uavs)
 
 
 @dataclass(frozen=True)
@@ -41,7 +49,7 @@ class Refusals:
 
 @dataclass(frozen=True)
 class Estimate:
-    """The state at a tick: ``x`` (36,) in the paper's order, the oldest body's age [s],
+    """The state at a tick: ``x`` (12 + 12N,) in the paper's order, the oldest body's age [s],
     which bodies are not healthy (empty when all are), and the bodies whose newest poses
     were refused (``mocap.fusion``'s gate or repeats; empty when none)."""
 
@@ -63,18 +71,20 @@ def _missing(name: str) -> BodyState:
 
 
 def estimate_state(bodies: Mapping[str, BodyState], names: BodyNames = BodyNames()) -> Estimate:
-    """Assemble x ∈ R^36 from the fused bodies (NaN where a body was never measured)."""
+    """Assemble x ∈ R^(12 + 12N) from the fused bodies (NaN where a body was never
+    measured)."""
+    layout = FormationLayout(len(names.uavs))
     bar = bodies.get(names.bar) or _missing(names.bar)
-    x = np.empty(BAR_STATES)
+    x = np.empty(layout.n_states)
     x[P_B] = bar.position_m
     x[V_B] = bar.velocity_mps
     x[TH_B] = (0.0, bar.euler_zyx_rad[1], bar.euler_zyx_rad[2])
-    n_b = bar_axis_from_angles(bar.euler_zyx_rad[1], bar.euler_zyx_rad[2])
+    n_b = rotation_from_euler_zyx(*x[TH_B])[:, 0]
     omega = bar.angular_velocity_world_radps
     x[W_B] = omega - (omega @ n_b) * n_b
-    for i, name in ((1, names.uav1), (2, names.uav2)):
+    for i, name in zip(layout.vehicles, names.uavs, strict=True):
         uav = bodies.get(name) or _missing(name)
-        position, velocity, euler, rates = uav_slices(i)
+        position, velocity, euler, rates = layout.uav_slices(i)
         x[position] = uav.position_m
         x[velocity] = uav.velocity_mps
         x[euler] = uav.euler_zyx_rad

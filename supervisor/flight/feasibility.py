@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from controllers.equilibria import Equilibrium
+from controllers.formation_equilibria import FormationEquilibrium
 
 
 @dataclass(frozen=True)
@@ -68,14 +68,14 @@ def theta_l_problem(theta_l_rad: float, bounds: SetpointBounds) -> str | None:
     )
 
 
-def equilibrium_problems(eq: Equilibrium, bounds: SetpointBounds) -> list[str]:
+def equilibrium_problems(eq: FormationEquilibrium, bounds: SetpointBounds) -> list[str]:
     """Why the vehicles cannot hold ``eq`` (empty: they can): each UAV's thrust and tilt
     against their bounds, in words naming the bound and the excess."""
     problems = []
     low, high = bounds.thrust_band_n
     percent = f"{bounds.settings.thrust_margin * 100:.0f} %"
     tilt_limit = bounds.tilt_allowed_rad
-    for k in range(2):
+    for k in range(len(eq.thrusts_n)):
         who = f"UAV {k + 1}"
         thrust = eq.thrusts_n[k]
         if thrust > high:
@@ -90,7 +90,7 @@ def equilibrium_problems(eq: Equilibrium, bounds: SetpointBounds) -> list[str]:
                 f"{bounds.thrust_min_n:.1f} N minimum plus its {percent} margin ({low:.1f} N) "
                 f"by {low - thrust:.1f} N"
             )
-        tilt = eq.theta_f_rad[k]
+        tilt = eq.tilts_rad[k]
         if tilt > tilt_limit:
             problems.append(
                 f"{who}'s equilibrium tilt {math.degrees(tilt):.1f}° is above the "

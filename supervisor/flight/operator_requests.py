@@ -27,6 +27,9 @@ POSITION_LIMIT_M = 100.0  # |x|, |y|, |z|: far beyond any motion-capture hall
 YAW_LIMIT_RAD = 2.0 * math.pi  # one turn either way (yaw is taken modulo 2π)
 THETA_L_LIMIT_RAD = math.pi / 2.0  # θ_l in [0, π/2): horizontal cables hold nothing
 DURATION_LIMIT_S = 3600.0  # hold and timeout: an hour
+# The API's setpoints name two UAVs' yaws, as the dashboard and the status do: the service
+# flies the paper's two UAVs (issue 31 generalizes the controllers, not yet the service).
+API_VEHICLES = 2
 # The tick core's queue capacity (supervisor.flight.setpoints.SetpointQueue): no request
 # can queue more, so a longer list is refused by its length before any entry is read.
 MAX_SETPOINTS_PER_REQUEST = 32
@@ -61,8 +64,8 @@ class SetpointFields(_Message):
     uav_yaw: Annotated[
         list[Yaw] | None,
         Field(
-            min_length=2,
-            max_length=2,
+            min_length=API_VEHICLES,
+            max_length=API_VEHICLES,
             description="UAV 1's and UAV 2's yaw [rad] (default: the bar's)",
         ),
     ] = None
@@ -75,7 +78,7 @@ class SetpointFields(_Message):
 
     def to_setpoint(self) -> Setpoint:
         p = self.bar_position
-        yaws = (self.uav_yaw[0], self.uav_yaw[1]) if self.uav_yaw is not None else None
+        yaws = tuple(self.uav_yaw) if self.uav_yaw is not None else None
         return Setpoint(
             (p[0], p[1], p[2]), self.bar_yaw, yaws, self.theta_l, self.hold_s, self.timeout_s
         )
@@ -87,7 +90,7 @@ class SetpointFields(_Message):
         return cls.model_construct(
             bar_position=list(setpoint.bar_position_m),
             bar_yaw=setpoint.bar_yaw_rad,
-            uav_yaw=list(setpoint.reference().uav_yaw_rad),
+            uav_yaw=list(setpoint.uav_yaws(API_VEHICLES)),
             theta_l=setpoint.theta_l_rad,
             hold_s=setpoint.hold_s,
             timeout_s=setpoint.timeout_s,

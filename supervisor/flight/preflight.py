@@ -1,8 +1,9 @@
 """Pre-arm checks of the resting pose: before the motors spin, the measured bodies must be
-the system the take-off expects — each UAV standing by its own bar end, the bar lying
-level, the UAVs upright. After an abort that left the bar twisted and a UAV a metre away,
-a take-off would start by dragging the bar. And the take-off's first setpoint, the hover
-above the resting pose, must be one the setpoint queue would take. Pure; SI units."""
+the system the take-off expects — each UAV standing by its own cable's attachment, the
+payload lying level, the UAVs upright. After an abort that left the bar twisted and a UAV
+a metre away, a take-off would start by dragging the bar. And the take-off's first
+setpoint, the hover above the resting pose, must be one the setpoint queue would take.
+Pure; SI units."""
 
 from __future__ import annotations
 
@@ -11,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.params import BarSystemParams
+from controllers.formation_params import FormationParams
 from geometry.arrays import FloatArray
 from geometry.frames import rotation_from_euler_zyx
-from geometry.state import bar_ends, bar_position, bar_yaw, uav_euler, uav_position, uav_yaws
+from geometry.state import payload_points, payload_position, payload_yaw
 from supervisor.flight.feasibility import SetpointBounds
 from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 
@@ -40,23 +41,26 @@ def resting_limits(landing_clearance_m: float) -> RestingLimits:
 
 
 def resting_pose_problems(
-    x: FloatArray, params: BarSystemParams, limits: RestingLimits
+    x: FloatArray, params: FormationParams, limits: RestingLimits
 ) -> list[str]:
-    """What is wrong with the resting pose ``x`` (the 36-state), in words; empty: ready."""
+    """What is wrong with the resting pose ``x`` (the formation's state), in words; empty:
+    ready."""
     problems = []
-    ends = bar_ends(x, params.arms_m)
-    for i in (1, 2):
-        offset = float(np.linalg.norm((uav_position(x, i) - ends[i - 1])[0:2]))
+    layout = params.layout
+    ends = payload_points(x, params.payload.attachments_m)
+    for i in layout.vehicles:
+        offset = float(np.linalg.norm((layout.uav_position(x, i) - ends[i - 1])[0:2]))
         if offset > limits.uav_from_bar_end_m:
             problems.append(
                 f"UAV {i} stands {offset:.2f} m from its bar end "
                 f"(at most {limits.uav_from_bar_end_m:.2f} m): stand it by its bar end"
             )
-        z_axis_z = float(rotation_from_euler_zyx(*uav_euler(x, i))[2, 2])
+        z_axis_z = float(rotation_from_euler_zyx(*layout.uav_euler(x, i))[2, 2])
         tilt = math.acos(max(-1.0, min(1.0, z_axis_z)))
         if tilt > limits.uav_tilt_rad:
             problems.append(f"UAV {i} is tilted {math.degrees(tilt):.0f}°: set it upright")
-    rise = abs(float(ends[0][2] - ends[1][2]))
+    heights = [float(end[2]) for end in ends]
+    rise = max(heights) - min(heights)
     if rise > limits.bar_end_height_difference_m:
         problems.append(
             f"the bar is not level (its ends {rise:.2f} m apart in height): lay it flat"
@@ -66,7 +70,7 @@ def resting_pose_problems(
 
 def takeoff_problem(
     x: FloatArray,
-    params: BarSystemParams,
+    params: FormationParams,
     height_m: float,
     arena: Arena,
     bounds: SetpointBounds,
@@ -74,9 +78,12 @@ def takeoff_problem(
     """Why the hover ``height_m`` above the resting pose ``x`` (where a take-off goes, with
     the bar's and the UAVs' yaws kept) cannot be flown, as a queued setpoint would be
     refused; None: it can."""
-    p = bar_position(x)
+    p = payload_position(x)
     hover = Setpoint(
-        (float(p[0]), float(p[1]), float(p[2]) + height_m), bar_yaw(x), uav_yaws(x), 0.0
+        (float(p[0]), float(p[1]), float(p[2]) + height_m),
+        payload_yaw(x),
+        params.layout.uav_yaws(x),
+        0.0,
     )
     try:
         validate_setpoint(hover, params, arena, bounds)

@@ -1,6 +1,7 @@
 """The rate-limited reference: between setpoints the reference moves at bounded rates
-(position with a trapezoidal speed profile, yaws, θ_l), never in steps, and carries its
-velocity, turn rates and θ_l rate so the MPC regulates to a moving (relative) equilibrium."""
+(position with a trapezoidal speed profile, yaws, the cone angle θ_l), never in steps, and
+carries its velocity, turn rates and cone-angle rate so the MPC regulates to a moving
+(relative) equilibrium."""
 
 from __future__ import annotations
 
@@ -9,14 +10,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.equilibria import Reference
+from controllers.formation_equilibria import FormationReference
 from geometry.arrays import FloatArray
 
 
 @dataclass(frozen=True)
 class RateLimits:
-    """How fast the reference may move: bar position [m/s] and its acceleration [m/s²],
-    yaws [rad/s], θ_l [rad/s]."""
+    """How fast the reference may move: payload position [m/s] and its acceleration
+    [m/s²], yaws [rad/s], the cone angle θ_l [rad/s]."""
 
     position_mps: float = 0.3
     acceleration_mps2: float = 0.3
@@ -64,50 +65,55 @@ def _move(
 
 class ReferenceShaper:
     """Moves the reference toward the target at bounded rates (time as an argument). The
-    bar position follows a trapezoidal velocity profile and the reference carries that
-    velocity (zero once the target is reached); yaws and θ_l move at bounded rates."""
+    payload's position follows a trapezoidal velocity profile and the reference carries
+    that velocity (zero once the target is reached); yaws and the cone angle move at
+    bounded rates."""
 
-    def __init__(self, start: Reference, limits: RateLimits = RateLimits()) -> None:
+    def __init__(self, start: FormationReference, limits: RateLimits = RateLimits()) -> None:
         self.current = start
         self.limits = limits
         self._last_s: float | None = None
 
-    def reset(self, reference: Reference) -> None:
+    def reset(self, reference: FormationReference) -> None:
         """Jump to ``reference`` (when a flight phase starts from where the system is)."""
         self.current = reference
         self._last_s = None
 
-    def update(self, target: Reference, now_s: float) -> Reference:
+    def update(self, target: FormationReference, now_s: float) -> FormationReference:
         """The reference at ``now_s``, moved toward ``target``."""
         dt = 0.0 if self._last_s is None else max(0.0, now_s - self._last_s)
         self._last_s = now_s
         c, lim = self.current, self.limits
         position, velocity = _move(
-            np.array(c.bar_position_m),
+            np.array(c.payload_position_m),
             np.array(c.velocity_mps),
-            np.array(target.bar_position_m),
+            np.array(target.payload_position_m),
             lim,
             dt,
         )
         yaw_step = lim.yaw_radps * dt
-        yaws = (
-            _approach_angle(c.bar_yaw_rad, target.bar_yaw_rad, yaw_step),
-            _approach_angle(c.uav_yaw_rad[0], target.uav_yaw_rad[0], yaw_step),
-            _approach_angle(c.uav_yaw_rad[1], target.uav_yaw_rad[1], yaw_step),
-        )
-        before = (c.bar_yaw_rad, *c.uav_yaw_rad)
-        rates = tuple(
+        yaws = [
+            _approach_angle(now, wanted, yaw_step)
+            for now, wanted in zip(
+                (c.payload_yaw_rad, *c.uav_yaw_rad),
+                (target.payload_yaw_rad, *target.uav_yaw_rad),
+                strict=True,
+            )
+        ]
+        before = (c.payload_yaw_rad, *c.uav_yaw_rad)
+        rates = [
             math.remainder(new - old, 2.0 * math.pi) / dt if dt > 0.0 else 0.0
             for new, old in zip(yaws, before, strict=True)
-        )
-        theta_l = _approach(c.theta_l_rad, target.theta_l_rad, lim.theta_l_radps * dt)
-        self.current = Reference(
+        ]
+        cone = _approach(c.cone_angle_rad, target.cone_angle_rad, lim.theta_l_radps * dt)
+        self.current = FormationReference(
             (float(position[0]), float(position[1]), float(position[2])),
             yaws[0],
-            (yaws[1], yaws[2]),
-            theta_l,
+            tuple(yaws[1:]),
+            cone,
             (float(velocity[0]), float(velocity[1]), float(velocity[2])),
-            (rates[0], rates[1], rates[2]),
-            (theta_l - c.theta_l_rad) / dt if dt > 0.0 else 0.0,
+            rates[0],
+            tuple(rates[1:]),
+            (cone - c.cone_angle_rad) / dt if dt > 0.0 else 0.0,
         )
         return self.current

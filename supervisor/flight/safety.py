@@ -14,10 +14,10 @@ from enum import Enum
 
 import numpy as np
 
+from controllers.formation_params import FormationParams
 from controllers.mpc import PlanStatus
-from controllers.params import BarSystemParams
 from geometry.frames import rotation_from_euler_zyx
-from geometry.state import bar_ends, bar_position, bar_yaw, uav_euler, uav_position
+from geometry.state import payload_points, payload_position, payload_yaw
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Mode
 from supervisor.flight.setpoints import Arena
@@ -76,9 +76,10 @@ class SafetyMonitor:
     """Runs every monitor on a tick; keeps the little state some of them need."""
 
     def __init__(
-        self, params: BarSystemParams, arena: Arena, limits: SafetyLimits = SafetyLimits()
+        self, params: FormationParams, arena: Arena, limits: SafetyLimits = SafetyLimits()
     ) -> None:
         self.params = params
+        self._layout = params.layout
         self.arena = arena
         self.limits = limits
         self._fallbacks = 0
@@ -93,7 +94,7 @@ class SafetyMonitor:
         estimate: Estimate,
         mode: Mode,
         plan_status: PlanStatus | None,
-        links_connected: tuple[bool, bool],
+        links_connected: tuple[bool, ...],
         bar_yaw_reference_rad: float | None = None,
     ) -> list[Fault]:
         """All faults seen on this tick (empty when everything is fine); the bar's yaw is
@@ -149,18 +150,15 @@ class SafetyMonitor:
         return faults
 
     def _geofence(self, x: np.ndarray, faults: list[Fault]) -> None:
-        bodies = (
-            ("bar", bar_position(x)),
-            ("UAV 1", uav_position(x, 1)),
-            ("UAV 2", uav_position(x, 2)),
-        )
+        bodies = [("bar", payload_position(x))]
+        bodies += [(f"UAV {i}", self._layout.uav_position(x, i)) for i in self._layout.vehicles]
         for name, position in bodies:
             if not self.arena.contains(position, margin_m=0.0):
                 faults.append(Fault("geofence", f"{name} left the arena", Response.ABORT))
 
     def _tilt(self, x: np.ndarray, faults: list[Fault]) -> None:
-        for i in (1, 2):
-            z_axis_z = float(rotation_from_euler_zyx(*uav_euler(x, i))[2, 2])
+        for i in self._layout.vehicles:
+            z_axis_z = float(rotation_from_euler_zyx(*self._layout.uav_euler(x, i))[2, 2])
             tilt = math.acos(max(-1.0, min(1.0, z_axis_z)))
             if tilt > self.limits.max_tilt_rad:
                 faults.append(
@@ -186,11 +184,11 @@ class SafetyMonitor:
         # its stall as slack.
         since = 0.0 if self._last_slack_check_s is None else now_s - self._last_slack_check_s
         self._last_slack_check_s = now_s
-        ends = bar_ends(x, self.params.arms_m)
+        ends = payload_points(x, self.params.payload.attachments_m)
         slack = [
             i
-            for i in (1, 2)
-            if np.linalg.norm(uav_position(x, i) - ends[i - 1])
+            for i in self._layout.vehicles
+            if np.linalg.norm(self._layout.uav_position(x, i) - ends[i - 1])
             < self.params.cable_lengths_m[i - 1] - lim.slack_margin_m
         ]
         while self._slack_ticks and self._slack_ticks[0][0] <= now_s - lim.slack_window_s:
@@ -229,7 +227,7 @@ class SafetyMonitor:
         limit = self.limits.max_bar_yaw_error_rad
         if limit <= 0.0 or mode not in (Mode.HOVER, Mode.TRACKING):
             return
-        error = math.remainder(bar_yaw(x) - reference_rad, math.tau)
+        error = math.remainder(payload_yaw(x) - reference_rad, math.tau)
         if abs(error) > limit:
             faults.append(
                 Fault(

@@ -1,11 +1,11 @@
 """Bar setpoints: validation and the bounded queue.
 
 A setpoint is checked against the arena geofence and equilibrium feasibility *before* it
-is queued: the bar, both bar ends and both UAVs of its equilibrium must lie inside the
-arena (with a margin), and the vehicles must be able to hold that equilibrium (θ_l, thrust
-and tilt within ``SetpointBounds``, ``supervisor.flight.feasibility``). The queue starts
-the next setpoint when the current one has been reached and held for ``hold_s``. Between
-setpoints the reference moves at bounded rates
+is queued: the bar, every cable's attachment and every UAV of its equilibrium must lie
+inside the arena (with a margin), and the vehicles must be able to hold that equilibrium
+(θ_l, thrust and tilt within ``SetpointBounds``, ``supervisor.flight.feasibility``). The
+queue starts the next setpoint when the current one has been reached and held for
+``hold_s``. Between setpoints the reference moves at bounded rates
 (``supervisor.flight.reference_shaping``), never in steps.
 """
 
@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
-from controllers.params import BarSystemParams
-from geometry.state import bar_position
+from controllers.equilibria import EquilibriumError
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
+from geometry.state import payload_position
 from supervisor.errors import OperatorError
 from supervisor.flight.feasibility import SetpointBounds, equilibrium_problems, theta_l_problem
 
@@ -40,24 +41,28 @@ class SetpointQueueFullError(SetpointRefusedError):
 
 @dataclass(frozen=True)
 class Setpoint:
-    """One queue entry: bar centre [m, arena frame], bar yaw, UAV yaws, θ_l [rad], hold [s],
+    """One queue entry, as the operator states it (the API's and the scenarios' names):
+    bar centre [m, arena frame], bar yaw, UAV yaws, θ_l (the cone angle) [rad], hold [s],
     and optionally how long to wait for it to be reached before moving on anyway [s]."""
 
     bar_position_m: tuple[float, float, float]
     bar_yaw_rad: float = 0.0
-    uav_yaw_rad: tuple[float, float] | None = None
+    uav_yaw_rad: tuple[float, ...] | None = None
     theta_l_rad: float = 0.0
     hold_s: float = 5.0
     timeout_s: float | None = None
 
-    def reference(self) -> Reference:
-        """The equilibrium family this setpoint asks for (UAV yaws default to the bar's)."""
-        yaws = (
-            self.uav_yaw_rad
-            if self.uav_yaw_rad is not None
-            else (self.bar_yaw_rad, self.bar_yaw_rad)
+    def uav_yaws(self, n_vehicles: int) -> tuple[float, ...]:
+        """The UAVs' yaws [rad]: as given, or each the bar's."""
+        return (
+            self.uav_yaw_rad if self.uav_yaw_rad is not None else (self.bar_yaw_rad,) * n_vehicles
         )
-        return Reference(self.bar_position_m, self.bar_yaw_rad, yaws, self.theta_l_rad)
+
+    def reference(self, n_vehicles: int) -> FormationReference:
+        """The equilibrium family this setpoint asks for of ``n_vehicles`` UAVs."""
+        return FormationReference(
+            self.bar_position_m, self.bar_yaw_rad, self.uav_yaws(n_vehicles), self.theta_l_rad
+        )
 
 
 @dataclass(frozen=True)
@@ -82,7 +87,7 @@ class Arena:
 
 
 def validate_setpoint(
-    setpoint: Setpoint, params: BarSystemParams, arena: Arena, bounds: SetpointBounds
+    setpoint: Setpoint, params: FormationParams, arena: Arena, bounds: SetpointBounds
 ) -> None:
     """Raise ``SetpointError`` naming what is wrong; return quietly when it can be flown."""
     values = [*setpoint.bar_position_m, setpoint.bar_yaw_rad, setpoint.theta_l_rad, setpoint.hold_s]
@@ -94,18 +99,17 @@ def validate_setpoint(
     too_steep = theta_l_problem(setpoint.theta_l_rad, bounds)
     problems = [too_steep] if too_steep is not None else []
     try:
-        eq = bar_equilibrium(params, setpoint.reference())
+        eq = formation_equilibrium(params, setpoint.reference(params.n_vehicles))
     except EquilibriumError as error:
         raise SetpointError("; ".join(problems) or str(error)) from error
     problems += equilibrium_problems(eq, bounds)
     if problems:
         raise SetpointError("; ".join(problems))
+    vehicles = params.layout.vehicles
     points = {
-        "bar centre": bar_position(eq.x),
-        "bar end 1": eq.bar_ends_m[0],
-        "bar end 2": eq.bar_ends_m[1],
-        "UAV 1": eq.uav_position(1),
-        "UAV 2": eq.uav_position(2),
+        "bar centre": payload_position(eq.x),
+        **{f"bar end {i}": eq.attachments_m[i - 1] for i in vehicles},
+        **{f"UAV {i}": eq.uav_position(i) for i in vehicles},
     }
     for name, point in points.items():
         if not arena.contains(point):
@@ -117,7 +121,7 @@ def validate_setpoint(
 
 
 def validate_setpoints(
-    setpoints: list[Setpoint], params: BarSystemParams, arena: Arena, bounds: SetpointBounds
+    setpoints: list[Setpoint], params: FormationParams, arena: Arena, bounds: SetpointBounds
 ) -> None:
     """``validate_setpoint`` on each; the error names which one when there are several."""
     for index, setpoint in enumerate(setpoints):

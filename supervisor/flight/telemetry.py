@@ -15,16 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from controllers.equilibria import bar_equilibrium
-from geometry.state import (
-    BAR_STATES,
-    bar_ends,
-    bar_position,
-    bar_velocity,
-    bar_yaw,
-    uav_euler,
-    uav_position,
-)
+from controllers.formation_equilibria import formation_equilibrium
+from geometry.state import payload_points, payload_position, payload_velocity, payload_yaw
 from supervisor.flight.arming import arm_blockers
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
@@ -62,22 +54,23 @@ def build_telemetry(
 ) -> dict[str, Any]:
     """The status/telemetry message at ``now_s`` (monotonic seconds of the flight process);
     ``log_problem``: why no flight log could be written now (it blocks arming)."""
-    x = estimate.x if estimate is not None else np.full(BAR_STATES, math.nan)
+    layout = core.params.layout
+    x = estimate.x if estimate is not None else np.full(layout.n_states, math.nan)
     reference = last_tick.reference if last_tick is not None else None
     plan = last_tick.plan if last_tick is not None else None
     reference_json = None
     if reference is not None:
-        eq = bar_equilibrium(core.params, reference)
+        eq = formation_equilibrium(core.params, reference)
         reference_json = {
-            "bar_position": list(reference.bar_position_m),
-            "bar_yaw": reference.bar_yaw_rad,
+            "bar_position": list(reference.payload_position_m),
+            "bar_yaw": reference.payload_yaw_rad,
             "uav_yaw": list(reference.uav_yaw_rad),
-            "theta_l": reference.theta_l_rad,
-            "uav_positions": [_floats(eq.uav_position(i)) for i in (1, 2)],
-            "bar_ends": [_floats(end) for end in eq.bar_ends_m],
+            "theta_l": reference.cone_angle_rad,
+            "uav_positions": [_floats(eq.uav_position(i)) for i in layout.vehicles],
+            "bar_ends": [_floats(end) for end in eq.attachments_m],
         }
     bar_error = (
-        float(np.linalg.norm(bar_position(x) - np.asarray(reference.bar_position_m)))
+        float(np.linalg.norm(payload_position(x) - np.asarray(reference.payload_position_m)))
         if reference is not None
         else None
     )
@@ -91,17 +84,17 @@ def build_telemetry(
         "arm_blocked_by": "; ".join(arm_blockers(core, vehicles, log_problem)) or None,
         "arena": {"min": list(core.arena.min_m), "max": list(core.arena.max_m)},
         "bar": {
-            "position": _floats(bar_position(x)),
-            "ends": [_floats(end) for end in bar_ends(x, core.params.arms_m)],
-            "yaw": _floats([bar_yaw(x)])[0],
-            "velocity": _floats(bar_velocity(x)),
+            "position": _floats(payload_position(x)),
+            "ends": [_floats(end) for end in payload_points(x, core.params.payload.attachments_m)],
+            "yaw": _floats([payload_yaw(x)])[0],
+            "velocity": _floats(payload_velocity(x)),
             "error_m": bar_error,
         },
         "uavs": [
             {
-                "position": _floats(uav_position(x, i)),
-                "yaw": _floats(uav_euler(x, i)[2:])[0],
-                "attitude": _floats(uav_euler(x, i)),
+                "position": _floats(layout.uav_position(x, i)),
+                "yaw": _floats(layout.uav_euler(x, i)[2:])[0],
+                "attitude": _floats(layout.uav_euler(x, i)),
                 "connected": v.connected,
                 "px4_mode": v.px4_mode,
                 "battery_v": v.battery_v if math.isfinite(v.battery_v) else None,

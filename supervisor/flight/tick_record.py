@@ -8,9 +8,10 @@ from typing import Any
 
 @dataclass(frozen=True)
 class TickRecord:
-    """What one control tick did. ``state`` and ``state_ref`` are 36-states in the paper's
-    order (``state_ref`` the equilibrium being regulated to, i.e. the dashed references of
-    the paper's figures); ``inputs`` (F1, τ1, F2, τ2) [N, N m]; times in ms."""
+    """What one control tick did. ``state`` and ``state_ref`` are formation states in the
+    paper's order (``geometry.formation``; ``state_ref`` the equilibrium being regulated
+    to, i.e. the dashed references of the paper's figures); ``inputs`` (F1, τ1, …, FN, τN)
+    [N, N m]; times in ms."""
 
     t_s: float
     mode: str

@@ -23,9 +23,14 @@ import numpy as np
 import pydantic_core
 
 from geometry.arrays import FloatArray
+from geometry.formation import FormationLayout
 from supervisor.flight.tick_record import TickRecord
 from supervisor.logs.background_sync import BackgroundSync
 
+# The logs' states and inputs are the paper's two UAVs and bar: their readers, the figures
+# and the Foxglove scene name these bodies (issue 31 generalizes the controllers, not yet
+# the logs).
+LOG_LAYOUT = FormationLayout(2)
 FSYNC_INTERVAL_S = 1.0
 LogFormat = Literal["jsonl", "mcap"]
 SUFFIXES: dict[str, LogFormat] = {".jsonl": "jsonl", ".mcap": "mcap"}
@@ -149,9 +154,9 @@ class FlightLog:
     path: Path
     header: dict[str, Any]
     t_s: FloatArray
-    state: FloatArray  # (T, 36)
-    state_ref: FloatArray  # (T, 36)
-    inputs: FloatArray  # (T, 8)
+    state: FloatArray  # (T, LOG_LAYOUT.n_states)
+    state_ref: FloatArray  # (T, LOG_LAYOUT.n_states)
+    inputs: FloatArray  # (T, LOG_LAYOUT.n_inputs)
     solve_ms: FloatArray
     compute_ms: FloatArray
     lateness_ms: FloatArray
@@ -208,9 +213,9 @@ def _flight_log(
         path=path,
         header=header,
         t_s=_array([t["t_s"] for t in ticks]),
-        state=_array([t["state"] for t in ticks], 36),
-        state_ref=_array([t["state_ref"] for t in ticks], 36),
-        inputs=_array([t["inputs"] for t in ticks], 8),
+        state=_array([t["state"] for t in ticks], _WIDTHS["state"]),
+        state_ref=_array([t["state_ref"] for t in ticks], _WIDTHS["state_ref"]),
+        inputs=_array([t["inputs"] for t in ticks], _WIDTHS["inputs"]),
         solve_ms=_array([t["solve_ms"] for t in ticks]),
         compute_ms=_array([t["compute_ms"] for t in ticks]),
         lateness_ms=_array([t["lateness_ms"] for t in ticks]),
@@ -232,7 +237,11 @@ def _read_mcap(path: Path) -> FlightLog:
     return _flight_log(path, recovered.header, ticks, recovered.notices)
 
 
-_WIDTHS = {"state": 36, "state_ref": 36, "inputs": 8}
+_WIDTHS = {
+    "state": LOG_LAYOUT.n_states,
+    "state_ref": LOG_LAYOUT.n_states,
+    "inputs": LOG_LAYOUT.n_inputs,
+}
 _NUMBERS = ("solve_ms", "compute_ms", "lateness_ms", "mocap_age_ms")
 _NAMES = ("mode", "controller", "plan_status")
 

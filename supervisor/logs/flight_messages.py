@@ -4,7 +4,7 @@ Two kinds of channel. Foxglove's well-known schemas (protobuf, encoded by ``foxg
 for what Foxglove draws in 3D: ``/tf`` (world → bar, uav1, uav2, bar_reference),
 ``/bar/pose``, ``/uav1/pose``, ``/uav2/pose`` and ``/scene`` (the bar, both cables and the
 reference bar). Our own JSON messages, each with a JSON Schema, for everything plotted or
-read back: ``/uavbar/state`` and ``/uavbar/reference`` (the 36-states by name),
+read back: ``/uavbar/state`` and ``/uavbar/reference`` (the states by name),
 ``/uavbar/inputs``, ``/uavbar/errors``, ``/uavbar/mpc``, ``/uavbar/mode``,
 ``/uavbar/timing``, ``/uavbar/mocap`` (one message each per tick) and ``/uavbar/notices``
 (one per notice). The per-tick JSON channels carry everything a ``TickRecord`` holds, so the
@@ -22,11 +22,15 @@ import foxglove.messages as fg
 import numpy as np
 
 from geometry.frames import quaternion_from_euler_zyx
-from geometry.state import BAR_YAW, UAV_OFFSETS, bar_ends
+from geometry.state import P_B, PAYLOAD_YAW, payload_points
 from supervisor.flight.tick_record import TickRecord
+from supervisor.logs.flight_log import LOG_LAYOUT
 
 WORLD_FRAME = "world"
-BODIES = (("bar", 0), ("uav1", UAV_OFFSETS[0]), ("uav2", UAV_OFFSETS[1]))
+BODIES = (
+    ("bar", P_B.start),
+    *((f"uav{i}", LOG_LAYOUT.uav_block(i).start) for i in LOG_LAYOUT.vehicles),
+)
 VEC3 = ("x", "y", "z")
 EULER = ("roll", "pitch", "yaw")
 
@@ -142,7 +146,7 @@ def _errors(state: Sequence[float], ref: Sequence[float]) -> dict[str, Any]:
     return {
         "bar": {
             "position_m": position(0),
-            "yaw_deg": _finite(_wrapped_deg(state[BAR_YAW] - ref[BAR_YAW])),
+            "yaw_deg": _finite(_wrapped_deg(state[PAYLOAD_YAW] - ref[PAYLOAD_YAW])),
         },
         **{uav: {"position_m": position(o), "attitude_deg": attitude(o)} for uav, o in BODIES[1:]},
     }
@@ -232,6 +236,12 @@ class SceneStyle:
 
     arms_m: tuple[float, float]
 
+    @property
+    def attachments_m(self) -> tuple[tuple[float, float, float], ...]:
+        """The attachments in the bar's frame, its x axis from cable 1's to cable 2's."""
+        d1, d2 = self.arms_m
+        return ((-d1, 0.0, 0.0), (d2, 0.0, 0.0))
+
 
 _BAR_COLOUR = fg.Color(r=0.85, g=0.55, b=0.1, a=1.0)
 _CABLE_COLOUR = fg.Color(r=0.2, g=0.2, b=0.2, a=1.0)
@@ -287,8 +297,8 @@ def well_known_messages(
     for name, pose in poses.items():
         yield f"/{name}/pose", fg.PoseInFrame(timestamp=timestamp, frame_id=WORLD_FRAME, pose=pose)
     x = np.asarray(state)
-    end_1, end_2 = bar_ends(x, style.arms_m)
-    uav_1, uav_2 = x[UAV_OFFSETS[0] : UAV_OFFSETS[0] + 3], x[UAV_OFFSETS[1] : UAV_OFFSETS[1] + 3]
+    end_1, end_2 = payload_points(x, style.attachments_m)
+    uav_1, uav_2 = (LOG_LAYOUT.uav_position(x, i) for i in LOG_LAYOUT.vehicles)
 
     def line(points: list[Any], colour: fg.Color, thickness: float) -> fg.LinePrimitive:
         return fg.LinePrimitive(
@@ -314,6 +324,6 @@ def well_known_messages(
         ),
     ]
     if has_reference:
-        ref_1, ref_2 = bar_ends(np.asarray(ref), style.arms_m)
+        ref_1, ref_2 = payload_points(np.asarray(ref), style.attachments_m)
         entities.append(entity("reference", lines=[line([ref_1, ref_2], _REFERENCE_COLOUR, 0.02)]))
     yield "/scene", fg.SceneUpdate(entities=entities)

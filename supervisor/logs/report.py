@@ -30,9 +30,11 @@ import numpy as np
 from matplotlib.patches import Patch
 
 from controllers.mpc import PlanStatus
-from supervisor.logs.flight_log import FlightLog
+from geometry.state import P_B, PAYLOAD_YAW
+from supervisor.logs.flight_log import LOG_LAYOUT, FlightLog
 
-BODIES = (("bar", 0), ("UAV 1", 12), ("UAV 2", 24))
+UAVS = tuple((f"UAV {i}", LOG_LAYOUT.uav_slices(i)) for i in LOG_LAYOUT.vehicles)
+BODIES = (("bar", P_B.start), *((name, parts[0].start) for name, parts in UAVS))
 AXES = ("x", "y", "z")
 ANGLES = ("roll", "pitch", "yaw")
 
@@ -59,8 +61,8 @@ def summarize(log: FlightLog) -> dict[str, Any]:
     ``bar_x_error_*`` are the arithmetic mean and sample standard deviation of the bar
     centre's x error (the paper's proxy); RMS figures cover position (3-D) and yaw.
     """
-    error = log.state[:, 0:3] - log.state_ref[:, 0:3]
-    yaw_error = _wrap(log.state[:, 8] - log.state_ref[:, 8])
+    error = log.state[:, P_B] - log.state_ref[:, P_B]
+    yaw_error = _wrap(log.state[:, PAYLOAD_YAW] - log.state_ref[:, PAYLOAD_YAW])
     x_error = error[:, 0]
     finite = np.isfinite(x_error)
     solve = log.solve_ms[np.isfinite(log.solve_ms)]
@@ -190,11 +192,10 @@ def _positions(logs: list[FlightLog]) -> Any:
 
 
 # The bar's attitude is its pitch and yaw: it cannot roll about its own axis in the model
-# (n_b depends on θ_b and ψ_b only, geometry/state.py), so its roll is not drawn.
+# (its attachments depend on θ_b and ψ_b only), so its roll is not drawn.
 ORIENTATION_PANELS = (
-    ("bar", 0, ("pitch", "yaw")),
-    ("UAV 1", 12, ANGLES),
-    ("UAV 2", 24, ANGLES),
+    ("bar", P_B.start, ("pitch", "yaw")),
+    *((name, parts[0].start, ANGLES) for name, parts in UAVS),
 )
 
 
@@ -258,11 +259,12 @@ def _inputs(logs: list[FlightLog]) -> Any:
     the raw values' range over the same window shaded."""
     fig, axes = plt.subplots(4, 2, figsize=(13, 9.5), sharex=True, layout="constrained")
     labels = _labels(logs)
-    for uav in range(2):
+    for uav in range(LOG_LAYOUT.n_vehicles):
+        first = LOG_LAYOUT.thrust_index(uav + 1)
         for row, (name, index, unit) in enumerate(INPUT_ROWS):
             ax = axes[row, uav]
             for k, log in enumerate(logs):
-                mean, low, high = _filtered(log.inputs[:, 4 * uav + index], _window(log))
+                mean, low, high = _filtered(log.inputs[:, first + index], _window(log))
                 t_s = _t_s(log)
                 ax.fill_between(t_s, low, high, color=COLOURS[k], alpha=0.22, lw=0)
                 ax.plot(t_s, mean, _style(k), color=COLOURS[k], lw=1.1, label=labels[k])
@@ -280,12 +282,16 @@ def _inputs(logs: list[FlightLog]) -> Any:
 # Fig. 8's rows: (name, the state index of its first component, its components, unit); a
 # panel per component, x/roll, y/pitch, z/yaw from the left.
 ERROR_ROWS = (
-    ("bar position error", 0, AXES, "[m]"),
-    ("bar yaw error", 8, ("yaw",), "[°]"),
-    ("UAV 1 position error", 12, AXES, "[m]"),
-    ("UAV 1 attitude error", 18, ANGLES, "[°]"),
-    ("UAV 2 position error", 24, AXES, "[m]"),
-    ("UAV 2 attitude error", 30, ANGLES, "[°]"),
+    ("bar position error", P_B.start, AXES, "[m]"),
+    ("bar yaw error", PAYLOAD_YAW, ("yaw",), "[°]"),
+    *(
+        row
+        for name, parts in UAVS
+        for row in (
+            (f"{name} position error", parts[0].start, AXES, "[m]"),
+            (f"{name} attitude error", parts[2].start, ANGLES, "[°]"),
+        )
+    ),
 )
 
 

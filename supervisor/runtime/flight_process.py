@@ -533,7 +533,7 @@ class FlightProcess:
         header: dict[str, Any] = {
             "setup": self.settings.setup_name,
             "controller": self.core.controller,
-            "arms_m": list(self.core.params.arms_m),
+            "arms_m": list(self.core.params.bar_arms_m),
         }
         if sequence is not None:
             header["mocap_recording"] = {

@@ -30,7 +30,7 @@ class TickDriver:
         self.estimate: Estimate | None = None
 
     def estimate_at(self, now_s: float) -> Estimate:
-        """The 36-state from what the fusion knows at ``now_s`` (kept as ``estimate``)."""
+        """The state from what the fusion knows at ``now_s`` (kept as ``estimate``)."""
         self.estimate = estimate_state(self.fusion.states(now_s), self.names)
         return self.estimate
 

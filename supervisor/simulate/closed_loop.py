@@ -19,9 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from controllers.equilibria import Reference, bar_equilibrium
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from geometry.frames import euler_zyx_from_quaternion
-from geometry.state import uav_position
 from mocap.qtm_protocol import BodyPose
 from mocap.qtm_protocol import MocapFrame as QtmFrame
 from sim.measurement import MocapFrame as SimFrame
@@ -190,9 +189,12 @@ class ClosedLoop:
         if scenario.start == "ground":
             self.plant.place_resting((position[0], position[1]), yaw)
         else:
-            reference = Reference((position[0], position[1], position[2]), yaw, (yaw, yaw), 0.0)
-            x = bar_equilibrium(self.config.system.to_params(), reference).x
-            self.plant.place_hanging((uav_position(x, 1), uav_position(x, 2)), (yaw, yaw))
+            params = self.config.system.to_params()
+            reference = FormationReference(
+                (position[0], position[1], position[2]), yaw, (yaw,) * params.n_vehicles, 0.0
+            )
+            eq = formation_equilibrium(params, reference)
+            self.plant.place_hanging((eq.uav_position(1), eq.uav_position(2)), (yaw, yaw))
 
     def resting_heights(self) -> tuple[float, float, float]:
         """Heights of the bar's and the UAVs' centres [m] when all rest on the ground."""
@@ -257,7 +259,7 @@ def run_scenario(
         "setup": config.name,
         "scenario": scenario.name,
         "controller": controller,
-        "arms_m": list(loop.core.params.arms_m),
+        "arms_m": list(loop.core.params.bar_arms_m),
     }
     log: FlightLogSink | None = open_flight_log(log_path, header) if log_path else None
     loop.driver.log = log

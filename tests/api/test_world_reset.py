@@ -13,7 +13,7 @@ import pytest
 
 from api import world_reset
 from api.world_reset import settle_after_reset, tracked_at
-from geometry.state import bar_position, uav_position, uav_slices
+from geometry.state import payload_position
 from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.estimation import Estimate
@@ -38,9 +38,9 @@ def telemetry_of(estimate: Estimate) -> dict[str, Any]:
 
 def positions_of(x: np.ndarray) -> dict[str, list[float]]:
     return {
-        "bar": bar_position(x).tolist(),
-        "uav1": uav_position(x, 1).tolist(),
-        "uav2": uav_position(x, 2).tolist(),
+        "bar": payload_position(x).tolist(),
+        "uav1": PARAMS.layout.uav_position(x, 1).tolist(),
+        "uav2": PARAMS.layout.uav_position(x, 2).tolist(),
     }
 
 
@@ -50,7 +50,9 @@ def test_tracked_only_with_fresh_mocap_and_every_body_at_its_place() -> None:
     status = telemetry_of(resting)
     assert tracked_at(status, at_rest) and status["arm_blocked_by"] is None
     moved = resting.x.copy()
-    moved[uav_slices(2)[0]][1] += 0.6  # pushed aside, farther than a landing leaves it
+    moved[PARAMS.layout.uav_slices(2)[0]][1] += (
+        0.6  # pushed aside, farther than a landing leaves it
+    )
     status = telemetry_of(Estimate(moved, 0.005, ()))
     assert not tracked_at(status, at_rest)
     assert "UAV 2 stands 0.60 m from its bar end" in status["arm_blocked_by"]
@@ -66,7 +68,7 @@ async def test_the_reset_answers_once_the_telemetry_tracks_the_resting_pose(
     monkeypatch.setattr(world_reset, "SETTLE_TIMEOUT_S", 60.0)
     resting = resting_estimate(PARAMS)
     moved = resting.x.copy()
-    moved[uav_slices(1)[0]][0] += 0.3
+    moved[PARAMS.layout.uav_slices(1)[0]][0] += 0.3
     pairs = [socket.socketpair() for _ in range(2)]
     commands, urgent = [await Channel.open(a) for a, _ in pairs]
     flight_side = [await Channel.open(b) for _, b in pairs]

@@ -6,20 +6,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controllers.equilibria import Reference
-from controllers.model import BarSystemModel
+from controllers.formation_equilibria import FormationReference
+from controllers.formation_model import FormationModel
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
 
 
 @dataclass(frozen=True)
 class Run:
     times_s: np.ndarray
-    states: np.ndarray  # (ticks + 1, 36)
+    states: np.ndarray  # (ticks + 1, 12 + 12N)
     plans: list[Plan]
 
 
 def hold(
-    model: BarSystemModel, x: np.ndarray, u: np.ndarray, h: float, substeps: int
+    model: FormationModel, x: np.ndarray, u: np.ndarray, h: float, substeps: int
 ) -> np.ndarray:
     """``x`` after ``substeps`` RK4 steps of ``h`` [s] with the input ``u`` held."""
     f = model.dynamics
@@ -34,9 +34,9 @@ def hold(
 
 def fly(
     controller: CentralizedMpc | DecentralizedMpc,
-    model: BarSystemModel,
+    model: FormationModel,
     x0: np.ndarray,
-    reference: Reference,
+    reference: FormationReference,
     duration_s: float,
     substeps: int = 4,
 ) -> Run:

@@ -1,6 +1,6 @@
 """Equilibria of N UAVs carrying one payload: fixed points of the N-cable model, the cone
-angle of a symmetric geometry, the bar system's equilibria for N = 2, refusals, and the
-moving reference's feed-forward."""
+angle of a symmetric geometry, Section IV's equilibria for the bar (N = 2), refusals, and
+the moving reference's feed-forward."""
 
 from __future__ import annotations
 
@@ -11,19 +11,20 @@ import math
 import numpy as np
 import pytest
 
-from controllers.equilibria import EquilibriumError, Reference, bar_equilibrium
+from controllers.equilibria import EquilibriumError
 from controllers.formation_equilibria import (
     FormationLimits,
     FormationReference,
     formation_equilibrium,
+    hanging_mass_shares_kg,
 )
 from controllers.formation_model import FormationModel
-from controllers.formation_params import FormationParams, PayloadParams, formation_from_bar
+from controllers.formation_params import FormationParams, PayloadParams
 from controllers.model import PayloadModel
-from controllers.params import BarSystemParams, UavParams
+from controllers.params import UavParams
 from geometry.formation import FormationLayout
 from geometry.frames import rotation_from_euler_zyx
-from geometry.state import P_B, P_P, PAYLOAD_STATES, TH_B, UAV_BLOCK, V_B, W_B
+from geometry.state import AGENT_STATES, P_B, P_P, TH_B, UAV_BLOCK, V_B, W_B
 from tests.conftest import LAB_INERTIA, symmetric_params, uneven_params
 
 CONE_GRID_DEG = (0.0, 10.0, 30.0, 55.0, 75.0)
@@ -140,57 +141,32 @@ BAR_SETUPS = {"symmetric": symmetric_params(), "uneven": uneven_params()}
 
 
 @pytest.mark.parametrize("bar", BAR_SETUPS.values(), ids=BAR_SETUPS.keys())
-def test_two_cables_on_a_bar_are_the_bar_systems_equilibria(
-    bar: BarSystemParams, lab_params: BarSystemParams
+def test_two_cables_on_a_bar_are_section_iv_equilibria(
+    bar: FormationParams, lab_params: FormationParams
 ) -> None:
-    """x, u, tensions, angles and the decentralized model's inputs equal bar_equilibrium's."""
+    """The bar level along ψ_b with its ends at p_b − d1 n_b and p_b + d2 n_b; each cable
+    carries the vertical load (13) and the same horizontal pull (m_b g / 2) tan θ_l, in
+    the bar's vertical plane, outwards; the cable angles follow (any d1, d2, masses,
+    cable lengths)."""
     for params in (bar, lab_params):
-        formation = formation_from_bar(params)
-        for theta_deg, psi_b, rates, theta_rate in itertools.product(
-            (0.0, 10.0, 45.0, 80.0), YAWS, ((0.0, 0.0, 0.0), (0.3, -0.5, 0.2)), (0.0, -0.4)
-        ):
-            velocity = (0.3, -0.2, 0.1)
-            uav_yaws = (0.3, -1.0)
-            bar_eq = bar_equilibrium(
-                params,
-                Reference(
-                    (0.4, -1.1, 1.3),
-                    psi_b,
-                    uav_yaws,
-                    math.radians(theta_deg),
-                    velocity,
-                    rates,
-                    theta_rate,
-                ),
-            )
+        d1, d2 = params.bar_arms_m
+        m_b, g = params.payload.mass_kg, params.gravity_mps2
+        for theta_deg, psi_b in itertools.product((0.0, 10.0, 45.0, 80.0), YAWS):
+            theta = math.radians(theta_deg)
             eq = formation_equilibrium(
-                formation,
-                FormationReference(
-                    (0.4, -1.1, 1.3),
-                    psi_b,
-                    uav_yaws,
-                    math.radians(theta_deg),
-                    velocity,
-                    rates[0],
-                    rates[1:],
-                    theta_rate,
-                ),
+                params, FormationReference((0.4, -1.1, 1.3), psi_b, (0.3, -1.0), theta)
             )
-            np.testing.assert_allclose(eq.x, bar_eq.x, rtol=0.0, atol=1e-12)
-            np.testing.assert_allclose(eq.u, bar_eq.u, rtol=0.0, atol=1e-12)
-            assert eq.tensions_n == pytest.approx(bar_eq.tensions_n, abs=1e-12)
-            assert eq.cable_angles_rad == pytest.approx(bar_eq.theta_l_rad, abs=1e-12)
-            assert eq.tilts_rad == pytest.approx(bar_eq.theta_f_rad, abs=1e-12)
-            for i in (1, 2):
+            n_b = np.array([math.cos(psi_b), math.sin(psi_b), 0.0])
+            p_b = np.array([0.4, -1.1, 1.3])
+            pull = m_b * g / 2.0 * math.tan(theta)
+            for i, sign, arm, other in ((1, -1.0, d1, d2), (2, 1.0, d2, d1)):
+                np.testing.assert_allclose(eq.attachments_m[i - 1], p_b + sign * arm * n_b)
+                vertical = m_b * g * other / (d1 + d2)
                 np.testing.assert_allclose(
-                    eq.attachments_m[i - 1], bar_eq.bar_ends_m[i - 1], atol=1e-12
+                    eq.payload_force_n[i - 1], -sign * pull * n_b, atol=1e-12
                 )
-                np.testing.assert_allclose(
-                    eq.payload_force_n[i - 1], bar_eq.payload_force_n[i - 1], atol=1e-12
-                )
-                assert eq.payload_mass_share_kg[i - 1] == pytest.approx(
-                    params.payload_mass_kg(i), rel=1e-12
-                )
+                assert eq.tensions_n[i - 1] == pytest.approx(math.hypot(pull, vertical))
+                assert eq.cable_angles_rad[i - 1] == pytest.approx(math.atan2(pull, vertical))
 
 
 def test_each_cable_end_is_an_equilibrium_of_the_decentralized_model() -> None:
@@ -203,7 +179,7 @@ def test_each_cable_end_is_an_equilibrium_of_the_decentralized_model() -> None:
         model = PayloadModel(
             params.uavs[i - 1], eq.payload_mass_share_kg[i - 1], params.cable_lengths_m[i - 1]
         )
-        x_i = np.zeros(PAYLOAD_STATES)
+        x_i = np.zeros(AGENT_STATES)
         x_i[UAV_BLOCK] = eq.x[layout.uav_block(i)]
         x_i[P_P] = eq.attachments_m[i - 1]
         xdot = model.dynamics(x_i, eq.u[layout.uav_input_slice(i)], eq.payload_force_n[i - 1])
@@ -367,3 +343,55 @@ def test_a_translating_reference_is_a_relative_equilibrium() -> None:
     for position in (P_B, *(layout.uav_slices(i)[0] for i in layout.vehicles)):
         expected[position] = velocity
     np.testing.assert_allclose(xdot, expected, atol=1e-9)
+
+
+def test_a_reference_spells_none_turns_one_way_and_turns_to_other_yaws() -> None:
+    """No UAV yaw rates given is zeros (so a shaped reference at rest equals its target);
+    ``with_yaws`` turns it, ``at_rest`` stops it."""
+    still = FormationReference((0.0, 0.0, 1.0), 0.2, (0.1, 0.3, -0.4), 0.3)
+    assert still.uav_yaw_rates_radps == (0.0, 0.0, 0.0)
+    assert still == FormationReference((0.0, 0.0, 1.0), 0.2, (0.1, 0.3, -0.4), 0.3, (0, 0, 0), 0.0)
+    moving = dataclasses.replace(
+        still, velocity_mps=(0.1, 0.0, 0.0), uav_yaw_rates_radps=(0.2, 0.0, 0.1)
+    )
+    turned = moving.with_yaws(1.0, (0.5, 0.6, 0.7))
+    assert (turned.payload_yaw_rad, turned.uav_yaw_rad) == (1.0, (0.5, 0.6, 0.7))
+    assert turned.uav_yaw_rates_radps == (0.2, 0.0, 0.1) and turned.velocity_mps[0] == 0.1
+    assert moving.at_rest() == still
+
+
+def test_each_call_gets_its_own_state_and_input() -> None:
+    params = plate_params(4)
+    reference = reference_for(params, 0.3, 0.2)
+    first = formation_equilibrium(params, reference)
+    first.x[:] = 0.0
+    first.u[:] = 0.0
+    second = formation_equilibrium(params, reference)
+    assert second.x.any() and second.u.any()
+    with pytest.raises(ValueError, match="read-only"):
+        second.attachments_m[0][0] = 1.0
+
+
+def test_the_hanging_shares_are_the_vertical_loads_at_no_cone_angle() -> None:
+    """For attachments at different heights the vertical loads change with the cone angle;
+    the decentralized agents' masses are the still, vertical-cable ones."""
+    params = irregular_params(4)
+    shares = hanging_mass_shares_kg(params)
+    assert math.fsum(shares) == pytest.approx(params.payload.mass_kg)
+    assert (
+        shares
+        == formation_equilibrium(params, reference_for(params, 1.0, 0.0)).payload_mass_share_kg
+    )
+    tilted = formation_equilibrium(params, reference_for(params, 1.0, math.radians(40)))
+    assert max(abs(a - b) for a, b in zip(shares, tilted.payload_mass_share_kg, strict=True)) > 1e-3
+
+
+def test_symmetry_and_the_bar_s_arms() -> None:
+    """Assumption 1 for N: equal UAVs and cables, attachments equally far from the CoM, at
+    their centroid; only the paper's bar of two has the arms d1, d2."""
+    assert plate_params(5).is_symmetric and symmetric_params().is_symmetric
+    assert not uneven_params().is_symmetric and not irregular_params(3).is_symmetric
+    assert uneven_params().bar_arms_m == (0.6, 0.87)
+    for other in (plate_params(3), three_cable_bar()):
+        with pytest.raises(ValueError, match="arms d1 and d2"):
+            _ = other.bar_arms_m

@@ -1,10 +1,10 @@
-"""The N-vehicle layout: every index once, and the bar system's layout for N = 2."""
+"""The N-vehicle layout: every index once, and the paper's UAV–bar layout for N = 2."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from geometry import state
 from geometry.formation import MAX_VEHICLES, MIN_VEHICLES, FormationLayout
 from geometry.state import P_B, TH_B, V_B, W_B
 
@@ -13,17 +13,21 @@ def indices(s: slice) -> list[int]:
     return list(range(s.start, s.stop))
 
 
-def test_two_vehicles_is_the_bar_systems_layout() -> None:
+def test_two_vehicles_is_the_papers_layout() -> None:
+    """Section II-B: x = (p_b, v_b, Θ_b, ω_b, p_1, …, ω_1, p_2, …, ω_2) ∈ R^36,
+    u = (F_1, τ_1, F_2, τ_2) ∈ R^8."""
     layout = FormationLayout(2)
-    assert (layout.n_states, layout.n_inputs) == (state.BAR_STATES, state.BAR_INPUTS)
-    assert layout.yaw_indices == state.YAW_INDICES
-    for i in (1, 2):
-        assert layout.uav_block(i) == state.uav_block(i)
-        assert layout.uav_slices(i) == state.uav_slices(i)
-        assert layout.uav_yaw_index(i) == state.uav_yaw_index(i)
-        assert layout.thrust_index(i) == state.thrust_index(i)
-        assert layout.torque_slice(i) == state.torque_slice(i)
-        assert layout.uav_input_slice(i) == state.uav_input_slice(i)
+    assert (layout.n_states, layout.n_inputs) == (36, 8)
+    assert [layout.uav_block(i) for i in (1, 2)] == [slice(12, 24), slice(24, 36)]
+    assert layout.yaw_indices == (8, 20, 32)
+    assert [layout.thrust_index(i) for i in (1, 2)] == [0, 4]
+    assert layout.torque_slice(2) == slice(5, 8)
+    x = np.arange(36.0)
+    assert layout.uav_yaws(x) == (20.0, 32.0)
+    assert list(layout.uav_position(x, 2)) == [24, 25, 26]
+    assert list(layout.uav_velocity(x, 1)) == [15, 16, 17]
+    assert list(layout.uav_euler(x, 1)) == [18, 19, 20]
+    assert layout.uav_rate_indices == [21, 22, 23, 33, 34, 35]
 
 
 @pytest.mark.parametrize("n", range(MIN_VEHICLES, MAX_VEHICLES + 1))

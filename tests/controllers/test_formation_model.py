@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 
 from controllers.formation_equilibria import formation_equilibrium
-from controllers.formation_linearization import formation_jacobians
 from controllers.formation_model import FormationModel
-from controllers.formation_params import FormationParams, PayloadParams, formation_from_bar
-from controllers.model import BarSystemModel
-from controllers.params import BarSystemParams, UavParams
+from controllers.formation_params import FormationParams, PayloadParams
+from controllers.linearization import formation_jacobians
+from controllers.params import UavParams
 from geometry.formation import FormationLayout
 from geometry.frames import rotation_from_euler_zyx
 from geometry.state import P_B, TH_B, V_B, W_B
@@ -33,25 +32,31 @@ Vector = np.ndarray
 
 
 @pytest.mark.parametrize("bar", [symmetric_params(), uneven_params()], ids=["symmetric", "uneven"])
-def test_two_cables_on_a_bar_are_the_bar_system_model(bar: BarSystemParams) -> None:
-    """ẋ and T equal BarSystemModel's (5)–(8) on random states and inputs."""
-    reference, model = BarSystemModel(bar), FormationModel(formation_from_bar(bar))
+def test_two_cables_on_a_bar_follow_the_bar_system_model(bar: FormationParams) -> None:
+    """With its own tensions, ẋ is (5b), (5e) and (5g) of the UAV–bar model: the bar pulled
+    by T_1 n_1 + T_2 n_2, turned by n_b × (d2 T2 n2 − d1 T1 n1) / J_b, each UAV by its
+    thrust less T_i n_i; the tensions keep both cables' lengths to second order."""
+    model, layout = FormationModel(bar), bar.layout
+    d1, d2 = bar.bar_arms_m
+    m_b, J_b, g = bar.payload.mass_kg, bar.payload.perpendicular_inertia_kgm2, bar.gravity_mps2
     rng = np.random.default_rng(11)
-    for _ in range(50):
-        x = rng.normal(0.0, 1.0, 36)
-        u = rng.normal(0.0, 2.0, 8) + np.array([12.0, 0, 0, 0, 12.0, 0, 0, 0])
-        expected = np.asarray(reference.dynamics(x, u)).ravel()
+    x = perturbed_consistent_state(bar, rng)
+    u = formation_equilibrium(bar, reference_for(bar, 0.2, 0.4)).u
+    u += rng.normal(0.0, 1.0, layout.n_inputs)
+    xdot = np.asarray(model.dynamics(x, u)).ravel()
+    T = np.asarray(model.tensions(x, u)).ravel()
+    n_b = rotation_from_euler_zyx(*x[TH_B])[:, 0]
+    ends = (x[P_B] - d1 * n_b, x[P_B] + d2 * n_b)
+    n = [(x[layout.uav_slices(i)[0]] - ends[i - 1]) / bar.cable_lengths_m[i - 1] for i in (1, 2)]
+    np.testing.assert_allclose(xdot[V_B], (T[0] * n[0] + T[1] * n[1]) / m_b - (0, 0, g))
+    np.testing.assert_allclose(
+        xdot[W_B], np.cross(n_b, d2 * T[1] * n[1] - d1 * T[0] * n[0]) / J_b, atol=1e-12
+    )
+    for i, uav in zip((1, 2), bar.uavs, strict=True):
+        _, v, th, _ = layout.uav_slices(i)
+        thrust = u[layout.thrust_index(i)] * rotation_from_euler_zyx(*x[th])[:, 2]
         np.testing.assert_allclose(
-            np.asarray(model.dynamics(x, u)).ravel(),
-            expected,
-            rtol=0.0,
-            atol=1e-12 * max(1.0, float(np.abs(expected).max())),
-        )
-        np.testing.assert_allclose(
-            np.asarray(model.tensions(x, u)).ravel(),
-            np.asarray(reference.tensions(x, u)).ravel(),
-            rtol=1e-12,
-            atol=1e-12,
+            xdot[v], (thrust - T[i - 1] * n[i - 1]) / uav.mass_kg - (0, 0, g)
         )
 
 
@@ -138,6 +143,24 @@ def test_cable_lengths_hold_along_a_trajectory() -> None:
     assert tensions.min() > 0.0
 
 
+def test_a_bar_keeps_its_cable_lengths_along_a_trajectory() -> None:
+    """The same for the paper's bar with everything uneven (5)–(8): RK4 at 1 ms for 2 s."""
+    params = uneven_params()
+    model = FormationModel(params)
+    x0 = perturbed_consistent_state(params, np.random.default_rng(7))
+    u = formation_equilibrium(params, reference_for(params, 0.0, 0.0)).u + np.array(
+        [1.5, 0.02, -0.01, 0.0, -1.0, 0.0, 0.03, 0.01]
+    )
+    f = model.dynamics
+
+    trajectory = rk4(lambda z: np.asarray(f(z, u)).ravel(), x0, 1e-3, 2000)
+    drift = max(np.abs(cable_lengths(params, x) - params.cable_lengths_m).max() for x in trajectory)
+    assert drift < 1e-6
+    assert np.linalg.norm(trajectory[-1][P_B] - x0[P_B]) > 0.1  # the check has teeth
+    tensions = np.array([np.asarray(model.tensions(x, u)).ravel() for x in trajectory[::100]])
+    assert tensions.min() > 0.0
+
+
 def energy(params: FormationParams, x: Vector) -> float:
     """Kinetic plus potential energy [J]; the payload's rotation ½ ωᵀ R J Rᵀ ω (ω inertial)."""
     layout, g = FormationLayout(params.n_vehicles), params.gravity_mps2
@@ -203,8 +226,8 @@ def test_jacobians_match_finite_differences(perturbed: bool) -> None:
 
 
 def test_a_bar_is_recognized_and_its_inertia_is_its_perpendicular_moment() -> None:
-    bar = formation_from_bar(uneven_params()).payload
-    assert bar.is_bar and bar.perpendicular_inertia_kgm2 == uneven_params().bar_inertia_kgm2
+    bar = uneven_params().payload
+    assert bar.is_bar and bar.perpendicular_inertia_kgm2 == 0.0706
     assert three_cable_bar().payload.is_bar
     assert not plate_params(3).payload.is_bar
     with pytest.raises(ValueError, match="not a bar"):

@@ -9,9 +9,9 @@ import time
 import numpy as np
 import pytest
 
-from controllers.equilibria import Reference, bar_equilibrium
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
 from controllers.mpc import CentralizedMpc
-from controllers.params import BarSystemParams
 from controllers.qp.base import OcpQp, QpStatus
 from controllers.qp.condensed import CondensedDaqpBackend
 from controllers.qp.hpipm import HpipmBackend, _pointer
@@ -21,29 +21,32 @@ from tests.conftest import CONFIGS
 CONFIG = load_config(CONFIGS / "kth_sml.toml")
 
 
-def lab_qp(params: BarSystemParams, deviation: float, seed: int) -> OcpQp:
+def lab_qp(params: FormationParams, deviation: float, seed: int) -> OcpQp:
     """A centralized-MPC QP of the lab (Table I) at random yaws, from a perturbed state."""
     rng = np.random.default_rng(seed)
     settings = CONFIG.mpc.settings("centralized")
-    reference = Reference((0.0, 0.0, 1.0), rng.uniform(-3, 3), (rng.uniform(-3, 3), 0.2), 0.3)
-    eq = bar_equilibrium(params, reference)
+    reference = FormationReference(
+        (0.0, 0.0, 1.0), rng.uniform(-3, 3), (rng.uniform(-3, 3), 0.2), 0.3
+    )
+    eq = formation_equilibrium(params, reference)
     A, B = CentralizedMpc(params, settings, "daqp", clock=time.perf_counter).linearization(
         eq.x, reference
     )
     w, lim = settings.weights, settings.limits
-    u_lb = np.tile([lim.thrust_min_n, -1.0, -1.0, -1.0], 2) - eq.u
-    u_ub = np.tile([lim.thrust_max_n, 1.0, 1.0, 1.0], 2) - eq.u
+    n = params.n_vehicles
+    u_lb = np.tile([lim.thrust_min_n, -1.0, -1.0, -1.0], n) - eq.u
+    u_ub = np.tile([lim.thrust_max_n, 1.0, 1.0, 1.0], n) - eq.u
     q = np.asarray(w.q_diag, dtype=float)
     return OcpQp(
         A=A, B=B, q_diag=q, r_diag=np.asarray(w.r_diag, dtype=float),
-        q_terminal_diag=w.terminal_scale * q, x0=deviation * rng.normal(size=36),
+        q_terminal_diag=w.terminal_scale * q, x0=deviation * rng.normal(size=eq.x.size),
         u_lb=u_lb, u_ub=u_ub, horizon=settings.horizon,
     )  # fmt: skip
 
 
 @pytest.mark.parametrize("deviation", [0.01, 0.3, 1.0])
 def test_hpipm_agrees_with_daqp_from_small_to_saturating_errors(
-    lab_params: BarSystemParams, deviation: float
+    lab_params: FormationParams, deviation: float
 ) -> None:
     template = lab_qp(lab_params, deviation, 0)
     hpipm, daqp = HpipmBackend(template), CondensedDaqpBackend(template)
@@ -58,15 +61,16 @@ def test_hpipm_agrees_with_daqp_from_small_to_saturating_errors(
 
 def bounded(qp: OcpQp, terminal_m: float) -> OcpQp:
     """The bar height held within ±2 cm on every stage, every state within ±terminal at N."""
-    x_lb, x_ub = np.full(36, -np.inf), np.full(36, np.inf)
+    nx = qp.x0.size
+    x_lb, x_ub = np.full(nx, -np.inf), np.full(nx, np.inf)
     x_lb[2], x_ub[2] = -0.02, 0.02
     return dataclasses.replace(
-        qp, x0=np.where(np.arange(36) == 2, 0.0, qp.x0), x_lb=x_lb, x_ub=x_ub,
-        x_terminal_lb=np.full(36, -terminal_m), x_terminal_ub=np.full(36, terminal_m),
+        qp, x0=np.where(np.arange(nx) == 2, 0.0, qp.x0), x_lb=x_lb, x_ub=x_ub,
+        x_terminal_lb=np.full(nx, -terminal_m), x_terminal_ub=np.full(nx, terminal_m),
     )  # fmt: skip
 
 
-def test_state_and_terminal_boxes(lab_params: BarSystemParams) -> None:
+def test_state_and_terminal_boxes(lab_params: FormationParams) -> None:
     qp = bounded(lab_qp(lab_params, 0.1, 3), 0.4)
     a = HpipmBackend(qp).solve(qp)
     b = CondensedDaqpBackend(qp).solve(qp)
@@ -79,7 +83,7 @@ def test_state_and_terminal_boxes(lab_params: BarSystemParams) -> None:
 
 
 def test_an_unreachable_terminal_box_is_a_failed_solve_not_an_exception(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     qp = bounded(lab_qp(lab_params, 0.1, 3), 0.05)
     backend = HpipmBackend(qp)
@@ -89,7 +93,7 @@ def test_an_unreachable_terminal_box_is_a_failed_solve_not_an_exception(
     assert backend.solve(feasible).status is QpStatus.SOLVED
 
 
-def test_bad_qps_report_a_status_instead_of_raising(lab_params: BarSystemParams) -> None:
+def test_bad_qps_report_a_status_instead_of_raising(lab_params: FormationParams) -> None:
     qp = lab_qp(lab_params, 0.3, 1)
     backend = HpipmBackend(qp)
     x0 = qp.x0.copy()
@@ -102,7 +106,7 @@ def test_bad_qps_report_a_status_instead_of_raising(lab_params: BarSystemParams)
 
 @pytest.mark.parametrize("deviation, box_free", [(0.01, True), (1.0, False)])
 def test_the_box_free_solution_is_kept_only_when_it_meets_every_box(
-    lab_params: BarSystemParams, deviation: float, box_free: bool
+    lab_params: FormationParams, deviation: float, box_free: bool
 ) -> None:
     qp = lab_qp(lab_params, deviation, 5)
     backend = HpipmBackend(qp)
@@ -114,7 +118,7 @@ def test_the_box_free_solution_is_kept_only_when_it_meets_every_box(
 
 @pytest.mark.parametrize("block_stages", [1, 4, 7, 30])
 def test_every_block_length_gives_the_same_solution_and_trajectory(
-    lab_params: BarSystemParams, block_stages: int
+    lab_params: FormationParams, block_stages: int
 ) -> None:
     qp = lab_qp(lab_params, 0.3, 2)
     solution = HpipmBackend(qp, block_stages=block_stages).solve(qp)
@@ -127,7 +131,7 @@ def test_every_block_length_gives_the_same_solution_and_trajectory(
 
 
 def test_while_a_bound_is_active_the_box_free_attempt_waits_for_an_unsaturated_tick(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     saturated, calm = lab_qp(lab_params, 1.0, 5), lab_qp(lab_params, 0.01, 5)
     backend = HpipmBackend(saturated)
@@ -139,7 +143,7 @@ def test_while_a_bound_is_active_the_box_free_attempt_waits_for_an_unsaturated_t
     assert box_free == [False, False, True]
 
 
-def test_changed_weights_are_taken_up_by_the_next_solve(lab_params: BarSystemParams) -> None:
+def test_changed_weights_are_taken_up_by_the_next_solve(lab_params: FormationParams) -> None:
     qp = lab_qp(lab_params, 0.3, 4)
     backend = HpipmBackend(qp)
     backend.solve(qp)
@@ -150,7 +154,7 @@ def test_changed_weights_are_taken_up_by_the_next_solve(lab_params: BarSystemPar
     assert np.max(np.abs(solution.u - backend.solve(qp).u)) > 1e-2  # ... and they mattered
 
 
-def test_changed_boxes_are_taken_up_by_the_next_boxed_solve(lab_params: BarSystemParams) -> None:
+def test_changed_boxes_are_taken_up_by_the_next_boxed_solve(lab_params: FormationParams) -> None:
     qp = lab_qp(lab_params, 1.0, 5)
     backend = HpipmBackend(qp)
     backend.solve(qp)
@@ -164,7 +168,7 @@ def test_changed_boxes_are_taken_up_by_the_next_boxed_solve(lab_params: BarSyste
 
 @pytest.mark.parametrize("block_stages", [1, 5, 7])
 def test_a_seed_reaches_the_condensed_blocks_in_hpipms_input_order(
-    lab_params: BarSystemParams, block_stages: int
+    lab_params: FormationParams, block_stages: int
 ) -> None:
     """HPIPM's partial condensing orders a block's inputs last stage first: seeding the
     boxed problem with its own solution (stage by stage) must leave its blocks as solved

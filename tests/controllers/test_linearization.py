@@ -10,17 +10,22 @@ import numpy as np
 import pytest
 
 from controllers.codegen import NumericFunction
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.linearization import bar_jacobians, discretize, payload_jacobians
-from controllers.model import BarSystemModel, payload_model_for
-from controllers.params import BarSystemParams
+from controllers.formation_equilibria import (
+    FormationReference,
+    formation_equilibrium,
+    hanging_mass_shares_kg,
+)
+from controllers.formation_model import FormationModel
+from controllers.formation_params import FormationParams
+from controllers.linearization import discretize, formation_jacobians, payload_jacobians
+from controllers.model import PayloadModel
 from tests.conftest import uneven_params
 
 CASES = [
-    Reference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), 0.0),
-    Reference((1.0, -0.5, 1.2), 0.9, (-0.4, 2.2), math.radians(30)),
-    Reference((-0.3, 0.8, 0.9), -2.0, (1.3, -1.3), math.radians(45)),
-    Reference((0.2, 0.2, 1.4), 3.0, (0.0, 3.0), math.radians(70)),
+    FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), 0.0),
+    FormationReference((1.0, -0.5, 1.2), 0.9, (-0.4, 2.2), math.radians(30)),
+    FormationReference((-0.3, 0.8, 0.9), -2.0, (1.3, -1.3), math.radians(45)),
+    FormationReference((0.2, 0.2, 1.4), 3.0, (0.0, 3.0), math.radians(70)),
 ]
 
 
@@ -45,11 +50,11 @@ def assert_matches(analytic: np.ndarray, numeric: np.ndarray) -> None:
 @pytest.mark.parametrize("reference", CASES)
 @pytest.mark.parametrize("params", [None, uneven_params()], ids=["lab", "uneven"])
 def test_bar_jacobians_match_finite_differences(
-    reference: Reference, params: BarSystemParams | None, lab_params: BarSystemParams
+    reference: FormationReference, params: FormationParams | None, lab_params: FormationParams
 ) -> None:
-    model = BarSystemModel(params or lab_params)
-    eq = bar_equilibrium(model.params, reference)
-    A_c, B_c = (np.asarray(m) for m in bar_jacobians(model)(eq.x, eq.u))
+    model = FormationModel(params or lab_params)
+    eq = formation_equilibrium(model.params, reference)
+    A_c, B_c = (np.asarray(m) for m in formation_jacobians(model)(eq.x, eq.u))
     f = model.dynamics
     assert_matches(A_c, central_differences(lambda x: np.asarray(f(x, eq.u)).ravel(), eq.x))
     assert_matches(B_c, central_differences(lambda u: np.asarray(f(eq.x, u)).ravel(), eq.u))
@@ -58,12 +63,15 @@ def test_bar_jacobians_match_finite_differences(
 
 @pytest.mark.parametrize("reference", CASES)
 def test_payload_jacobians_match_finite_differences(
-    reference: Reference, lab_params: BarSystemParams
+    reference: FormationReference, lab_params: FormationParams
 ) -> None:
-    eq = bar_equilibrium(lab_params, reference)
+    eq = formation_equilibrium(lab_params, reference)
+    shares = hanging_mass_shares_kg(lab_params)
     for i in (1, 2):
-        model = payload_model_for(lab_params, i)
-        x, u, f_ext = eq.payload_state(i), eq.payload_input(i), eq.payload_force_n[i - 1]
+        model = PayloadModel(
+            lab_params.uavs[i - 1], shares[i - 1], lab_params.cable_lengths_m[i - 1]
+        )
+        x, u, f_ext = eq.agent_state(i), eq.agent_input(i), eq.payload_force_n[i - 1]
         A_c, B_c = (np.asarray(m) for m in payload_jacobians(model)(x, u, f_ext))
         f = model.dynamics
 
@@ -89,12 +97,12 @@ def test_first_order_discretization() -> None:
     np.testing.assert_array_equal(B, 0.02 * B_c)
 
 
-def test_compiled_jacobians_equal_the_virtual_machine(lab_params: BarSystemParams) -> None:
-    jacobians = bar_jacobians(BarSystemModel(lab_params))
+def test_compiled_jacobians_equal_the_virtual_machine(lab_params: FormationParams) -> None:
+    jacobians = formation_jacobians(FormationModel(lab_params))
     compiled = NumericFunction(jacobians)
     interpreted = NumericFunction(jacobians, compile_c=False)
     assert compiled.compiled and not interpreted.compiled
-    eq = bar_equilibrium(lab_params, CASES[2])
+    eq = formation_equilibrium(lab_params, CASES[2])
     for fast, slow in zip(compiled(eq.x, eq.u), interpreted(eq.x, eq.u), strict=True):
         np.testing.assert_array_equal(fast, slow)
     A_c = np.asarray(jacobians(eq.x, eq.u)[0])

@@ -8,22 +8,24 @@ import numpy as np
 import pytest
 
 from controllers.delay import DelayPredictor
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.params import BarSystemParams
-from controllers.rate_filter import RATES, RateCrossover, RateFilter
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
+from controllers.rate_filter import RateCrossover, RateFilter
+from geometry.formation import FormationLayout
 from geometry.frames import euler_zyx_from_rotation, rotation_from_euler_zyx
-from geometry.state import uav_slices
 
 TICK_S = 0.02
+LAYOUT = FormationLayout(2)  # the lab's
+RATES = LAYOUT.uav_rate_indices
 
 
 def _flown(
-    params: BarSystemParams, ticks: int, weight: float, noise_std: float = 0.0
+    params: FormationParams, ticks: int, weight: float, noise_std: float = 0.0
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """The model flown under varying torques, each tick's state (UAV rates with white
     noise of ``noise_std``) filtered before that tick's input is sent, as the flight core
     does; (true states, filtered estimates)."""
-    eq = bar_equilibrium(params, Reference((0.0, 0.0, 1.0)))
+    eq = formation_equilibrium(params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0)))
     predictor = DelayPredictor(params, 0.0)
     rates = RateFilter(predictor, weight)
     rng = np.random.default_rng(3)
@@ -34,19 +36,20 @@ def _flown(
         states.append(x)
         filtered.append(rates.filtered(noisy, k * TICK_S))
         u = eq.u.copy()
-        u[[1, 2, 5, 6]] += 0.05 * math.sin(2 * math.pi * 1.5 * k * TICK_S)
+        roll_pitch = [LAYOUT.torque_slice(i).start + k for i in LAYOUT.vehicles for k in (0, 1)]
+        u[roll_pitch] += 0.05 * math.sin(2 * math.pi * 1.5 * k * TICK_S)
         predictor.sent(k * TICK_S, u)
         x = predictor.advance(x, k * TICK_S, (k + 1) * TICK_S)
     return states, filtered
 
 
-def test_the_models_own_trajectory_passes_unchanged(lab_params: BarSystemParams) -> None:
+def test_the_models_own_trajectory_passes_unchanged(lab_params: FormationParams) -> None:
     states, filtered = _flown(lab_params, 40, 0.8)
     assert np.abs(np.array(filtered) - np.array(states)).max() < 1e-9
     assert np.abs(states[-1][RATES]).max() > 0.01  # the rates did move
 
 
-def test_noisy_rates_come_out_quieter(lab_params: BarSystemParams) -> None:
+def test_noisy_rates_come_out_quieter(lab_params: FormationParams) -> None:
     """White rate noise through w = 0.7: the filtered error's spread is about
     √((1 − w)/(1 + w)) ≈ 0.42 of the noise's (a first-order recursion on white noise)."""
     noise_std = 0.05
@@ -56,10 +59,10 @@ def test_noisy_rates_come_out_quieter(lab_params: BarSystemParams) -> None:
     assert 0.3 < ratio < 0.55
 
 
-def test_no_weight_passes_the_estimate_and_a_gap_restarts(lab_params: BarSystemParams) -> None:
-    x = bar_equilibrium(lab_params, Reference((0.0, 0.0, 1.0))).x
+def test_no_weight_passes_the_estimate_and_a_gap_restarts(lab_params: FormationParams) -> None:
+    x = formation_equilibrium(lab_params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
     predictor = DelayPredictor(lab_params, 0.0)
-    predictor.sent(0.0, np.zeros(8))
+    predictor.sent(0.0, np.zeros(LAYOUT.n_inputs))
     noisy = x + 0.01
     assert np.array_equal(RateFilter(predictor, 0.0).filtered(noisy, TICK_S), noisy)
     on = RateFilter(predictor, 0.5)
@@ -69,15 +72,15 @@ def test_no_weight_passes_the_estimate_and_a_gap_restarts(lab_params: BarSystemP
 
 @pytest.mark.parametrize("weight", [-0.1, 1.0, math.nan])
 def test_a_weight_outside_zero_to_one_is_refused(
-    weight: float, lab_params: BarSystemParams
+    weight: float, lab_params: FormationParams
 ) -> None:
     with pytest.raises(ValueError, match="model weight"):
         RateFilter(DelayPredictor(lab_params, 0.0), weight)
 
 
 def _turning(k: int) -> np.ndarray:
-    """A 36-state whose UAVs turn at steady body rates (1: about x, 2: about y and z)."""
-    x = np.zeros(36)
+    """A state whose UAVs turn at steady body rates (1: about x, 2: about y and z)."""
+    x = np.zeros(LAYOUT.n_states)
     for i, rates in ((1, np.array([0.3, 0.0, 0.0])), (2, np.array([0.0, -0.2, 0.5]))):
         angle = np.linalg.norm(rates) * k * TICK_S
         axis = rates / np.linalg.norm(rates)
@@ -85,15 +88,15 @@ def _turning(k: int) -> np.ndarray:
         R = rotation_from_euler_zyx(0.1, -0.05, 3.0) @ (
             np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
         )
-        x[uav_slices(i)[2]] = euler_zyx_from_rotation(R)
-        x[uav_slices(i)[3]] = rates
+        x[LAYOUT.uav_slices(i)[2]] = euler_zyx_from_rotation(R)
+        x[LAYOUT.uav_slices(i)[3]] = rates
     return x
 
 
 def test_the_crossover_passes_steady_rates_and_removes_a_slow_rate_error() -> None:
     """Steady body rates (yaw crossing ±π included) pass unchanged; a constant error on
     the fused rates, which the attitudes do not show, decays with the time constant."""
-    crossover = RateCrossover(0.05)
+    crossover = RateCrossover(LAYOUT, 0.05)
     for k in range(10):
         x = _turning(k)
         assert np.allclose(crossover.corrected(x, k * TICK_S), x, atol=1e-9)
@@ -105,14 +108,14 @@ def test_the_crossover_passes_steady_rates_and_removes_a_slow_rate_error() -> No
         biased[RATES] += bias
         out = crossover.corrected(biased, k * TICK_S)
     assert np.abs(out[RATES] - x[RATES]).max() < 1e-3 * bias  # (1 - 0.02/0.07)^29 ≈ 6e-5
-    others = [j for j in range(36) if j not in RATES]
+    others = [j for j in range(LAYOUT.n_states) if j not in RATES]
     assert np.array_equal(out[others], biased[others])
 
 
 def test_the_crossover_off_passes_and_a_gap_restarts() -> None:
     x = _turning(0)
-    assert np.array_equal(RateCrossover(0.0).corrected(x + 0.01, 0.0), x + 0.01)
-    crossover = RateCrossover(0.05)
+    assert np.array_equal(RateCrossover(LAYOUT, 0.0).corrected(x + 0.01, 0.0), x + 0.01)
+    crossover = RateCrossover(LAYOUT, 0.05)
     crossover.corrected(_turning(0), 0.0)
     later = _turning(1) + 0.01
     assert np.array_equal(crossover.corrected(later, 5.0), later)  # nothing to difference
@@ -121,4 +124,4 @@ def test_the_crossover_off_passes_and_a_gap_restarts() -> None:
 @pytest.mark.parametrize("time_constant", [-0.1, math.nan])
 def test_a_negative_crossover_is_refused(time_constant: float) -> None:
     with pytest.raises(ValueError, match="time constant"):
-        RateCrossover(time_constant)
+        RateCrossover(LAYOUT, time_constant)

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from controllers.params import BarSystemParams
+from controllers.formation_params import FormationParams
 from controllers.qp.base import QpStatus
 from controllers.qp.condensed import CondensedDaqpBackend
 from controllers.qp.hpipm import HpipmBackend
@@ -16,7 +16,7 @@ from tests.controllers.test_hpipm import lab_qp
 
 
 def test_the_map_gives_the_unconstrained_optimum_for_any_block_split(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     qp = lab_qp(lab_params, 0.01, 3)  # small: no bound is active
     exact = CondensedDaqpBackend(qp).solve(qp)
@@ -32,7 +32,7 @@ def test_the_map_gives_the_unconstrained_optimum_for_any_block_split(
             np.testing.assert_allclose(x[k + 1], qp.A @ x[k] + qp.B @ u[k], atol=1e-9)
 
 
-def test_the_map_is_linear_in_the_initial_state(lab_params: BarSystemParams) -> None:
+def test_the_map_is_linear_in_the_initial_state(lab_params: FormationParams) -> None:
     qp = lab_qp(lab_params, 0.3, 4)
     lengths = block_lengths(qp.horizon, 5)
     block = condense(qp.A, qp.B, qp.q_diag, qp.r_diag, 5)
@@ -45,7 +45,7 @@ def test_the_map_is_linear_in_the_initial_state(lab_params: BarSystemParams) -> 
     np.testing.assert_allclose(x_sum, x_a + 2.0 * x_b, atol=1e-9)
 
 
-def test_a_prepared_model_is_used_only_for_the_same_model(lab_params: BarSystemParams) -> None:
+def test_a_prepared_model_is_used_only_for_the_same_model(lab_params: FormationParams) -> None:
     qp = lab_qp(lab_params, 0.01, 6)
     backend = HpipmBackend(qp)
     backend.prepare(qp)
@@ -61,7 +61,7 @@ def test_a_prepared_model_is_used_only_for_the_same_model(lab_params: BarSystemP
     np.testing.assert_allclose(solution.u, expected, atol=1e-8)
 
 
-def test_a_prepared_model_that_saturates_is_solved_boxed(lab_params: BarSystemParams) -> None:
+def test_a_prepared_model_that_saturates_is_solved_boxed(lab_params: FormationParams) -> None:
     qp = lab_qp(lab_params, 1.0, 5)  # far enough from equilibrium that inputs saturate
     backend = HpipmBackend(qp)
     backend.prepare(qp)

@@ -22,11 +22,13 @@ def test_lab_config_holds_the_papers_values() -> None:
     params = config.system.to_params()
     assert params.uavs[0].mass_kg == params.uavs[1].mass_kg == 1.15
     assert params.uavs[0].inertia_kgm2 == (0.0348, 0.0459, 0.0977)
-    assert (params.bar_mass_kg, params.d1_m, params.d2_m) == (0.39, 0.705, 0.765)
+    assert (params.payload.mass_kg, params.bar_arms_m) == (0.39, (0.705, 0.765))
+    assert params.payload.perpendicular_inertia_kgm2 == 0.0706
     assert config.mpc.horizon == 30 and config.mpc.dt_s == 0.02
     assert config.mpc.torque_max_nm == 1.0 and config.mpc.thrust_min_n > 0.0
     weights = config.mpc.centralized.to_weights()
-    assert len(weights.q_diag) == 36 and len(weights.r_diag) == 8
+    assert len(weights.q_diag) == params.layout.n_states
+    assert len(weights.r_diag) == params.layout.n_inputs
     assert weights.q_diag[:12] == (50, 50, 50, 50, 50, 50, 10, 10, 10, 1, 1, 5)
     assert weights.terminal_scale == 100
     decentralized = config.mpc.decentralized.to_weights()

@@ -8,7 +8,8 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from geometry.state import bar_position, uav_position
+from geometry.formation import FormationLayout
+from geometry.state import payload_position
 from sim.truth import TruthStats
 from supervisor.app.config import Config, load_config
 from supervisor.flight.core import TickResult
@@ -81,7 +82,9 @@ def flown_until_disarmed(
 def heights(result: TickResult) -> tuple[float, float]:
     """The estimated bar's height and the lower UAV's [m]."""
     x = np.asarray(result.record.state)
-    return float(bar_position(x)[2]), min(float(uav_position(x, i)[2]) for i in (1, 2))
+    layout = FormationLayout(len(result.commands))
+    lowest = min(float(layout.uav_position(x, i)[2]) for i in layout.vehicles)
+    return float(payload_position(x)[2]), lowest
 
 
 @pytest.mark.slow

@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from controllers.equilibria import Reference, bar_equilibrium
-from geometry.state import BAR_PITCH, uav_slices
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from geometry.state import P_B, PAYLOAD_PITCH
 from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.core import CoreSettings
@@ -20,13 +20,14 @@ from supervisor.flight.setpoints import Setpoint, SetpointRefusedError
 from tests.conftest import CONFIGS, resting_estimate
 
 CONFIG = load_config(CONFIGS / "sim.toml")
+LAYOUT = CONFIG.system.to_params().layout
 
 
 def test_take_off_needs_every_body_measured_and_fresh() -> None:
     x = resting_estimate(CONFIG.system.to_params()).x
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     nan = x.copy()
-    nan[12:15] = np.nan  # UAV 1 never seen
+    nan[LAYOUT.uav_slices(1)[0]] = np.nan  # UAV 1 never seen
     for estimate in (Estimate(nan, 0.01, ("uav1",)), Estimate(x, 0.5, ("bar",))):
         core = flight_core_from_config(CONFIG, clock=time.perf_counter)
         core.tick(0.0, estimate)
@@ -50,7 +51,7 @@ def test_mocap_lost_beyond_the_coast_limit_hands_the_vehicles_to_px4s_landing() 
     (the flight process streams nothing in ``px4_landing``) and says so; then nothing moves
     it but both PX4s having landed."""
     params = CONFIG.system.to_params()
-    x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    x = formation_equilibrium(params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     core.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07))
     coast_s = SafetyLimits().mocap_coast_s
@@ -78,12 +79,12 @@ def test_arming_needs_the_resting_pose_a_take_off_starts_from() -> None:
     x = resting_estimate(params).x
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     displaced, tilted, tipped, on_a_shelf = x.copy(), x.copy(), x.copy(), x.copy()
-    displaced[uav_slices(1)[0]][0] += 1.0
-    tilted[uav_slices(2)[2]][0] = math.radians(30.0)
-    tipped[BAR_PITCH] = math.radians(10.0)
-    for i in (1, 2):  # 1.2 m up: its hover would put the UAVs above the arena's 3 m
-        on_a_shelf[uav_slices(i)[0]][2] += 1.2
-    on_a_shelf[2] += 1.2
+    displaced[LAYOUT.uav_slices(1)[0]][0] += 1.0
+    tilted[LAYOUT.uav_slices(2)[2]][0] = math.radians(30.0)
+    tipped[PAYLOAD_PITCH] = math.radians(10.0)
+    for i in LAYOUT.vehicles:  # 1.2 m up: its hover would put the UAVs above the arena's 3 m
+        on_a_shelf[LAYOUT.uav_slices(i)[0]][2] += 1.2
+    on_a_shelf[P_B][2] += 1.2
     for pose, words in (
         (displaced, "UAV 1 stands 1.00 m from its bar end"),
         (tilted, "UAV 2 is tilted 30°"),
@@ -104,7 +105,7 @@ def test_one_link_lost_leaves_that_vehicle_to_px4_and_the_other_sets_its_bar_end
     lowers its bar end, accelerating to the abort rate (the bar level) and carrying that
     descent as its velocity. Both lost: the vehicles are handed to PX4's landing."""
     params = CONFIG.system.to_params()
-    x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    x = formation_equilibrium(params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     core.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07))
     result = core.tick(0.02, Estimate(x, 0.005, ()), (False, True))
@@ -119,7 +120,7 @@ def test_one_link_lost_leaves_that_vehicle_to_px4_and_the_other_sets_its_bar_end
         result = core.tick(0.02 * k, Estimate(x, 0.005, ()), connected)
         assert result.commanded == (False, True) and not result.commands[0].motors_on
         assert result.reference is not None
-        heights.append(result.reference.bar_position_m[2])
+        heights.append(result.reference.payload_position_m[2])
         speeds.append(-result.reference.velocity_mps[2])
     drops = -np.diff(heights)
     assert np.all(np.diff(drops) >= -1e-12)  # accelerating, then steady
@@ -138,7 +139,7 @@ def test_setpoints_are_taken_only_in_a_mode_that_flies_them() -> None:
     """Disarmed, landing, aborting or killed a setpoint is refused (nothing is kept for the
     next take-off); armed it is taken, and a disarm empties the queue again."""
     params = CONFIG.system.to_params()
-    x = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    x = formation_equilibrium(params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
     setpoint = Setpoint((0.3, 0.0, 1.0), 0.0, None, 0.0, 1.0)
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     core.tick(0.0, resting_estimate(params))
@@ -170,12 +171,15 @@ def test_a_bar_held_low_raises_the_thrust_only_with_the_integral_action(gain: fl
     # A solve late on a busy machine would fly the shifted plan: this test is about the law.
     overrides = [f"mpc.integral_gain_per_s={gain}", "mpc.late_after_s=10.0"]
     config = load_config(CONFIGS / "sim.toml", overrides)
-    x = bar_equilibrium(config.system.to_params(), Reference((0.0, 0.0, 1.0))).x
+    x = formation_equilibrium(
+        config.system.to_params(), FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))
+    ).x
     core = flight_core_from_config(config, clock=time.perf_counter)
     core.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07))
     core.tick(0.02, Estimate(x, 0.005, ()))  # the hover holds the reference it starts at
     low = x.copy()
-    low[[2, 14, 26]] -= 0.05  # the bar and both UAVs
+    heights = [P_B.start + 2, *(LAYOUT.uav_slices(i)[0].start + 2 for i in LAYOUT.vehicles)]
+    low[heights] -= 0.05  # the bar and both UAVs
     thrusts = []
     for k in range(2, 152):
         result = core.tick(0.02 * k, Estimate(low, 0.005, ()))

@@ -10,21 +10,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.params import BarSystemParams
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
 from supervisor.cli.main import main
 from supervisor.flight.tick_record import TickRecord
-from supervisor.logs.flight_log import FlightLogWriter, read_flight_log
+from supervisor.logs.flight_log import LOG_LAYOUT, FlightLogWriter, read_flight_log
 from supervisor.logs.report import summarize
 
 START = datetime(2026, 11, 23, 3, 15, 0, tzinfo=UTC)
 
 
 def write_synthetic_flight(
-    folder: Path, params: BarSystemParams, controller: str, wobble_m: float
+    folder: Path, params: FormationParams, controller: str, wobble_m: float
 ) -> Path:
     """A bar oscillating in x around its reference: known mean and std of the x error."""
-    ref = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+    ref = formation_equilibrium(params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
     with FlightLogWriter(folder, {"setup": "test", "controller": controller}, START) as log:
         for k in range(500):
             t = 0.02 * k
@@ -48,11 +48,12 @@ def write_synthetic_flight(
         return log.path
 
 
-def test_round_trip_and_statistics(tmp_path: Path, lab_params: BarSystemParams) -> None:
+def test_round_trip_and_statistics(tmp_path: Path, lab_params: FormationParams) -> None:
     path = write_synthetic_flight(tmp_path, lab_params, "centralized", 0.05)
     assert path.name == "flight-20261123-031500.jsonl"
     log = read_flight_log(path)
-    assert log.state.shape == (500, 36) and log.inputs.shape == (500, 8)
+    assert log.state.shape == (500, LOG_LAYOUT.n_states)
+    assert log.inputs.shape == (500, LOG_LAYOUT.n_inputs)
     summary = summarize(log)
     x_error = 0.01 + 0.05 * np.sin(2 * np.pi * 0.02 * np.arange(500))
     assert summary["bar_x_error_mean_m"] == pytest.approx(x_error.mean(), abs=1e-12)
@@ -61,7 +62,7 @@ def test_round_trip_and_statistics(tmp_path: Path, lab_params: BarSystemParams) 
     assert summary["fallback_ticks"] == 0
 
 
-def test_a_torn_last_line_is_skipped(tmp_path: Path, lab_params: BarSystemParams) -> None:
+def test_a_torn_last_line_is_skipped(tmp_path: Path, lab_params: FormationParams) -> None:
     path = write_synthetic_flight(tmp_path, lab_params, "centralized", 0.05)
     text = path.read_text()
     path.write_text(text[: len(text) - 40])  # the process died mid-line
@@ -69,7 +70,7 @@ def test_a_torn_last_line_is_skipped(tmp_path: Path, lab_params: BarSystemParams
 
 
 def test_second_flight_in_the_same_second_gets_its_own_file(
-    tmp_path: Path, lab_params: BarSystemParams
+    tmp_path: Path, lab_params: FormationParams
 ) -> None:
     first = write_synthetic_flight(tmp_path, lab_params, "centralized", 0.0)
     second = write_synthetic_flight(tmp_path, lab_params, "decentralized", 0.0)
@@ -78,7 +79,7 @@ def test_second_flight_in_the_same_second_gets_its_own_file(
 
 def test_non_finite_values_are_logged_as_missing(tmp_path: Path) -> None:
     with FlightLogWriter(tmp_path, {}) as log:
-        nan36 = [math.nan] * 36
+        nan36 = [math.nan] * LOG_LAYOUT.n_states
         log.append(
             TickRecord(
                 0.0,
@@ -86,7 +87,7 @@ def test_non_finite_values_are_logged_as_missing(tmp_path: Path) -> None:
                 "centralized",
                 nan36,
                 nan36,
-                [math.inf] * 8,
+                [math.inf] * LOG_LAYOUT.n_inputs,
                 "shifted_bad_state",
                 0,
                 0,
@@ -100,7 +101,7 @@ def test_non_finite_values_are_logged_as_missing(tmp_path: Path) -> None:
 
 
 def test_report_command_overlays_two_logs(
-    tmp_path: Path, lab_params: BarSystemParams, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, lab_params: FormationParams, capsys: pytest.CaptureFixture[str]
 ) -> None:
     a = write_synthetic_flight(tmp_path / "a", lab_params, "centralized", 0.02)
     b = write_synthetic_flight(tmp_path / "b", lab_params, "decentralized", 0.10)
@@ -138,9 +139,9 @@ def test_a_log_can_be_written_to_a_named_file(tmp_path: Path) -> None:
                     0.0,
                     "hover",
                     "centralized",
-                    [0.0] * 36,
-                    [0.0] * 36,
-                    [0.0] * 8,
+                    [0.0] * LOG_LAYOUT.n_states,
+                    [0.0] * LOG_LAYOUT.n_states,
+                    [0.0] * LOG_LAYOUT.n_inputs,
                     "optimal",
                     1.0,
                     1.0,

@@ -27,7 +27,7 @@ import websockets
 from api.foxglove_gateway import TRY_AGAIN_LATER, FoxgloveGateway, opened
 from api.guard import HttpPolicy
 from benchmarks.service import all_connected, running_service
-from controllers.params import BarSystemParams
+from controllers.formation_params import FormationParams
 from supervisor.logs.flight_messages import JSON_SCHEMAS, WELL_KNOWN, json_messages
 from supervisor.logs.foxglove_live import FoxgloveLiveView
 from supervisor.logs.view_seal import (
@@ -143,9 +143,9 @@ def test_the_gateway_opens_message_data_and_passes_every_other_frame() -> None:
 
 
 async def test_the_views_own_port_advertises_the_channels_and_sends_each_tick_sealed(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
     records = flight_records(lab_params, 200)
     try:
         async with websockets.connect(
@@ -173,11 +173,11 @@ async def test_the_views_own_port_advertises_the_channels_and_sends_each_tick_se
 
 
 async def test_a_plain_client_on_the_views_own_port_reads_nothing(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     """A local program that finds the flight process's port (``live_view.sdk_port`` in
     ``/api/status``) and subscribes to every channel gets only ciphertext."""
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
     records = flight_records(lab_params, 100)
     topics = [*JSON_SCHEMAS, *WELL_KNOWN]
     try:
@@ -208,17 +208,17 @@ async def test_a_plain_client_on_the_views_own_port_reads_nothing(
     assert set(plaintexts) & set(opened_json)
 
 
-def test_a_taken_port_is_refused_with_an_error(lab_params: BarSystemParams) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m, KEYS)
+def test_a_taken_port_is_refused_with_an_error(lab_params: FormationParams) -> None:
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
     try:
         with pytest.raises(RuntimeError, match="in use"):
-            FoxgloveLiveView("127.0.0.1", view.port, lab_params.arms_m, KEYS)
+            FoxgloveLiveView("127.0.0.1", view.port, lab_params.bar_arms_m, KEYS)
     finally:
         view.close()
 
 
-async def test_the_old_protocol_name_alone_is_refused(lab_params: BarSystemParams) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m, KEYS)
+async def test_the_old_protocol_name_alone_is_refused(lab_params: FormationParams) -> None:
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
     try:
         with pytest.raises(websockets.InvalidStatus, match="400"):
             async with websockets.connect(f"ws://127.0.0.1:{view.port}", subprotocols=[OLD_NAME]):
@@ -233,9 +233,9 @@ async def test_the_old_protocol_name_alone_is_refused(lab_params: BarSystemParam
 
 @pytest.mark.parametrize("subprotocol", [OLD_NAME, SUBPROTOCOL])
 async def test_the_gateway_gives_either_name_the_view(
-    lab_params: BarSystemParams, subprotocol: websockets.Subprotocol
+    lab_params: FormationParams, subprotocol: websockets.Subprotocol
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
     gateway = FoxgloveGateway(lambda: view.port, POLICY)
     await gateway.start("127.0.0.1", 0)
     records = flight_records(lab_params, 50)
@@ -271,9 +271,9 @@ async def test_the_gateway_gives_either_name_the_view(
     ids=["none", "wrong", "prefix", "other-parameter", "wrong-bearer", "not-bearer"],
 )
 async def test_the_gateway_refuses_a_client_without_the_token_at_the_handshake(
-    lab_params: BarSystemParams, url_tail: str, headers: dict[str, str]
+    lab_params: FormationParams, url_tail: str, headers: dict[str, str]
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
     looked_up: list[int] = []
 
     def upstream_port() -> int:
@@ -321,9 +321,9 @@ async def test_the_gateway_takes_the_token_in_the_url_or_a_bearer_header(token: 
 
 
 async def test_the_gateway_passes_on_nothing_sealed_with_another_token(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.arms_m, view_keys("another serve"))
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, view_keys("another serve"))
     gateway = FoxgloveGateway(lambda: view.port, POLICY)
     await gateway.start("127.0.0.1", 0)
     try:

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.params import BarSystemParams
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
 from supervisor.cli.main import main
 from supervisor.flight.tick_record import TickRecord
 from supervisor.logs.flight_log import open_flight_log, read_flight_log
@@ -32,13 +32,13 @@ START = datetime(2026, 11, 23, 3, 15, 0, tzinfo=UTC)
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def flight_records(params: BarSystemParams, ticks: int, seed: int = 0) -> list[TickRecord]:
+def flight_records(params: FormationParams, ticks: int, seed: int = 0) -> list[TickRecord]:
     """Ticks of a bar swinging around its reference, a NaN-state tick among them."""
-    ref = bar_equilibrium(params, Reference((0.2, -0.1, 1.0), bar_yaw_rad=0.3)).x
+    ref = formation_equilibrium(params, FormationReference((0.2, -0.1, 1.0), 0.3, (0.0, 0.0))).x
     rng = np.random.default_rng(seed)
     records = []
     for k in range(ticks):
-        state = ref + rng.normal(0.0, 0.02, 36)
+        state = ref + rng.normal(0.0, 0.02, ref.size)
         if k == 3:
             state[:] = math.nan  # no estimate yet
         records.append(
@@ -48,7 +48,7 @@ def flight_records(params: BarSystemParams, ticks: int, seed: int = 0) -> list[T
                 controller="decentralized" if k < ticks // 2 else "centralized",
                 state=state.tolist(),
                 state_ref=ref.tolist(),
-                inputs=(14.0 + rng.normal(0, 0.1, 8)).tolist(),
+                inputs=(14.0 + rng.normal(0, 0.1, params.layout.n_inputs)).tolist(),
                 plan_status="optimal" if k % 7 else "shifted",
                 solve_ms=float(rng.uniform(0.1, 1.0)),
                 compute_ms=0.7,
@@ -73,10 +73,10 @@ def _same(a: TickRecord, b: TickRecord) -> bool:
 
 @pytest.mark.parametrize("library", ["foxglove", "mcap"])
 def test_every_record_comes_back_with_its_notices(
-    tmp_path: Path, lab_params: BarSystemParams, library: McapLibrary
+    tmp_path: Path, lab_params: FormationParams, library: McapLibrary
 ) -> None:
     records = flight_records(lab_params, 120)
-    header = {"setup": "test", "arms_m": list(lab_params.arms_m)}
+    header = {"setup": "test", "arms_m": list(lab_params.bar_arms_m)}
     with McapFlightLogWriter(tmp_path / "f.mcap", header, START, library) as log:
         for k, record in enumerate(records):
             log.append(record, ("safety: a notice",) if k == 40 else ())
@@ -90,11 +90,11 @@ def test_every_record_comes_back_with_its_notices(
 
 @pytest.mark.parametrize("library", ["foxglove", "mcap"])
 def test_the_mcap_reader_lists_the_channels_and_their_schemas(
-    tmp_path: Path, lab_params: BarSystemParams, library: McapLibrary
+    tmp_path: Path, lab_params: FormationParams, library: McapLibrary
 ) -> None:
     records = flight_records(lab_params, 60)
     with McapFlightLogWriter(
-        tmp_path / "f.mcap", {"arms_m": list(lab_params.arms_m)}, START, library
+        tmp_path / "f.mcap", {"arms_m": list(lab_params.bar_arms_m)}, START, library
     ) as log:
         for k, record in enumerate(records):  # a channel is written with its first message
             log.append(record, ("mode: a notice",) if k == 10 else ())
@@ -121,7 +121,7 @@ def test_the_mcap_reader_lists_the_channels_and_their_schemas(
         assert json.loads(first.data)["bar"]["position_m"]["x"] == records[0].state[0]
 
 
-def test_a_chunk_is_finished_each_second(tmp_path: Path, lab_params: BarSystemParams) -> None:
+def test_a_chunk_is_finished_each_second(tmp_path: Path, lab_params: FormationParams) -> None:
     with McapFlightLogWriter(tmp_path / "f.mcap", {}, START) as log:
         for record in flight_records(lab_params, 270):  # 5.4 s
             log.append(record)
@@ -135,7 +135,7 @@ def test_a_chunk_is_finished_each_second(tmp_path: Path, lab_params: BarSystemPa
 
 
 def test_a_torn_file_gives_every_complete_chunk(
-    tmp_path: Path, lab_params: BarSystemParams
+    tmp_path: Path, lab_params: FormationParams
 ) -> None:
     records = flight_records(lab_params, 200)
     path = tmp_path / "f.mcap"
@@ -167,7 +167,7 @@ def test_not_a_flight_log_is_refused(tmp_path: Path) -> None:
 WRITER = """
 import sys, time
 from pathlib import Path
-from controllers.params import BarSystemParams
+from controllers.formation_params import FormationParams
 from supervisor.app.config import load_config
 from supervisor.app.config_files import DEFAULT_SETUP
 from supervisor.logs.flight_log import open_flight_log
@@ -175,7 +175,7 @@ from tests.supervisor.test_mcap_log import flight_records
 
 params = load_config(DEFAULT_SETUP).system.to_params()
 records = flight_records(params, 1000)  # 20 s, more than the test waits
-log = open_flight_log(Path(sys.argv[1]), {"arms_m": list(params.arms_m)})
+log = open_flight_log(Path(sys.argv[1]), {"arms_m": list(params.bar_arms_m)})
 for record in records:
     log.append(record)
     print(record.t_s, flush=True)  # written: what the killer knows
@@ -185,7 +185,7 @@ for record in records:
 
 @pytest.mark.parametrize("suffix", [".mcap", ".jsonl"])
 def test_a_writer_killed_with_sigkill_loses_at_most_the_last_second(
-    tmp_path: Path, lab_params: BarSystemParams, suffix: str
+    tmp_path: Path, lab_params: FormationParams, suffix: str
 ) -> None:
     path = tmp_path / f"killed{suffix}"
     with subprocess.Popen(
@@ -210,7 +210,7 @@ def test_a_writer_killed_with_sigkill_loses_at_most_the_last_second(
 
 
 def test_report_gives_the_same_table_for_both_formats(
-    tmp_path: Path, lab_params: BarSystemParams
+    tmp_path: Path, lab_params: FormationParams
 ) -> None:
     records = flight_records(lab_params, 300)
     for suffix in (".jsonl", ".mcap"):
@@ -237,7 +237,7 @@ def test_report_gives_the_same_table_for_both_formats(
 
 
 def test_csv_export_has_a_named_column_per_figure(
-    tmp_path: Path, lab_params: BarSystemParams, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, lab_params: FormationParams, capsys: pytest.CaptureFixture[str]
 ) -> None:
     records = flight_records(lab_params, 20)
     with McapFlightLogWriter(tmp_path / "f.mcap", {}, START) as log:

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from controllers.equilibria import Reference, bar_equilibrium
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.core import TAKES_SETPOINTS, FlightCore
@@ -59,7 +59,7 @@ NEXT_STEP_SAYS: dict[tuple[Mode, Request], str] = {
 
 
 def hovering(core: FlightCore) -> Estimate:
-    x = bar_equilibrium(core.params, Reference((0.0, 0.0, 1.0))).x
+    x = formation_equilibrium(core.params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
     estimate = Estimate(x, 0.005, ())
     core.start_in_hover(estimate, 0.0, (0.02, 0.05, 0.05))
     return estimate

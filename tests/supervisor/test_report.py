@@ -9,25 +9,25 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.params import BarSystemParams
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
 from supervisor.flight.tick_record import TickRecord
 from supervisor.logs.flight_log import FlightLog, open_flight_log, read_flight_log
 from supervisor.logs.report import figures
 
 
-def turning_flight(folder: Path, params: BarSystemParams, controller: str) -> FlightLog:
+def turning_flight(folder: Path, params: FormationParams, controller: str) -> FlightLog:
     """UAV 1's yaw turning through ±180° (wrapped, as the estimate gives it), noisy inputs."""
     rng = np.random.default_rng(1)
     path = folder / f"{controller}.mcap"
     log = open_flight_log(path, {"setup": "test"})
     for k in range(400):
         t = 0.02 * k
-        ref = bar_equilibrium(params, Reference((0.0, 0.0, 1.0))).x
+        ref = formation_equilibrium(params, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
         ref[20] = math.remainder(math.radians(150.0 + 10.0 * t), 2 * math.pi)
-        state = ref + rng.normal(0.0, 0.005, 36)
+        state = ref + rng.normal(0.0, 0.005, ref.size)
         state[20] = math.remainder(state[20], 2 * math.pi)
-        inputs = 13.0 + rng.normal(0.0, 0.3, 8)
+        inputs = 13.0 + rng.normal(0.0, 0.3, params.layout.n_inputs)
         log.append(
             TickRecord(
                 t,
@@ -47,7 +47,7 @@ def turning_flight(folder: Path, params: BarSystemParams, controller: str) -> Fl
     return read_flight_log(path)
 
 
-def test_every_panel_has_data_and_a_legend(tmp_path: Path, lab_params: BarSystemParams) -> None:
+def test_every_panel_has_data_and_a_legend(tmp_path: Path, lab_params: FormationParams) -> None:
     logs = [turning_flight(tmp_path, lab_params, c) for c in ("centralized", "decentralized")]
     for stem, fig in figures(logs).items():
         panels = [ax for ax in fig.axes if ax.axison]
@@ -61,7 +61,7 @@ def test_every_panel_has_data_and_a_legend(tmp_path: Path, lab_params: BarSystem
 
 
 def test_angles_are_unwrapped_and_the_bar_has_no_roll_panel(
-    tmp_path: Path, lab_params: BarSystemParams
+    tmp_path: Path, lab_params: FormationParams
 ) -> None:
     fig = figures([turning_flight(tmp_path, lab_params, "centralized")])["orientations"]
     titles = {ax.get_title(): ax for ax in fig.axes if ax.axison}
@@ -74,7 +74,7 @@ def test_angles_are_unwrapped_and_the_bar_has_no_roll_panel(
 
 
 def test_errors_of_both_uavs_and_both_logs_share_their_panels(
-    tmp_path: Path, lab_params: BarSystemParams
+    tmp_path: Path, lab_params: FormationParams
 ) -> None:
     logs = [turning_flight(tmp_path, lab_params, c) for c in ("centralized", "decentralized")]
     fig = figures(logs)["errors"]
@@ -91,7 +91,7 @@ def test_errors_of_both_uavs_and_both_logs_share_their_panels(
 
 
 def test_inputs_are_a_moving_mean_inside_the_raw_range(
-    tmp_path: Path, lab_params: BarSystemParams
+    tmp_path: Path, lab_params: FormationParams
 ) -> None:
     log = turning_flight(tmp_path, lab_params, "centralized")
     fig = figures([log])["inputs"]

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from controllers.params import BarSystemParams
+from controllers.formation_params import FormationParams
 from supervisor.logs.flight_log import FlightLog, open_flight_log, read_flight_log
 from supervisor.logs.report import figures, log_names, write_report
 from tests.supervisor.test_mcap_log import flight_records
@@ -21,7 +21,7 @@ BOOT_CLOCK_S = 6294.6  # where a service's log starts: the flight process's mono
 TICKS = 250
 
 
-def logged(path: Path, params: BarSystemParams, start_s: float) -> FlightLog:
+def logged(path: Path, params: FormationParams, start_s: float) -> FlightLog:
     """A flight of ``TICKS`` ticks starting at ``start_s``, switched from decentralized to
     centralized half-way (``flight_records``), written by the project's writer."""
     records = flight_records(params, TICKS)
@@ -33,7 +33,7 @@ def logged(path: Path, params: BarSystemParams, start_s: float) -> FlightLog:
 
 
 @pytest.fixture
-def two_flights(tmp_path: Path, lab_params: BarSystemParams) -> list[FlightLog]:
+def two_flights(tmp_path: Path, lab_params: FormationParams) -> list[FlightLog]:
     """A service's log (boot clock) and a simulated one (from 0.2 s)."""
     return [
         logged(tmp_path / "served.jsonl", lab_params, BOOT_CLOCK_S),
@@ -60,7 +60,7 @@ def test_both_flights_share_every_panel_on_time_from_their_start(
 
 
 def test_legends_stay_inside_the_figure_after_a_controller_switch(
-    tmp_path: Path, lab_params: BarSystemParams
+    tmp_path: Path, lab_params: FormationParams
 ) -> None:
     logs = [
         logged(tmp_path / "flight-20261203-101500-decentralized-then-centralized.jsonl",
@@ -93,7 +93,7 @@ def test_each_summary_row_names_its_file(two_flights: list[FlightLog], tmp_path:
     assert [s["log"] for s in summaries] == [str(log.path) for log in two_flights]
 
 
-def test_logs_of_the_same_name_are_told_apart(tmp_path: Path, lab_params: BarSystemParams) -> None:
+def test_logs_of_the_same_name_are_told_apart(tmp_path: Path, lab_params: FormationParams) -> None:
     for folder in ("monday", "tuesday"):
         (tmp_path / folder).mkdir()
     logs = [logged(tmp_path / f / "flight.mcap", lab_params, 0.0) for f in ("monday", "tuesday")]

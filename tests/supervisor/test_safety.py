@@ -9,8 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from controllers.equilibria import Reference, bar_equilibrium
-from geometry.state import bar_ends, uav_slices
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from geometry.state import payload_points
 from supervisor.app.assembly import (
     arena_from_config,
     flight_core_from_config,
@@ -29,7 +29,9 @@ PARAMS = CONFIG.system.to_params()
 
 def hovering_state(bar_yaw_rad: float) -> np.ndarray:
     """The hover equilibrium with the bar (and its UAVs) turned to ``bar_yaw_rad``."""
-    return bar_equilibrium(PARAMS, Reference((0.0, 0.0, 1.0), bar_yaw_rad)).x
+    return formation_equilibrium(
+        PARAMS, FormationReference((0.0, 0.0, 1.0), bar_yaw_rad, (0.0, 0.0))
+    ).x
 
 
 def swing_faults(
@@ -164,8 +166,8 @@ def test_repeated_frames_are_refused_only_while_the_bodies_move() -> None:
 def slack_state(shorter_m: float) -> np.ndarray:
     """The hover equilibrium with UAV 1 moved ``shorter_m`` along its cable towards the bar."""
     x = hovering_state(0.0)
-    end = bar_ends(x, PARAMS.arms_m)[0]
-    position = uav_slices(1)[0]
+    end = payload_points(x, PARAMS.payload.attachments_m)[0]
+    position = PARAMS.layout.uav_slices(1)[0]
     direction = x[position] - end
     x[position] -= shorter_m * direction / np.linalg.norm(direction)
     return x

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from controllers.equilibria import Reference, bar_equilibrium
-from controllers.params import BarSystemParams
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_params import FormationParams
 from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
 from supervisor.flight.setpoints import (
@@ -24,7 +24,7 @@ ARENA = Arena((-3.0, -3.0, 0.0), (3.0, 3.0, 3.0))
 BOUNDS = SetpointBounds(0.5, 26.0, math.radians(45.0))
 
 
-def test_a_good_setpoint_passes(lab_params: BarSystemParams) -> None:
+def test_a_good_setpoint_passes(lab_params: FormationParams) -> None:
     validate_setpoint(
         Setpoint((0.0, 0.0, 1.0), 0.5, theta_l_rad=math.radians(45)), lab_params, ARENA, BOUNDS
     )
@@ -32,7 +32,7 @@ def test_a_good_setpoint_passes(lab_params: BarSystemParams) -> None:
 
 @pytest.mark.parametrize("theta_l_deg", [85.0, 86.0, 89.0, 89.99])
 def test_theta_l_above_the_maximum_is_refused_by_how_much(
-    lab_params: BarSystemParams, theta_l_deg: float
+    lab_params: FormationParams, theta_l_deg: float
 ) -> None:
     setpoint = Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(theta_l_deg))
     excess = theta_l_deg - 75.0
@@ -41,19 +41,19 @@ def test_theta_l_above_the_maximum_is_refused_by_how_much(
 
 
 def test_an_equilibrium_tilted_beyond_the_abort_tilt_less_its_margin_is_refused(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     """θ_l allowed up to 89°: at 80° the UAVs tilt ~39.5°, above 45° − 10°."""
     bounds = SetpointBounds(0.5, 26.0, math.radians(45.0), FeasibilitySettings(math.radians(89)))
     setpoint = Setpoint((0.0, 0.0, 1.5), theta_l_rad=math.radians(80.0))
-    eq = bar_equilibrium(lab_params, setpoint.reference())
-    excess = math.degrees(eq.theta_f_rad[1]) - 35.0
+    eq = formation_equilibrium(lab_params, setpoint.reference(2))
+    excess = math.degrees(eq.tilts_rad[1]) - 35.0
     assert 0.0 < excess < 10.0
     with pytest.raises(SetpointError) as refused:
         validate_setpoint(setpoint, lab_params, ARENA, bounds)
     assert "thrust" not in str(refused.value)  # 17 N: well inside 26 N less 10 %
     assert (
-        f"UAV 2's equilibrium tilt {math.degrees(eq.theta_f_rad[1]):.1f}° is above the 45.0°"
+        f"UAV 2's equilibrium tilt {math.degrees(eq.tilts_rad[1]):.1f}° is above the 45.0°"
         f" abort tilt less its 10.0° margin (35.0°) by {excess:.1f}°" in str(refused.value)
     )
     # Just below the bound it is taken: the check is the bound itself, not a table.
@@ -62,12 +62,12 @@ def test_an_equilibrium_tilted_beyond_the_abort_tilt_less_its_margin_is_refused(
 
 
 def test_an_equilibrium_thrust_beyond_the_range_less_its_margin_is_refused(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     """A 14 N thrust limit less 10 % is 12.6 N: hovering with the bar already needs 13.2 N."""
     bounds = SetpointBounds(0.5, 14.0, math.radians(45.0))
     setpoint = Setpoint((0.0, 0.0, 1.0))
-    eq = bar_equilibrium(lab_params, setpoint.reference())
+    eq = formation_equilibrium(lab_params, setpoint.reference(2))
     with pytest.raises(SetpointError) as refused:
         validate_setpoint(setpoint, lab_params, ARENA, bounds)
     for k in (0, 1):
@@ -81,7 +81,7 @@ def test_an_equilibrium_thrust_beyond_the_range_less_its_margin_is_refused(
 
 
 def test_an_equilibrium_thrust_below_the_range_plus_its_margin_is_refused(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     bounds = SetpointBounds(14.0, 30.0, math.radians(45.0))  # band 17..27 N
     with pytest.raises(SetpointError, match=r"below the 14.0 N minimum plus its 10 % margin"):
@@ -89,7 +89,7 @@ def test_an_equilibrium_thrust_below_the_range_plus_its_margin_is_refused(
 
 
 def test_the_paper_s_setpoints_are_taken_under_the_default_bounds(
-    lab_params: BarSystemParams,
+    lab_params: FormationParams,
 ) -> None:
     """Section VII flies θ_l up to 45° (the paper's sequence: configs/scenarios/paper.toml);
     the issue's large-θ_l flights ramp to 70°."""
@@ -104,13 +104,13 @@ def test_the_paper_s_setpoints_are_taken_under_the_default_bounds(
         (Setpoint((0.0, 0.0, 2.5)), "UAV 1"),  # UAVs 1 m above the bar hit the ceiling
         (Setpoint((2.6, 0.0, 1.0)), "bar end 2"),  # the bar sticks out of the arena
         (Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(95)), "θ_l 95.0° exceeds"),
-        (Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(-5)), "theta_l"),
+        (Setpoint((0.0, 0.0, 1.0), theta_l_rad=math.radians(-5)), "cone angle"),
         (Setpoint((math.nan, 0.0, 1.0)), "finite"),
         (Setpoint((0.0, 0.0, 1.0), hold_s=-1.0), "hold_s"),
     ],
 )
 def test_bad_setpoints_are_refused_with_the_reason(
-    setpoint: Setpoint, message: str, lab_params: BarSystemParams
+    setpoint: Setpoint, message: str, lab_params: FormationParams
 ) -> None:
     with pytest.raises(SetpointError, match=message):
         validate_setpoint(setpoint, lab_params, ARENA, BOUNDS)
@@ -138,26 +138,26 @@ def test_queue_is_bounded_and_all_or_nothing() -> None:
 
 def test_reference_moves_at_bounded_rates() -> None:
     limits = RateLimits(position_mps=0.5, yaw_radps=1.0, theta_l_radps=0.2)
-    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), limits)
-    target = Reference((1.0, 0.0, 1.0), math.pi / 2, (math.pi / 2, -math.pi / 2), 0.5)
+    shaper = ReferenceShaper(FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0)), limits)
+    target = FormationReference((1.0, 0.0, 1.0), math.pi / 2, (math.pi / 2, -math.pi / 2), 0.5)
     previous = shaper.update(target, 0.0)
     for k in range(1, 200):
         ref = shaper.update(target, 0.02 * k)
         assert (
-            np.linalg.norm(np.subtract(ref.bar_position_m, previous.bar_position_m))
+            np.linalg.norm(np.subtract(ref.payload_position_m, previous.payload_position_m))
             <= 0.5 * 0.02 + 1e-12
         )
-        assert abs(ref.bar_yaw_rad - previous.bar_yaw_rad) <= 1.0 * 0.02 + 1e-12
-        assert abs(ref.theta_l_rad - previous.theta_l_rad) <= 0.2 * 0.02 + 1e-12
+        assert abs(ref.payload_yaw_rad - previous.payload_yaw_rad) <= 1.0 * 0.02 + 1e-12
+        assert abs(ref.cone_angle_rad - previous.cone_angle_rad) <= 0.2 * 0.02 + 1e-12
         previous = ref
     assert previous == target  # reached exactly, no overshoot
 
 
 def test_yaw_takes_the_short_way_round() -> None:
-    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0), math.radians(170)))
-    shaper.update(Reference((0.0, 0.0, 1.0), math.radians(-170)), 0.0)
-    ref = shaper.update(Reference((0.0, 0.0, 1.0), math.radians(-170)), 0.1)
-    assert ref.bar_yaw_rad > math.radians(170)  # through 180°, not back through 0°
+    shaper = ReferenceShaper(FormationReference((0.0, 0.0, 1.0), math.radians(170), (0.0, 0.0)))
+    shaper.update(FormationReference((0.0, 0.0, 1.0), math.radians(-170), (0.0, 0.0)), 0.0)
+    ref = shaper.update(FormationReference((0.0, 0.0, 1.0), math.radians(-170), (0.0, 0.0)), 0.1)
+    assert ref.payload_yaw_rad > math.radians(170)  # through 180°, not back through 0°
 
 
 def test_queue_gives_up_on_a_setpoint_after_its_timeout() -> None:
@@ -173,13 +173,13 @@ def test_queue_gives_up_on_a_setpoint_after_its_timeout() -> None:
 
 def test_reference_accelerates_gently_and_carries_its_velocity() -> None:
     limits = RateLimits(position_mps=0.4, acceleration_mps2=0.5)
-    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), limits)
-    target = Reference((1.0, 1.0, 1.5))
+    shaper = ReferenceShaper(FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0)), limits)
+    target = FormationReference((1.0, 1.0, 1.5), 0.0, (0.0, 0.0))
     dt = 0.02
     positions, velocities = [], []
     for k in range(300):
         ref = shaper.update(target, dt * k)
-        positions.append(ref.bar_position_m)
+        positions.append(ref.payload_position_m)
         velocities.append(ref.velocity_mps)
     p, v = np.array(positions), np.array(velocities)
     speed = np.linalg.norm(v, axis=1)
@@ -191,12 +191,12 @@ def test_reference_accelerates_gently_and_carries_its_velocity() -> None:
     assert changes[stop] <= 2 * 0.5 * dt  # the last, slow step onto the target
     # The velocity it carries is the one it moves with.
     np.testing.assert_allclose(np.diff(p, axis=0)[:stop], v[1 : stop + 1] * dt, atol=1e-12)
-    assert positions[-1] == target.bar_position_m and velocities[-1] == (0.0, 0.0, 0.0)
+    assert positions[-1] == target.payload_position_m and velocities[-1] == (0.0, 0.0, 0.0)
 
 
 def test_a_turn_through_180_degrees_lands_on_the_target_itself() -> None:
-    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0), math.radians(170)))
-    target = Reference((0.0, 0.0, 1.0), math.radians(-170))
+    shaper = ReferenceShaper(FormationReference((0.0, 0.0, 1.0), math.radians(170), (0.0, 0.0)))
+    target = FormationReference((0.0, 0.0, 1.0), math.radians(-170), (0.0, 0.0))
     for k in range(100):
         ref = shaper.update(target, 0.02 * k)
     assert ref == target  # not 190°: "reached" compares references
@@ -204,21 +204,25 @@ def test_a_turn_through_180_degrees_lands_on_the_target_itself() -> None:
 
 def test_a_turning_reference_carries_its_turn_rates() -> None:
     limits = RateLimits(yaw_radps=0.5)
-    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), limits)
-    target = Reference((0.0, 0.0, 1.0), 1.0, (1.0, -1.0))
+    shaper = ReferenceShaper(FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0)), limits)
+    target = FormationReference((0.0, 0.0, 1.0), 1.0, (1.0, -1.0))
     shaper.update(target, 0.0)
     turning = shaper.update(target, 0.02)
-    assert turning.yaw_rates_radps == pytest.approx((0.5, 0.5, -0.5))
+    assert turning.payload_yaw_rate_radps == pytest.approx(0.5)
+    assert turning.uav_yaw_rates_radps == pytest.approx((0.5, -0.5))
     for k in range(2, 200):
         ref = shaper.update(target, 0.02 * k)
-    assert ref == target and ref.yaw_rates_radps == (0.0, 0.0, 0.0)
+    assert ref == target and ref.payload_yaw_rate_radps == 0.0
+    assert ref.uav_yaw_rates_radps == (0.0, 0.0)
 
 
 def test_a_reference_moving_its_theta_l_carries_the_rate() -> None:
-    shaper = ReferenceShaper(Reference((0.0, 0.0, 1.0)), RateLimits(theta_l_radps=0.2))
-    target = Reference((0.0, 0.0, 1.0), theta_l_rad=0.5)
+    shaper = ReferenceShaper(
+        FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0)), RateLimits(theta_l_radps=0.2)
+    )
+    target = FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), 0.5)
     shaper.update(target, 0.0)
-    assert shaper.update(target, 0.02).theta_l_rate_radps == pytest.approx(0.2)
+    assert shaper.update(target, 0.02).cone_angle_rate_radps == pytest.approx(0.2)
     for k in range(2, 200):
         ref = shaper.update(target, 0.02 * k)
-    assert ref == target and ref.theta_l_rate_radps == 0.0
+    assert ref == target and ref.cone_angle_rate_radps == 0.0

@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.params import RECOMMENDED_LEAD, BarSystemParams
-from geometry.state import bar_ends, uav_position
+from controllers.formation_params import FormationParams
+from controllers.params import RECOMMENDED_LEAD
+from geometry.state import payload_points
 from supervisor.app.config import Config, load_config
 from supervisor.cli.main import main
 from supervisor.logs.flight_log import FlightLog, read_flight_log
@@ -89,11 +90,16 @@ def test_flights_in_a_row_need_nobody_to_move_anything(
     modes = [mode for mode, _ in itertools.groupby(log.modes)]
     assert modes.count("takeoff") == 3 and modes.count("abort") == 1, modes
     # Between flights the UAVs stood farther from their bar ends than the first take-off's.
-    arms = sim_config.system.to_params().arms_m
+    params = sim_config.system.to_params()
     starts = [i for i, (a, b) in enumerate(itertools.pairwise(log.modes)) if b == "takeoff" != a]
     offsets = [
         float(
-            np.linalg.norm((uav_position(log.state[i], 1) - bar_ends(log.state[i], arms)[0])[0:2])
+            np.linalg.norm(
+                (
+                    params.layout.uav_position(log.state[i], 1)
+                    - payload_points(log.state[i], params.payload.attachments_m)[0]
+                )[0:2]
+            )
         )
         for i in starts
     ]
@@ -181,14 +187,14 @@ def pushes_down_on_uav1(count: int) -> str:
     return text
 
 
-def slack_episodes_s(log: FlightLog, params: BarSystemParams) -> list[float]:
+def slack_episodes_s(log: FlightLog, params: FormationParams) -> list[float]:
     """How long each episode lasted in which the estimate had a cable 5 cm short (the slack
     monitor's test) [s]."""
     slack = [
         any(
-            np.linalg.norm(uav_position(x, i) - bar_ends(x, params.arms_m)[i - 1])
+            np.linalg.norm(params.layout.uav_position(x, i) - end)
             < params.cable_lengths_m[i - 1] - 0.05
-            for i in (1, 2)
+            for i, end in enumerate(payload_points(x, params.payload.attachments_m), start=1)
         )
         for x in log.state
     ]

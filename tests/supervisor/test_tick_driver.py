@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import time
 
-from controllers.equilibria import Reference, bar_equilibrium
+from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from geometry import frames
 from geometry.arrays import FloatArray
-from geometry.state import TH_B, bar_position, uav_euler, uav_position
+from geometry.state import TH_B, payload_position
 from mocap.qtm_protocol import BodyPose, MocapFrame
 from supervisor.app.assembly import (
     body_names_from_config,
@@ -31,9 +31,13 @@ def poses_of(x: FloatArray) -> dict[str, BodyPose]:
     """Each body's pose in the state ``x``, as QTM would report it."""
     bar, uav1, uav2 = CONFIG.mocap.bodies
     pitch, yaw = x[TH_B][1:]
-    poses = {bar: (bar_position(x), frames.quaternion_from_euler_zyx(0.0, pitch, yaw))}
-    for i, name in ((1, uav1), (2, uav2)):
-        poses[name] = (uav_position(x, i), frames.quaternion_from_euler_zyx(*uav_euler(x, i)))
+    poses = {bar: (payload_position(x), frames.quaternion_from_euler_zyx(0.0, pitch, yaw))}
+    layout = PARAMS.layout
+    for i, name in zip(layout.vehicles, (uav1, uav2), strict=True):
+        poses[name] = (
+            layout.uav_position(x, i),
+            frames.quaternion_from_euler_zyx(*layout.uav_euler(x, i)),
+        )
     return {name: BodyPose.from_quaternion(name, p, q) for name, (p, q) in poses.items()}
 
 
@@ -69,7 +73,7 @@ def test_a_resting_system_repeating_itself_exactly_may_arm() -> None:
 
 def test_a_frozen_stream_in_flight_is_handed_to_px4_at_the_limit() -> None:
     tick_driver = driver()
-    x = bar_equilibrium(PARAMS, Reference((0.0, 0.0, 1.0), 0.0)).x
+    x = formation_equilibrium(PARAMS, FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))).x
     poses = poses_of(x)
     tick_driver.fusion.update(frame(0, poses))
     tick_driver.core.start_in_hover(tick_driver.estimate_at(0.006), 0.0, (0.02, 0.07, 0.07))
