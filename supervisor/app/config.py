@@ -27,7 +27,7 @@ from pydantic import (
     model_validator,
 )
 
-from controllers.formation_params import FormationParams, formation_from_bar
+from controllers.formation_params import FormationParams, PayloadParams, formation_from_bar
 from controllers.params import (
     InputLimits,
     MpcSettings,
@@ -38,6 +38,7 @@ from controllers.params import (
 )
 from controllers.qp.registry import BACKEND_NAMES
 from controllers.uav_pd import UavPdGains
+from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
 from supervisor.app.config_files import CONFIG_DIR, TOKEN_ENV, ConfigError, read_setup
 from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 from supervisor.flight.reference_shaping import RateLimits
@@ -74,51 +75,114 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-def _one_or_two(value: float | list[float], key: str) -> tuple[float, float]:
-    if isinstance(value, list):
-        if len(value) != 2:
-            raise ValueError(f"{key} takes one value or two (one per UAV/cable), got {len(value)}")
-        return (value[0], value[1])
-    return (value, value)
+def _per_vehicle(value: Any, n_vehicles: int, key: str, *, one_each: bool) -> tuple[Any, ...]:
+    """``value`` for every vehicle, or (``one_each``) its items, one per vehicle."""
+    if not one_each:
+        return (value,) * n_vehicles
+    if len(value) != n_vehicles:
+        raise ValueError(f"{key} takes one value or {n_vehicles} (one per UAV), got {len(value)}")
+    return tuple(value)
+
+
+PerVehicle = Annotated[list[PositiveFloat], Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)]
+BAR_KEYS = ("bar_mass", "bar_d1", "bar_d2", "bar_inertia")
+
+
+class PayloadSection(_Section):
+    """A rigid payload other than the paper's bar, carried by one UAV per attachment: its
+    mass [kg], its inertia about its CoM in its own frame [kg m²] (three principal moments
+    or the whole matrix), and where each cable is fixed, in that frame from its CoM [m]."""
+
+    mass: PositiveFloat
+    inertia: PositiveVec3 | Annotated[list[Vec3], Field(min_length=3, max_length=3)]
+    attachments: Annotated[list[Vec3], Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)]
+
+    def to_params(self) -> PayloadParams:
+        """The controllers' payload (raises ``ValueError`` for a geometry no model takes)."""
+        if isinstance(self.inertia[0], list):
+            rows = tuple(_vector3(row) for row in self.inertia)
+        else:
+            a, b, c = self.inertia
+            rows = ((a, 0.0, 0.0), (0.0, b, 0.0), (0.0, 0.0, c))
+        return PayloadParams(
+            mass_kg=self.mass,
+            inertia_kgm2=(rows[0], rows[1], rows[2]),
+            attachments_m=tuple(_vector3(point) for point in self.attachments),
+        )
+
+
+def _vector3(values: list[float]) -> tuple[float, float, float]:
+    return (values[0], values[1], values[2])
 
 
 class SystemSection(_Section):
-    """Physical parameters of the two UAVs, the bar and the cables (SI units)."""
+    """Physical parameters of the UAVs, the payload and the cables (SI units). The payload
+    is the paper's bar (``bar_mass``, ``bar_d1``, ``bar_d2``, ``bar_inertia``: two UAVs) or
+    any rigid body (``[system.payload]``: one UAV per attachment), never both; per-UAV
+    values are one value for all or a list of one per UAV."""
 
-    uav_mass: PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
-    uav_inertia: PositiveVec3
-    bar_mass: PositiveFloat
-    bar_d1: FiniteFloat
-    bar_d2: FiniteFloat
-    bar_inertia: PositiveFloat
-    cable_length: PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
+    uav_mass: PositiveFloat | PerVehicle
+    uav_inertia: (
+        PositiveVec3
+        | Annotated[list[PositiveVec3], Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)]
+    )
+    bar_mass: PositiveFloat | None = None
+    bar_d1: NonNegativeFloat | None = None
+    bar_d2: NonNegativeFloat | None = None
+    bar_inertia: PositiveFloat | None = None
+    payload: PayloadSection | None = None
+    cable_length: PositiveFloat | PerVehicle
     gravity: PositiveFloat = 9.81
 
-    @field_validator("bar_d1", "bar_d2")
-    @classmethod
-    def _non_negative_arm(cls, value: float) -> float:
-        if value < 0.0:
-            raise ValueError("the distance from the bar's CoM to a cable attachment is >= 0")
-        return value
-
     @model_validator(mode="after")
-    def _bar_has_length(self) -> SystemSection:
-        if self.bar_d1 + self.bar_d2 <= 0.0:
+    def _one_payload(self) -> SystemSection:
+        given = [key for key in BAR_KEYS if getattr(self, key) is not None]
+        if self.payload is not None and given:
+            raise ValueError(
+                f"the payload is the bar ({', '.join(given)}) or [system.payload], not both"
+            )
+        if self.payload is None and len(given) != len(BAR_KEYS):
+            missing = [key for key in BAR_KEYS if key not in given]
+            raise ValueError(
+                f"a bar needs {', '.join(missing)} (or describe another payload in "
+                "[system.payload])"
+            )
+        if self.payload is None and (self.bar_d1 or 0.0) + (self.bar_d2 or 0.0) <= 0.0:
             raise ValueError("bar_d1 + bar_d2 (the bar's length) must be > 0")
+        self.to_params()  # every per-UAV list its length, a payload some model takes
         return self
+
+    @property
+    def n_vehicles(self) -> int:
+        """N: two for the bar, one per attachment of any other payload."""
+        return 2 if self.payload is None else len(self.payload.attachments)
 
     def to_params(self) -> FormationParams:
         """The controllers' plain parameter object."""
-        m1, m2 = _one_or_two(self.uav_mass, "uav_mass")
-        l1, l2 = _one_or_two(self.cable_length, "cable_length")
-        inertia = (self.uav_inertia[0], self.uav_inertia[1], self.uav_inertia[2])
+        n = self.n_vehicles
+        masses = _per_vehicle(
+            self.uav_mass, n, "uav_mass", one_each=isinstance(self.uav_mass, list)
+        )
+        inertias = _per_vehicle(
+            self.uav_inertia, n, "uav_inertia", one_each=isinstance(self.uav_inertia[0], list)
+        )
+        lengths = _per_vehicle(
+            self.cable_length, n, "cable_length", one_each=isinstance(self.cable_length, list)
+        )
+        uavs = tuple(
+            UavParams(mass, _vector3(inertia))
+            for mass, inertia in zip(masses, inertias, strict=True)
+        )
+        if self.payload is not None:
+            return FormationParams(uavs, self.payload.to_params(), lengths, self.gravity)
+        assert self.bar_mass and self.bar_inertia is not None  # _one_payload
         return formation_from_bar(
-            uavs=(UavParams(m1, inertia), UavParams(m2, inertia)),
+            uavs=(uavs[0], uavs[1]),
             bar_mass_kg=self.bar_mass,
-            d1_m=self.bar_d1,
-            d2_m=self.bar_d2,
+            d1_m=self.bar_d1 or 0.0,
+            d2_m=self.bar_d2 or 0.0,
             bar_inertia_kgm2=self.bar_inertia,
-            cable_lengths_m=(l1, l2),
+            cable_lengths_m=(lengths[0], lengths[1]),
             gravity_mps2=self.gravity,
         )
 

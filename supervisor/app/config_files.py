@@ -99,8 +99,40 @@ def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> SetupData:
         return SetupData(data, own)
     if not isinstance(parent, str):
         raise ConfigError(f"{path}: 'extends' must be a file name")
-    base = _read_toml(path.parent / parent, (*seen, path))
+    base = _without_replaced_payload(_read_toml(path.parent / parent, (*seen, path)), data)
     return SetupData(_merge(base.data, data), {**base.sources, **own})
+
+
+# The two ways a setup describes its payload: the paper's bar, or any rigid body.
+_BAR_KEYS = ("bar_mass", "bar_d1", "bar_d2", "bar_inertia")
+_RIGID_KEYS = ("payload",)
+
+
+def _without_replaced_payload(base: SetupData, over: Mapping[str, Any]) -> SetupData:
+    """``base`` without the payload description ``over`` replaces: a file that describes
+    its payload one way replaces, as a whole, the one it extends described the other way
+    (a three-UAV plate extending the bar's lab keeps the lab, not the bar)."""
+    system = over.get("system", {})
+    if not isinstance(system, Mapping) or not isinstance(base.data.get("system"), Mapping):
+        return base
+    replaced: tuple[str, ...]
+    if any(key in system for key in _RIGID_KEYS):
+        replaced = _BAR_KEYS
+    elif any(key in system for key in _BAR_KEYS):
+        replaced = _RIGID_KEYS
+    else:
+        return base
+    data = {
+        **base.data,
+        "system": {k: v for k, v in base.data["system"].items() if k not in replaced},
+    }
+    prefixes = tuple(f"system.{key}" for key in replaced)
+    sources = {
+        key: source
+        for key, source in base.sources.items()
+        if not any(key == p or key.startswith(f"{p}.") for p in prefixes)
+    }
+    return SetupData(data, sources)
 
 
 def parse_override(assignment: str) -> tuple[list[str], Any]:

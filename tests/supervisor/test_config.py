@@ -10,7 +10,7 @@ import pytest
 from pydantic import ValidationError
 
 from supervisor.app.config import ConfigError, load_config
-from supervisor.app.config_files import parse_override
+from supervisor.app.config_files import parse_override, read_setup
 from supervisor.cli.main import main
 from tests.conftest import CONFIGS
 
@@ -64,9 +64,15 @@ def test_overrides_are_toml_literals() -> None:
         ("system.bar_mass=-0.3", "system.bar_mass", "greater than 0"),
         ("system.uav_mass='heavy'", "system.uav_mass", "valid number"),
         ("system.bar_d1=0.0;system.bar_d2=0.0", "system", "bar_d1 + bar_d2"),
-        ("system.bar_d2=-0.1", "system.bar_d2", ">= 0"),
+        ("system.bar_d2=-0.1", "system.bar_d2", "greater than or equal to 0"),
         ("system.uav_inertia=[1.0, 2.0]", "system.uav_inertia", "at least 3"),
-        ("system.cable_length=[1.0, 1.0, 1.0]", "system.cable_length", "at most 2"),
+        ("system.cable_length=[1.0, 1.0, 1.0]", "system", "one value or 2 (one per UAV)"),
+        ("system.uav_inertia=[[1, 1, 1]]", "system.uav_inertia", "at least 2"),
+        (
+            "system.payload={mass=1, inertia=[1, 1, 1], attachments=[[1, 0, 0], [-1, 0, 0]]}",
+            "system",
+            "the bar (bar_mass, bar_d1, bar_d2, bar_inertia) or [system.payload], not both",
+        ),
         ("mpc.thrust_min_n=30.0", "mpc", "thrust_min_n"),
         ("system.gravity=nan", "system.gravity", "finite"),
         ("arena.min_m=[0, 0, 5]", "arena", "below"),
@@ -98,6 +104,62 @@ def test_bad_values_name_their_key(override: str, key: str, reason: str) -> None
 def test_malformed_overrides(assignment: str) -> None:
     with pytest.raises(ConfigError, match="--set"):
         parse_override(assignment)
+
+
+PLATE = """
+extends = "{base}"
+[system]
+uav_mass = [1.15, 1.2, 1.1]
+[system.payload]
+mass = 0.6
+inertia = [0.042, 0.042, 0.085]
+attachments = [[0.75, 0.0, 0.0], [-0.375, 0.65, 0.0], [-0.375, -0.65, 0.0]]
+"""
+
+
+def test_a_plate_on_three_uavs_replaces_the_bar_it_extends(tmp_path: Path) -> None:
+    setup = tmp_path / "plate.toml"
+    setup.write_text(PLATE.format(base=CONFIGS / "sim.toml"))
+    config = load_config(setup)
+    params = config.system.to_params()
+    assert params.n_vehicles == config.system.n_vehicles == 3
+    assert [uav.mass_kg for uav in params.uavs] == [1.15, 1.2, 1.1]
+    assert params.cable_lengths_m == (1.0, 1.0, 1.0)  # the lab's one length, for each
+    assert params.payload.attachments_m[1] == (-0.375, 0.65, 0.0)
+    assert not params.payload.is_bar and config.system.bar_mass is None
+    assert config.mpc.horizon == load_config(KTH).mpc.horizon  # the rest of the lab kept
+    shown = read_setup(setup).sources
+    assert "system.bar_mass" not in shown and shown["system.payload.mass"] == str(setup)
+
+
+def test_a_bar_extending_a_plate_replaces_the_plate(tmp_path: Path) -> None:
+    plate = tmp_path / "plate.toml"
+    plate.write_text(PLATE.format(base=CONFIGS / "sim.toml").replace("[1.15, 1.2, 1.1]", "1.15"))
+    bar = tmp_path / "bar.toml"
+    bar.write_text(
+        f'extends = "{plate}"\n[system]\nbar_mass = 0.5\nbar_d1 = 0.5\nbar_d2 = 0.5\n'
+        "bar_inertia = 0.04\n"
+    )
+    params = load_config(bar).system.to_params()
+    assert params.n_vehicles == 2 and params.bar_arms_m == (0.5, 0.5)
+
+
+@pytest.mark.parametrize(
+    ("override", "reason"),
+    [
+        ("system.uav_mass=[1.0, 1.0]", "uav_mass takes one value or 3"),
+        ("system.cable_length=[1, 1, 1, 1]", "cable_length takes one value or 3"),
+        ("system.payload.attachments=[[0.5, 0, 0]]", "at least 2"),
+        ("system.payload.inertia=[[1, 0, 0], [0.5, 1, 0], [0, 0, 1]]", "symmetric"),
+        ("system.bar_mass=0.4", "not both"),
+    ],
+)
+def test_a_plate_s_bad_values_are_named(tmp_path: Path, override: str, reason: str) -> None:
+    setup = tmp_path / "plate.toml"
+    setup.write_text(PLATE.format(base=CONFIGS / "sim.toml"))
+    with pytest.raises(ConfigError, match="system") as caught:
+        load_config(setup, [override])
+    assert reason in str(caught.value)
 
 
 def test_missing_and_broken_files(tmp_path: Path) -> None:
