@@ -43,9 +43,9 @@ browser:
 		echo "chromium is not installed: the dashboard browser tests will be skipped"
 
 # The tests on the wall clock (serve, real PX4, the browser) run in two lanes, at most two
-# at once, each on a worker of its own from the start, and the rest beside them, niced, on
-# one worker per core more (tests/conftest.py); the thirty slowest are listed at the end,
-# for whoever works on the suite's length.
+# at once, each on a worker of its own from the start, and the rest beside them on one
+# worker per core more, pure computation niced (tests/conftest.py); the thirty slowest
+# are listed at the end, for whoever works on the suite's length.
 WORKERS ?= $(shell echo $$(( $$(nproc) + 1 )))
 test: lint browser
 	$(BIN)/pytest -n $(WORKERS) --dist loadgroup --no-loadscope-reorder --durations=30

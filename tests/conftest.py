@@ -84,7 +84,17 @@ SECOND_LANE_MODULES = {
     "tests/test_service_signing.py",
 }
 BESIDE_THE_LANES = 3
-NICE_BESIDE_THE_LANES = 10
+# Pure computation on simulated time (the MPCs, closed-loop flights of the plant): never
+# late for anything, so it may run niced beside the lanes. Other tests beside the lanes
+# run a world or a client on the wall clock and keep their priority: niced, an in-process
+# world stalled 240 ms beside two serves.
+NICED_BESIDE_THE_LANES = (
+    "tests/controllers/",
+    "tests/supervisor/test_simulation.py",
+    "tests/supervisor/test_descent.py",
+    "tests/supervisor/test_large_theta.py",
+)
+NICE_OF_PURE_COMPUTATION = 10
 TESTS = Path(__file__).parent
 RERUN_REASON_LINES = 25  # of the first failure's report: its error and where
 
@@ -126,14 +136,15 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 @pytest.fixture(autouse=True)
 def _yield_to_the_lanes(request: pytest.FixtureRequest) -> Iterator[None]:
-    """A test beside the lanes runs niced, so that the serves, browsers and clients of the
-    two lanes keep the CPU they need while it soaks up what they leave; only as root (as
-    CI runs), where the priority can be given back after the test."""
-    if os.geteuid() != 0 or _lane(request.node) != BESIDE_THE_LANES:
+    """Pure computation beside the lanes runs niced, so that the serves, browsers and
+    clients of the two lanes keep the CPU they need while it soaks up what they leave;
+    only as root (as CI runs), where the priority can be given back after the test."""
+    niced = _module(request.node).startswith(NICED_BESIDE_THE_LANES)
+    if os.geteuid() != 0 or not niced or _lane(request.node) != BESIDE_THE_LANES:
         yield
         return
     before = os.getpriority(os.PRIO_PROCESS, 0)
-    os.setpriority(os.PRIO_PROCESS, 0, NICE_BESIDE_THE_LANES)
+    os.setpriority(os.PRIO_PROCESS, 0, NICE_OF_PURE_COMPUTATION)
     try:
         yield
     finally:
