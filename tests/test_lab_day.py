@@ -54,10 +54,10 @@ async def take_off_at_once(http: httpx.AsyncClient) -> None:
 
 async def disarmed(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
     """Wait until landed and disarmed; no status on the way says disarmed while a vehicle
-    says it is armed."""
+    says it is armed (landed, it says ``disarming`` until every vehicle is heard disarmed)."""
 
     def down(status: dict[str, Any]) -> bool:
-        if status["mode"] == "disarmed" or status["phase"] == "ground":
+        if status["mode"] == "disarmed":
             assert status["armed"] == [False, False], status["armed"]
         return bool(status["mode"] == "disarmed")
 

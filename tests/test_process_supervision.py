@@ -73,7 +73,7 @@ async def test_abort_reaches_the_flight_process_without_the_api_and_a_killed_api
             back_s = time.monotonic() - killed
             assert back_s <= API_BACK_S, back_s
             assert status["processes"]["api"]["pid"] == service.child_pid("uavbar-api") != api
-            assert status["mode"] in ("abort", "disarmed"), status["mode"]
+            assert status["mode"] in ("abort", "disarming", "disarmed"), status["mode"]
             await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
     assert any("the api process died (killed by SIGKILL)" in line for line in service.output)
     truth = world_truth(service.output)

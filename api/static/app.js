@@ -472,20 +472,21 @@ function renderLastFlight(t) {
   setText("last-flight-text", shown ? `${since}: ${lastFlight.why || "why is not known"} — shown until the next arm` : "");
 }
 
-// The mode's look: disarmed "safe" (grey), armed on the ground "armed" (amber), the danger
+// The mode's look: disarmed "safe" (grey), armed or disarming on the ground "armed" (amber), the danger
 // modes their level; ``body[data-flight]`` says which of disarmed, armed, flying, danger or
 // "ended-MODE" (disarmed after a flight that ended in MODE) the page shows.
 function renderModeLook(t) {
   const modeLevel = DANGER_MODES[t.mode] ? DANGER_MODES[t.mode].level
-    : { disarmed: "safe", armed: "armed" }[t.mode] || "";
+    : { disarmed: "safe", armed: "armed", disarming: "armed" }[t.mode] || "";
   const modeElement = document.getElementById("mode");
   if (modeElement.dataset.level !== modeLevel) modeElement.dataset.level = modeLevel;
   const title = { disarmed: "disarmed: the vehicles' motors are off",
-    armed: "armed on the ground: the motors are live — take off or disarm" }[t.mode] || "";
+    armed: "armed on the ground: the motors are live — take off or disarm",
+    disarming: "landed: the vehicles are being disarmed, a motor may still be live" }[t.mode] || "";
   if (modeElement.title !== title) modeElement.title = title;
   let flight = "flying";
   if (t.mode === "disarmed") flight = lastFlight.mode ? `ended-${lastFlight.mode}` : "disarmed";
-  else if (t.mode === "armed") flight = "armed";
+  else if (t.mode === "armed" || t.mode === "disarming") flight = "armed";
   else if (DANGER_MODES[t.mode] && DANGER_MODES[t.mode].level === "bad") flight = "danger";
   if (document.body.dataset.flight !== flight) document.body.dataset.flight = flight;
 }
@@ -508,7 +509,7 @@ function render(t) {
   const tick = t.tick || {};
   lamp("lamp-tick", ...tickLamp(tick));
   // In flight, arming is refused for being in flight: said only where arming is the question.
-  const armQuestion = ["disarmed", "px4_landing", "killed"].includes(t.mode) && t.arm_blocked_by;
+  const armQuestion = ["disarmed", "disarming", "px4_landing", "killed"].includes(t.mode) && t.arm_blocked_by;
   setText("arm-blocked", armQuestion ? `Arm would be refused now: ${t.arm_blocked_by}` : "");
   document.getElementById("arm").classList.toggle("blocked", Boolean(t.arm_blocked_by));
   setText("log-stopped", t.log_stopped ? `Flight log: ${t.log_stopped}` : "");

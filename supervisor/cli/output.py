@@ -72,7 +72,8 @@ def format_status(status: dict[str, Any]) -> str:
         f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
         f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
     )
-    if status.get("mode") in ("disarmed", "px4_landing", "killed") and status.get("arm_blocked_by"):
+    waiting = ("disarmed", "disarming", "px4_landing", "killed")
+    if status.get("mode") in waiting and status.get("arm_blocked_by"):
         lines.append(f"arm would be refused: {status['arm_blocked_by']}")
     if status.get("log_stopped"):
         lines.append(f"flight log: {status['log_stopped']}")

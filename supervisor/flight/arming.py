@@ -39,7 +39,8 @@ def arm_blockers(
     mode = core.modes.mode
     if (mode, Event.ARM) not in TRANSITIONS:
         refused = [refusal(mode, Request.ARM)]
-        # The vehicles are PX4's until heard disarmed: one never heard is why, say so.
-        return refused + vehicle_problems(vehicles) if mode is Mode.PX4_LANDING else refused
+        # Until every vehicle is heard disarmed, the one not heard or still armed is why.
+        waiting = mode in (Mode.PX4_LANDING, Mode.DISARMING)
+        return refused + vehicle_problems(vehicles) if waiting else refused
     problems = core.not_ready_to_arm() + vehicle_problems(vehicles)
     return problems + ([log_problem] if log_problem is not None else [])

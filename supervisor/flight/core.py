@@ -332,6 +332,12 @@ class FlightCore:
             self.modes.handle(Event.LANDED, now_s)
             self._entered(Mode.DISARMED, now_s)
 
+    def vehicles_disarmed(self, now_s: float) -> None:
+        """Every vehicle is heard disarmed after the landing: the system is disarmed."""
+        if self.modes.mode is Mode.DISARMING:
+            self.modes.handle(Event.DISARMED, now_s)
+            self._entered(Mode.DISARMED, now_s)
+
     # ---- the tick -----------------------------------------------------------------------
     def tick(
         self,
@@ -354,7 +360,7 @@ class FlightCore:
         if mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
             commands = self._off()
             self._remember_ground(estimate)
-        elif mode is Mode.PX4_LANDING:  # nothing is sent (the flight process stops streaming)
+        elif mode in (Mode.PX4_LANDING, Mode.DISARMING):  # nothing flies: stop the motors
             commands = self._off()
         elif mode is Mode.TAKEOFF:
             commands, plan, reference = self._takeoff(now_s, estimate, events)
@@ -498,7 +504,7 @@ class FlightCore:
             self.queue.clear()
             self._shaper = None
             self._hold_target = None
-        elif mode in (Mode.DISARMED, Mode.KILLED, Mode.ARMED):
+        elif mode in (Mode.DISARMED, Mode.DISARMING, Mode.KILLED, Mode.ARMED):
             self._enter_phase(Phase.GROUND)
             if mode is not Mode.ARMED:
                 self.queue.clear()

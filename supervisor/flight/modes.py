@@ -1,7 +1,8 @@
 """Flight modes: a table-driven state machine whose default is the safe state.
 
 Operator requests (``arm``, ``takeoff``, ``land``, ``disarm``, ``abort``, ``kill``) and
-internal events (``airborne``, ``track``, ``hold``, ``landed``, ``fault``, ``blind``) move
+internal events (``airborne``, ``track``, ``hold``, ``landed``, ``disarmed``, ``fault``,
+``blind``) move
 the mode only along ``TRANSITIONS``. A request the table does not allow is refused with a reason
 and changes nothing; a *fault* outside the table still ends in ``abort`` (h2's rule:
 anything unexpected goes to the safe state). ``abort`` and ``kill`` are always accepted.
@@ -21,6 +22,7 @@ class Mode(Enum):
     TRACKING = "tracking"
     LANDING = "landing"
     ABORT = "abort"
+    DISARMING = "disarming"  # landed: the motors are stopped until every vehicle says disarmed
     PX4_LANDING = "px4_landing"  # blind: each PX4 lands on its own, the supervisor sends nothing
     KILLED = "killed"
 
@@ -47,6 +49,7 @@ class Event(StrEnum):
     TRACK = "track"  # a setpoint became active
     HOLD = "hold"  # the queue ran empty
     LANDED = "landed"  # motors stopped on the ground
+    DISARMED = "disarmed"  # every vehicle is heard disarmed after a landing
     FAULT = "fault"  # a safety monitor asked for a landing
     BLIND = "blind"  # the mocap is lost: the vehicles are handed to PX4's own landing
 
@@ -70,8 +73,13 @@ TRANSITIONS: dict[tuple[Mode, Event], Mode] = {
     (Mode.TAKEOFF, Event.LAND): Mode.LANDING,
     (Mode.HOVER, Event.LAND): Mode.LANDING,
     (Mode.TRACKING, Event.LAND): Mode.LANDING,
-    (Mode.LANDING, Event.LANDED): Mode.DISARMED,
-    (Mode.ABORT, Event.LANDED): Mode.DISARMED,
+    # Landed, the system is disarmed only once every vehicle says so: until then the
+    # status must not say a safer state than the vehicles are in.
+    (Mode.LANDING, Event.LANDED): Mode.DISARMING,
+    (Mode.ABORT, Event.LANDED): Mode.DISARMING,
+    (Mode.DISARMING, Event.DISARMED): Mode.DISARMED,
+    (Mode.DISARMING, Event.ABORT): Mode.DISARMING,
+    (Mode.DISARMING, Event.FAULT): Mode.DISARMING,
     (Mode.KILLED, Event.DISARM): Mode.DISARMED,
     # abort: a coordinated landing from any airborne mode; on the ground it disarms.
     (Mode.DISARMED, Event.ABORT): Mode.DISARMED,

@@ -20,7 +20,7 @@ from typing import Any
 STALE_LIMIT_S = 3.0
 # The poll after which a setpoint never seen in the queue counts as flown (see _Setpoint).
 UNSEEN_SETPOINT_S = 1.0
-COMING_DOWN = frozenset({"landing", "abort", "px4_landing", "disarmed", "killed"})
+COMING_DOWN = frozenset({"landing", "abort", "px4_landing", "disarming", "disarmed", "killed"})
 
 Status = dict[str, Any]
 

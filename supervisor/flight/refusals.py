@@ -28,6 +28,7 @@ STATE: dict[Mode, str] = {
     Mode.TRACKING: "flying to its setpoints",
     Mode.LANDING: "landing",
     Mode.ABORT: "aborting: the abort lands the bar",
+    Mode.DISARMING: "landed, disarming: a vehicle is not yet heard disarmed",
     Mode.PX4_LANDING: "each PX4 lands its vehicle on its own, the supervisor sends nothing",
     Mode.KILLED: "the motors were killed",
 }
@@ -36,6 +37,10 @@ _AFTER_LANDING = "wait until it has landed and disarmed itself, then arm and tak
 _AFTER_PX4 = (
     "wait until both PX4s have landed and disarmed (the status shows both disarmed), "
     "then arm and take off again"
+)
+_UNTIL_DISARMED = (
+    "wait until every vehicle shows disarmed (the status's armed flags), then arm and take "
+    "off again"
 )
 _IN_THE_AIR = "land first (kill only in an emergency: the vehicles fall)"
 _DISARMS_ITSELF = "it disarms itself on the ground (kill only in an emergency: the vehicles fall)"
@@ -68,6 +73,12 @@ NEXT_STEP: dict[tuple[Mode, Request], str] = {
     (Mode.ABORT, Request.LAND): "the abort lands it already: wait until it has disarmed itself",
     (Mode.ABORT, Request.DISARM): _DISARMS_ITSELF,
     (Mode.ABORT, Request.SETPOINT): _AFTER_LANDING,
+    (Mode.DISARMING, Request.ARM): _UNTIL_DISARMED,
+    (Mode.DISARMING, Request.TAKEOFF): _UNTIL_DISARMED,
+    (Mode.DISARMING, Request.LAND): "landed already: it disarms itself",
+    (Mode.DISARMING, Request.DISARM): "disarming already (PX4 also disarms by itself on the "
+    "ground; kill only if a vehicle stays armed)",
+    (Mode.DISARMING, Request.SETPOINT): _UNTIL_DISARMED,
     (Mode.PX4_LANDING, Request.ARM): _AFTER_PX4,
     (Mode.PX4_LANDING, Request.TAKEOFF): _AFTER_PX4,
     (Mode.PX4_LANDING, Request.LAND): "each PX4 lands already: wait until both have disarmed",

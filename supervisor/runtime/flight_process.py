@@ -300,6 +300,7 @@ class FlightProcess:
         if started < self._reading_until_s:
             return
         before = self.core.modes.mode
+        self._follow_vehicles_to_ground(started)
         self._hand_over_vehicles_out_of_offboard(started)
         repeats_refused = self.driver.fusion.refuse_repeats
         self._fuse(self.mocap.drain())
@@ -334,7 +335,6 @@ class FlightProcess:
             log.info("mode %s → %s", before.value, result.mode.value)
         self._react(before, result.mode)
         self._notice_self_disarm(started)
-        self._follow_px4_landing(started)
         self.driver.finish(  # logs, then the next tick's model while no frame waits
             result,
             compute_total_ms=compute_s * 1e3,
@@ -345,6 +345,8 @@ class FlightProcess:
             repeats_refused=repeats_refused,
         )
         self._stop_log_after_write_error(started)
+        if result.mode is Mode.DISARMED:  # a flight's log ends with its first tick disarmed
+            self._close_log()
 
     def _count_frames(self, new_frames: int, now_s: float) -> None:
         frames, since, rate = self._mocap_rate
@@ -418,14 +420,20 @@ class FlightProcess:
         if notice is not None:
             self.core.notices.append((now_s, notice))
 
-    def _follow_px4_landing(self, now_s: float) -> None:
-        """Handed to PX4's own landing, the system is on the ground once both vehicles say
-        they have landed and disarmed (PX4 disarms COM_DISARM_LAND after touch-down)."""
-        if self.core.modes.mode is not Mode.PX4_LANDING:
+    def _follow_vehicles_to_ground(self, now_s: float) -> None:
+        """Handed to PX4's own landing, or landed and disarming, the system is disarmed
+        once every vehicle says it has disarmed (PX4 also disarms COM_DISARM_LAND after
+        touch-down)."""
+        mode = self.core.modes.mode
+        if mode not in (Mode.PX4_LANDING, Mode.DISARMING):
             return
         views = [link.view() for link in self.links]
-        if all(view.connected and not view.armed for view in views):
+        if not all(view.connected and not view.armed for view in views):
+            return
+        if mode is Mode.PX4_LANDING:
             self.core.vehicles_landed(now_s)
+        else:
+            self.core.vehicles_disarmed(now_s)
 
     def _react(self, before: Mode, after: Mode) -> None:
         """Vehicle sequences the tick core's own mode changes call for."""
@@ -434,9 +442,7 @@ class FlightProcess:
         if after is Mode.PX4_LANDING:  # blind: not one more setpoint, PX4 lands each
             self.streaming = False
             self._sequence(self._land_vehicles())
-        elif after is Mode.DISARMED and before is Mode.PX4_LANDING:
-            self._close_log()
-        elif after is Mode.DISARMED and before.airborne:  # landed (after a landing or an abort)
+        elif after is Mode.DISARMING:  # landed (after a landing or an abort)
             self._sequence(self._disarm_vehicles())
 
     async def _land_vehicles(self) -> None:
@@ -454,9 +460,11 @@ class FlightProcess:
         task.add_done_callback(self._sequences.discard)
 
     async def _disarm_vehicles(self) -> None:
-        await disarm_all(self.links)
+        failures = await disarm_all(self.links)
+        if failures:
+            text = "disarm not confirmed: " + "; ".join(failures)
+            self.core.notices.append((self.clock(), Notice(NoticeKind.VEHICLE, text)))
         self.streaming = False
-        self._close_log()
 
     # ---- requests ---------------------------------------------------------------------------
     async def handle(self, request: Request) -> Reply:

@@ -226,12 +226,15 @@ class ClosedLoop:
         self.now_s = until_s
 
     def apply(self, result: TickResult) -> None:
-        """Hand the tick's commands to the plant (motors off: zero thrust and torque)."""
+        """Hand the tick's commands to the plant (motors off: zero thrust and torque). The
+        plant's vehicles have no arming of their own: landed, they are disarmed at once."""
         for uav, command in enumerate(result.commands, start=1):
             if command.motors_on:
                 self.plant.command(uav, command.thrust_n, command.torque_nm)
             else:
                 self.plant.command(uav, 0.0, np.zeros(3))
+        if self.core.modes.mode is Mode.DISARMING:
+            self.core.vehicles_disarmed(self.now_s)
 
 
 def run_scenario(

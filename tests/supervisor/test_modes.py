@@ -18,7 +18,8 @@ def test_nominal_flight() -> None:
         (Event.TRACK, Mode.TRACKING),
         (Event.HOLD, Mode.HOVER),
         (Event.LAND, Mode.LANDING),
-        (Event.LANDED, Mode.DISARMED),
+        (Event.LANDED, Mode.DISARMING),
+        (Event.DISARMED, Mode.DISARMED),
     ]:
         result = modes.handle(event, 1.0)
         assert result.accepted and modes.mode is expected
@@ -30,10 +31,18 @@ def test_every_request_in_every_mode(mode: Mode, event: Event) -> None:
     result = modes.handle(event, 2.0)
     if event in ("abort", "kill"):
         assert result.accepted  # the way out is always open
-        assert modes.mode in (Mode.ABORT, Mode.KILLED, Mode.DISARMED, Mode.PX4_LANDING)
+        assert modes.mode in (
+            Mode.ABORT,
+            Mode.KILLED,
+            Mode.DISARMED,
+            Mode.DISARMING,
+            Mode.PX4_LANDING,
+        )
         assert modes.mode is not Mode.ABORT or mode.airborne
-        # Blind, PX4's own landing is already the way out: an abort leaves it alone.
+        # Blind, PX4's own landing is already the way out: an abort leaves it alone. Landed
+        # and disarming, the abort's end is already under way.
         assert modes.mode is not Mode.PX4_LANDING or mode is Mode.PX4_LANDING
+        assert modes.mode is not Mode.DISARMING or mode is Mode.DISARMING
     elif (mode, event) in TRANSITIONS:
         assert result.accepted and modes.mode is TRANSITIONS[(mode, event)]
     else:
@@ -45,9 +54,11 @@ def test_every_request_in_every_mode(mode: Mode, event: Event) -> None:
 def test_a_fault_always_ends_in_a_safe_mode(mode: Mode) -> None:
     modes = FlightModes(mode)
     assert modes.handle(Event.FAULT, 3.0).accepted
-    assert modes.mode in (Mode.ABORT, Mode.DISARMED, Mode.KILLED, Mode.PX4_LANDING)
+    assert modes.mode in (Mode.ABORT, Mode.DISARMED, Mode.DISARMING, Mode.KILLED, Mode.PX4_LANDING)
     if mode is Mode.PX4_LANDING:
         assert modes.mode is Mode.PX4_LANDING  # nothing the supervisor flies is better
+    elif mode is Mode.DISARMING:
+        assert modes.mode is Mode.DISARMING  # on the ground: no abort would fly it again
     elif mode.airborne:
         assert modes.mode is Mode.ABORT
 

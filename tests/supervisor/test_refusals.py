@@ -46,6 +46,11 @@ NEXT_STEP_SAYS: dict[tuple[Mode, Request], str] = {
     (Mode.ABORT, Request.LAND): "the abort lands it already",
     (Mode.ABORT, Request.DISARM): "disarms itself on the ground",
     (Mode.ABORT, Request.SETPOINT): "wait until it has landed and disarmed",
+    (Mode.DISARMING, Request.ARM): "wait until every vehicle shows disarmed",
+    (Mode.DISARMING, Request.TAKEOFF): "wait until every vehicle shows disarmed",
+    (Mode.DISARMING, Request.LAND): "landed already",
+    (Mode.DISARMING, Request.DISARM): "disarming already",
+    (Mode.DISARMING, Request.SETPOINT): "wait until every vehicle shows disarmed",
     (Mode.PX4_LANDING, Request.ARM): "wait until both PX4s have landed and disarmed",
     (Mode.PX4_LANDING, Request.TAKEOFF): "wait until both PX4s have landed and disarmed",
     (Mode.PX4_LANDING, Request.LAND): "each PX4 lands already",
@@ -63,6 +68,17 @@ def hovering(core: FlightCore) -> Estimate:
     estimate = Estimate(x, 0.005, ())
     core.start_in_hover(estimate, 0.0, (0.02, 0.05, 0.05))
     return estimate
+
+
+def land_on_the_ground(core: FlightCore) -> None:
+    """Land from the hover with every body measured resting: the landing ends on the
+    ground, waiting for the vehicles to disarm."""
+    core.request(Event.LAND, 0.0)
+    resting = resting_estimate(core.params)
+    for tick in range(1, 500):
+        core.tick(0.02 * tick, resting)
+        if core.modes.mode is not Mode.LANDING:
+            return
 
 
 def core_in(mode: Mode) -> FlightCore:
@@ -83,6 +99,8 @@ def core_in(mode: Mode) -> FlightCore:
             core.tick(0.0, estimate)
         elif mode in (Mode.LANDING, Mode.ABORT):
             core.request(Event.LAND if mode is Mode.LANDING else Event.ABORT, 0.0)
+        elif mode is Mode.DISARMING:
+            land_on_the_ground(core)
         elif mode is Mode.PX4_LANDING:
             core.hand_over_to_px4("the test's reason", 0.0)
     assert core.modes.mode is mode
