@@ -53,7 +53,7 @@ def slowest_modes(config_path: Path) -> dict[str, dict[str, list[dict[str, float
     )
     for name, cls, lead in controllers:
         settings = dataclasses.replace(
-            config.mpc.settings("centralized" if cls is CentralizedMpc else "decentralized"),
+            config.mpc_settings("centralized" if cls is CentralizedMpc else "decentralized"),
             late_after_s=math.inf,
             reference_lead=lead,
         )

@@ -132,8 +132,8 @@ def run_benchmark(
     config = load_config(config_path)
     params = config.system.to_params()
     # The real-time budget is the service's concern; here every solve is kept and timed.
-    central = dataclasses.replace(config.mpc.settings("centralized"), late_after_s=math.inf)
-    decentral = dataclasses.replace(config.mpc.settings("decentralized"), late_after_s=math.inf)
+    central = dataclasses.replace(config.mpc_settings("centralized"), late_after_s=math.inf)
+    decentral = dataclasses.replace(config.mpc_settings("decentralized"), late_after_s=math.inf)
     lim = central.limits
     per_uav = np.array([lim.thrust_max_n - lim.thrust_min_n] + [2 * lim.torque_max_nm] * 3)
     sequence = record_sequence(params, central, ticks)

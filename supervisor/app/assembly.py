@@ -8,7 +8,7 @@ exercises the controllers on a plant that is not their own model.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from controllers.formation_equilibria import hanging_mass_shares_kg
@@ -16,15 +16,9 @@ from controllers.params import Clock
 from mocap.client import QtmClient
 from mocap.fusion import FusionConfig, MocapFusion
 from sim.measurement import MocapParams, TrackingParams
-from sim.plant_params import (
-    BarParams,
-    CableParams,
-    MismatchParams,
-    PlantParams,
-    UavBodyParams,
-    WindParams,
-    diagonal,
-)
+from sim.plant import layout_of
+from sim.plant_formation import plant_params_from_formation
+from sim.plant_params import MismatchParams, PlantParams, UavBodyParams, WindParams
 from sim.px4 import Px4Params
 from supervisor.app.config import Config, host_port
 from supervisor.flight.core import CONTROLLERS, CoreSettings, FlightCore
@@ -77,7 +71,7 @@ def flight_core_from_config(
     """The tick core with both MPCs built for the configured system, timed on ``clock``."""
     return FlightCore(
         config.system.to_params(),
-        {name: config.mpc.settings(name) for name in CONTROLLERS},
+        {name: config.mpc_settings(name) for name in CONTROLLERS},
         arena_from_config(config),
         controller,
         settings=core_settings_from_config(config),
@@ -113,9 +107,9 @@ def qtm_client_from_config(config: Config, world: dict[str, Any] | None) -> QtmC
 
 
 def body_names_from_config(config: Config) -> BodyNames:
-    """Which QTM body is the bar and which the UAVs."""
-    bar, uav1, uav2 = config.mocap.bodies
-    return BodyNames(bar, uav1, uav2)
+    """Which QTM body is the payload and which the UAVs."""
+    payload, *uavs = config.mocap.bodies
+    return BodyNames(payload, tuple(uavs), is_bar=config.system.to_params().payload.is_bar)
 
 
 def plant_params_from_config(
@@ -124,38 +118,18 @@ def plant_params_from_config(
     """The simulator's plant: the configured system, then the ``sim`` mismatch.
     ``rotor_limits`` (thrust [N], torque per axis [N m]) replace the configured actuator
     limits when real rotors are mixed (PX4 SITL allocates to four motors itself)."""
-    params = config.system.to_params()
     sim = config.sim
     thrust_max, torque_max = rotor_limits or (
         sim.uav_thrust_max_n,
         (config.mpc.torque_max_nm,) * 3,
     )
-    uavs = tuple(
-        UavBodyParams(
-            mass_kg=uav.mass_kg,
-            inertia_kgm2=diagonal(uav.inertia_kgm2),
-            thrust_time_constant_s=sim.motor_time_constant_s,
-            torque_time_constant_s=sim.motor_time_constant_s,
-            thrust_max_n=thrust_max,
-            torque_max_nm=torque_max,
-            drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
-        )
-        for uav in params.uavs
-    )
-    # The simulated world is the paper's: two UAVs and a bar (sim.plant).
-    d1, d2 = params.bar_arms_m
-    bar_mass = params.payload.mass_kg
-    perpendicular = params.payload.perpendicular_inertia_kgm2
-    bar = BarParams(
-        mass_kg=bar_mass,
-        length_m=d1 + d2,
-        com_from_end1_m=d1,
-        inertia_kgm2=diagonal(
-            (bar_mass * BarParams().tube_radius_m ** 2, perpendicular, perpendicular)
-        ),
+    airframe = UavBodyParams(
+        thrust_time_constant_s=sim.motor_time_constant_s,
+        torque_time_constant_s=sim.motor_time_constant_s,
+        thrust_max_n=thrust_max,
+        torque_max_nm=torque_max,
         drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
     )
-    cables = tuple(CableParams(length_m=length) for length in params.cable_lengths_m)
     wind = WindParams(
         mean_velocity_mps=(sim.wind_mean_mps[0], sim.wind_mean_mps[1], sim.wind_mean_mps[2]),
         gust_std_mps=(
@@ -165,24 +139,31 @@ def plant_params_from_config(
         ),
         seed=sim.seed,
     )
-    plant = PlantParams(
-        uavs=(uavs[0], uavs[1]),
-        bar=bar,
-        cables=(cables[0], cables[1]),
+    plant = plant_params_from_formation(
+        config.system.to_params(),
+        airframe=airframe,
+        payload_drag_linear_n_s_per_m=sim.drag_linear_n_s_per_m,
         wind=wind,
-        gravity_mps2=params.gravity_mps2,
         step_s=sim.step_s,
     )
-    mismatch = MismatchParams(
-        (sim.uav_mass_scale[0], sim.uav_mass_scale[1]), sim.bar_mass_scale, sim.bar_com_shift_m
-    )
+    mismatch = MismatchParams(tuple(sim.uav_mass_scale), sim.bar_mass_scale, sim.bar_com_shift_m)
     return plant.with_mismatch(mismatch)
 
 
+def qtm_names_of_plant_bodies(config: Config) -> dict[str, str]:
+    """The QTM name (``mocap.bodies``) of each of the plant's bodies, in the plant's order
+    ("uav1" … "uavN", then "bar" or "payload")."""
+    plant_names = layout_of(plant_params_from_config(config)).body_names
+    payload, *uavs = config.mocap.bodies
+    return dict(zip(plant_names, (*uavs, payload), strict=True))
+
+
 def mocap_params_from_config(config: Config, seed: int | None = None) -> MocapParams:
-    """The simulated motion capture of ``sim.mocap`` (``seed`` overrides ``sim.seed``)."""
+    """The simulated motion capture of ``sim.mocap`` over the plant's bodies (``seed``
+    overrides ``sim.seed``)."""
     m = config.sim.mocap
     return MocapParams(
+        bodies=tuple(qtm_names_of_plant_bodies(config)),
         rate_hz=m.rate_hz,
         position_sigma_m=m.position_sigma_m,
         orientation_sigma_rad=math.radians(m.orientation_sigma_deg),
@@ -196,25 +177,23 @@ def mocap_params_from_config(config: Config, seed: int | None = None) -> MocapPa
     )
 
 
-def _per_vehicle(value: float | list[float]) -> tuple[float, float]:
-    return (value[0], value[1]) if isinstance(value, list) else (value, value)
-
-
 def link_configs_from_config(
     config: Config,
-    vehicle_addresses: tuple[tuple[str, int], tuple[str, int]] | None = None,
-    local_ports: tuple[int, int] | None = None,
+    vehicle_addresses: Sequence[tuple[str, int]] | None = None,
+    local_ports: Sequence[int] | None = None,
     events_path: str | None = None,
     signing_keys: Mapping[int, bytes] | None = None,
-) -> tuple[LinkConfig, LinkConfig]:
-    """Both vehicles' MAVLink links (the embedded world passes its own addresses, ports and
-    event definitions; ``signing_keys``, by system id, are used when ``vehicles.signing``)."""
+) -> tuple[LinkConfig, ...]:
+    """Every vehicle's MAVLink link, UAV 1's first (the embedded world passes its own
+    addresses, ports and event definitions; ``signing_keys``, by system id, are used when
+    ``vehicles.signing``)."""
     v = config.vehicles
-    thrust, torque = _per_vehicle(v.thrust_max_n), _per_vehicle(v.torque_max_nm)
+    n = config.system.n_vehicles
+    thrust, torque = config.per_vehicle(v.thrust_max_n), config.per_vehicle(v.torque_max_nm)
     configured = [host_port(address) for address in v.addresses or []]
-    addresses = vehicle_addresses or (tuple(configured) if configured else (None, None))
-    ports = local_ports or (v.ports[0], v.ports[1])
-    links = [
+    addresses: Sequence[tuple[str, int] | None] = vehicle_addresses or configured or [None] * n
+    ports = local_ports or v.ports
+    return tuple(
         LinkConfig(
             system_id=v.system_ids[k],
             local_host=config.link_bind_host(),
@@ -230,14 +209,14 @@ def link_configs_from_config(
             events_path=events_path or v.px4_events,
             signing_key=(signing_keys or {}).get(v.system_ids[k]) if v.signing else None,
         )
-        for k in range(2)
-    ]
-    return links[0], links[1]
+        for k in range(n)
+    )
 
 
 def px4_params_from_config(config: Config, uav: int) -> Px4Params:
-    """The simulated PX4 of UAV ``uav`` (1 or 2): the vehicle's true calibration (the
-    configured one, times ``sim.px4_thrust_scale``), its hover thrust with half the bar, and
+    """The simulated PX4 of UAV ``uav`` (1 … N): the vehicle's true calibration (the
+    configured one, times ``sim.px4_thrust_scale``), its hover thrust with its share of the
+    payload (13), and
     the parameters a mocap lab boots with — the same ``LabParameters`` the real-firmware
     back-end writes (offboard loss: land after ``vehicles.offboard_loss_timeout_s``; vision
     only; MAV_SYS_ID the configured system id)."""
@@ -247,7 +226,7 @@ def px4_params_from_config(config: Config, uav: int) -> Px4Params:
     k = uav - 1
     inertia = params.uavs[k].inertia_kgm2
     carried_kg = params.uavs[k].mass_kg + hanging_mass_shares_kg(params)[k]  # (13)
-    thrust_max_n = _per_vehicle(config.vehicles.thrust_max_n)[k]
+    thrust_max_n = config.per_vehicle(config.vehicles.thrust_max_n)[k]
     thrust_scale = config.sim.px4_thrust_scale[k]
     hover_thrust_n = carried_kg * params.gravity_mps2
     lab = LabParameters(
@@ -258,7 +237,7 @@ def px4_params_from_config(config: Config, uav: int) -> Px4Params:
     return Px4Params(
         inertia_kgm2=(inertia[0], inertia[1], inertia[2]),
         thrust_max_n=thrust_max_n,
-        torque_max_nm=_per_vehicle(config.vehicles.torque_max_nm)[k],
+        torque_max_nm=config.per_vehicle(config.vehicles.torque_max_nm)[k],
         thrust_scale=thrust_scale,
         hover_thrust_n=hover_thrust_n,
         offboard_loss_timeout_s=config.vehicles.offboard_loss_timeout_s,

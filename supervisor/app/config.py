@@ -215,23 +215,30 @@ class StateBoundEntry(_Section):
 
 
 class CentralizedWeights(_Section):
-    """Table I: Q = diag(q_bar, q_uav, q_uav), R = diag(r), Q_N = terminal_scale * Q."""
+    """Table I: Q = diag(q_bar, q_uav, …, q_uav) (one q_uav per UAV), R = diag(r) with
+    ``r`` one UAV's four weights (every UAV's) or all 4N, Q_N = terminal_scale * Q. The
+    state bounds index the formation's 12 + 12N state (checked against N by ``Config``)."""
 
     q_bar: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
     q_uav: Annotated[list[NonNegativeFloat], Field(min_length=12, max_length=12)]
-    r: Annotated[list[PositiveFloat], Field(min_length=8, max_length=8)]
+    r: Annotated[list[PositiveFloat], Field(min_length=4, max_length=4 * MAX_VEHICLES)]
     terminal_scale: PositiveFloat
     state_bounds: list[StateBoundEntry] = []
     terminal_bounds: list[StateBoundEntry] = []
 
-    @model_validator(mode="after")
-    def _indices(self) -> CentralizedWeights:
-        _check_indices(self.state_bounds + self.terminal_bounds, 36)
-        return self
+    def check_for(self, n_vehicles: int) -> None:
+        """Raise ``ValueError`` unless ``r`` and the bounds fit N UAVs."""
+        if len(self.r) not in (4, 4 * n_vehicles):
+            raise ValueError(
+                f"mpc.centralized.r takes 4 weights (every UAV's) or {4 * n_vehicles} "
+                f"(4 for each of the {n_vehicles} UAVs), got {len(self.r)}"
+            )
+        _check_indices(self.state_bounds + self.terminal_bounds, 12 + 12 * n_vehicles)
 
-    def to_weights(self) -> MpcWeights:
-        q = (*self.q_bar, *self.q_uav, *self.q_uav)
-        return MpcWeights(q_diag=q, r_diag=tuple(self.r), terminal_scale=self.terminal_scale)
+    def to_weights(self, n_vehicles: int) -> MpcWeights:
+        q = (*self.q_bar, *self.q_uav * n_vehicles)
+        r = tuple(self.r) * (n_vehicles if len(self.r) == 4 else 1)
+        return MpcWeights(q_diag=q, r_diag=r, terminal_scale=self.terminal_scale)
 
 
 class DecentralizedWeights(_Section):
@@ -299,13 +306,19 @@ class MpcSection(_Section):
             raise ValueError(f"qp_backend must be one of {', '.join(BACKEND_NAMES)}")
         return self
 
-    def settings(self, controller: str) -> MpcSettings:
-        """The plain settings of the ``centralized`` or ``decentralized`` controller."""
-        section = self.centralized if controller == "centralized" else self.decentralized
+    def settings(self, controller: str, n_vehicles: int) -> MpcSettings:
+        """The plain settings of the ``centralized`` (for ``n_vehicles`` UAVs) or the
+        ``decentralized`` controller (one agent's)."""
+        centralized = controller == "centralized"
+        section = self.centralized if centralized else self.decentralized
         return MpcSettings(
             horizon=self.horizon,
             dt_s=self.dt_s,
-            weights=section.to_weights(),
+            weights=(
+                self.centralized.to_weights(n_vehicles)
+                if centralized
+                else self.decentralized.to_weights()
+            ),
             limits=InputLimits(self.thrust_min_n, self.thrust_max_n, self.torque_max_nm),
             state_bounds=_bounds(section.state_bounds),
             terminal_bounds=_bounds(section.terminal_bounds),
@@ -327,7 +340,11 @@ class MocapSection(_Section):
 
     host: str = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 22223
-    bodies: Annotated[list[str], Field(min_length=3, max_length=3)] = ["bar", "uav1", "uav2"]
+    # The payload's body, then one per UAV (unset: "bar" or "payload", "uav1" … "uavN").
+    bodies: Annotated[
+        list[Annotated[str, Field(min_length=1)]],
+        Field(min_length=MIN_VEHICLES + 1, max_length=MAX_VEHICLES + 1),
+    ] = ["bar", "uav1", "uav2"]
     # How the frames come: "udp" (QTM's stream to a local port) or "tcp" (over the command
     # connection, which a sender off the path between QTM and us cannot inject into).
     transport: Literal["udp", "tcp"] = "udp"
@@ -358,8 +375,8 @@ class MocapSection(_Section):
 
     @model_validator(mode="after")
     def _distinct_bodies(self) -> MocapSection:
-        if len(set(self.bodies)) != 3:
-            raise ValueError("mocap.bodies: three distinct names (bar, UAV 1, UAV 2)")
+        if len(set(self.bodies)) != len(self.bodies):
+            raise ValueError("mocap.bodies: distinct names (the payload, UAV 1, UAV 2, …)")
         return self
 
 
@@ -405,11 +422,11 @@ class SimSection(_Section):
     uav_thrust_max_n: PositiveFloat = 30.0
     # The simulated PX4s' own calibration against the supervisor's vehicles.thrust_max_n:
     # true thrust = scale × commanded (1.0: the supervisor's calibration is right).
-    px4_thrust_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
+    px4_thrust_scale: PerVehicle = [1.0, 1.0]  # one per UAV (unset: 1.0 each)
     # The simulated PX4s refuse to arm without fresh external vision (the forwarded mocap),
     # as PX4 does when its estimator has no position.
     px4_require_vision: bool = True
-    uav_mass_scale: Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)] = [1.0, 1.0]
+    uav_mass_scale: PerVehicle = [1.0, 1.0]  # one per UAV (unset: 1.0 each)
     bar_mass_scale: PositiveFloat = 1.0
     bar_com_shift_m: FiniteFloat = 0.0
     drag_linear_n_s_per_m: NonNegativeFloat = 0.0
@@ -426,7 +443,7 @@ Port = Annotated[int, Field(ge=0, le=65535)]
 
 
 class VehiclesSection(_Section):
-    """The two PX4s: MAVLink links, command mode and calibration (one value or one per
+    """The PX4s, one per UAV: MAVLink links, command mode and calibration (one value or one per
     vehicle). ``ports`` are the local UDP ports the links listen on (PX4's offboard/API
     link sends to 14540+i); ``addresses`` ("host:port"), when set, are contacted first."""
 
@@ -438,18 +455,21 @@ class VehiclesSection(_Section):
     # vehicles, so that no other network reaches them. Unset: loopback with sim.embedded
     # (the embedded world is on loopback); a lab must name its interface.
     bind_host: str | None = None
-    ports: Annotated[list[Port], Field(min_length=2, max_length=2)] = [14540, 14541]
-    addresses: Annotated[list[str], Field(min_length=2, max_length=2)] | None = None
+    # One per UAV (unset: 14540 + i and system ids 1 … N).
+    ports: Annotated[list[Port], Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)] = [
+        14540,
+        14541,
+    ]
+    addresses: (
+        Annotated[list[str], Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)] | None
+    ) = None
     system_ids: Annotated[
-        list[Annotated[int, Field(ge=1, le=255)]], Field(min_length=2, max_length=2)
+        list[Annotated[int, Field(ge=1, le=255)]],
+        Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES),
     ] = [1, 2]
     # Thrust [N] at PX4's normalized 1.0 and torque [N m] at ±1.0: identify them per vehicle.
-    thrust_max_n: (
-        PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
-    ) = 26.0
-    torque_max_nm: (
-        PositiveFloat | Annotated[list[PositiveFloat], Field(min_length=2, max_length=2)]
-    ) = 1.0
+    thrust_max_n: PositiveFloat | PerVehicle = 26.0
+    torque_max_nm: PositiveFloat | PerVehicle = 1.0
     ack_timeout_s: PositiveFloat = 0.5
     retries: Annotated[int, Field(ge=1, le=10)] = 3
     link_loss_s: PositiveFloat = 0.75
@@ -682,6 +702,56 @@ class Config(_Section):
     control: ControlSection = ControlSection()
     sim: SimSection = SimSection()
 
+    @model_validator(mode="before")
+    @classmethod
+    def _per_vehicle_defaults(cls, data: Any) -> Any:
+        """Fill the per-vehicle keys a setup leaves unset with one entry per UAV of its
+        system (the field defaults are the two-UAV bar's)."""
+        n = _vehicles_described(data)
+        if n is None:
+            return data  # the system section's own errors will say why
+        payload = "bar" if "payload" not in data["system"] else "payload"
+        defaults: dict[str, dict[str, Any]] = {
+            "mocap": {"bodies": [payload, *(f"uav{i}" for i in range(1, n + 1))]},
+            "vehicles": {
+                "ports": [14540 + k for k in range(n)],
+                "system_ids": list(range(1, n + 1)),
+            },
+            "sim": {"px4_thrust_scale": [1.0] * n, "uav_mass_scale": [1.0] * n},
+        }
+        filled = dict(data)
+        for section, keys in defaults.items():
+            given = filled.get(section, {})
+            if isinstance(given, dict):
+                filled[section] = keys | given
+        return filled
+
+    @model_validator(mode="after")
+    def _one_entry_per_vehicle(self) -> Config:
+        n = self.system.n_vehicles
+        v, sim = self.vehicles, self.sim
+        per_vehicle: dict[str, Sequence[Any] | None] = {
+            "vehicles.ports": v.ports,
+            "vehicles.system_ids": v.system_ids,
+            "vehicles.addresses": v.addresses,
+            "vehicles.thrust_max_n": v.thrust_max_n if isinstance(v.thrust_max_n, list) else None,
+            "vehicles.torque_max_nm": (
+                v.torque_max_nm if isinstance(v.torque_max_nm, list) else None
+            ),
+            "sim.px4_thrust_scale": sim.px4_thrust_scale,
+            "sim.uav_mass_scale": sim.uav_mass_scale,
+        }
+        for key, values in per_vehicle.items():
+            if values is not None and len(values) != n:
+                raise ValueError(f"{key}: one per UAV ({n}), got {len(values)}")
+        if len(self.mocap.bodies) != n + 1:
+            raise ValueError(
+                f"mocap.bodies: the payload's and one per UAV ({n + 1} names), "
+                f"got {len(self.mocap.bodies)}"
+            )
+        self.mpc.centralized.check_for(n)
+        return self
+
     @model_validator(mode="after")
     def _links_fit_the_world(self) -> Config:
         v = self.vehicles
@@ -699,6 +769,15 @@ class Config(_Section):
                 "vehicles.signing: PX4 v1.15.4 SITL cannot sign (MAVLink signing came with v1.17)"
             )
         return self
+
+    def mpc_settings(self, controller: str) -> MpcSettings:
+        """The plain settings of ``controller`` for this setup's UAVs."""
+        return self.mpc.settings(controller, self.system.n_vehicles)
+
+    def per_vehicle(self, value: float | list[float]) -> tuple[float, ...]:
+        """A per-vehicle key's value for each UAV (one value: the same for all)."""
+        n = self.system.n_vehicles
+        return tuple(value) if isinstance(value, list) else (value,) * n
 
     def setpoint_bounds(self) -> SetpointBounds:
         """What a setpoint's equilibrium must respect in this setup: the MPC's thrust range,
@@ -721,6 +800,21 @@ class Config(_Section):
             "vehicles.bind_host: required for a lab (this computer's address on the "
             "vehicles' network); binding every interface would let any network reach them"
         )
+
+
+def _vehicles_described(data: Any) -> int | None:
+    """N of a raw setup: one UAV per attachment of ``[system.payload]``, else two (the bar);
+    None when the system section is not yet a table to read it from."""
+    system = data.get("system") if isinstance(data, dict) else None
+    if not isinstance(system, dict):
+        return None
+    payload = system.get("payload")
+    if payload is None:
+        return MIN_VEHICLES
+    attachments = payload.get("attachments") if isinstance(payload, dict) else None
+    if not isinstance(attachments, list):
+        return None
+    return len(attachments) if MIN_VEHICLES <= len(attachments) <= MAX_VEHICLES else None
 
 
 def _describe(error: ValidationError) -> str:

@@ -109,7 +109,7 @@ def run_relay_process(
     async def main() -> None:
         targets = []
         system_ids = config.vehicles.system_ids
-        vehicles = zip((names.uav1, names.uav2), addresses, sockets, system_ids, strict=True)
+        vehicles = zip(names.uavs, addresses, sockets, system_ids, strict=True)
         for body, address, sock, system_id in vehicles:
             codec = MavlinkCodec(GROUND_STATION_SYSTEM, VISION_COMPONENT)
             if config.vehicles.signing and signing_keys is not None:

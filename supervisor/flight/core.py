@@ -343,11 +343,14 @@ class FlightCore:
         self,
         now_s: float,
         estimate: Estimate,
-        links_connected: tuple[bool, ...] = (True, True),
+        links_connected: tuple[bool, ...] | None = None,
         lateness_s: float = 0.0,
     ) -> TickResult:
-        """Decide this tick's commands from the estimate at ``now_s``."""
+        """Decide this tick's commands from the estimate at ``now_s`` (``links_connected``:
+        each vehicle's link, None: all up)."""
         started = self._clock()
+        if links_connected is None:
+            links_connected = (True,) * self._layout.n_vehicles
         self._dt_s = 0.0 if self._last_tick_s is None else max(0.0, now_s - self._last_tick_s)
         self._last_tick_s = now_s
         self._last_estimate = estimate

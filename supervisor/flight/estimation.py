@@ -1,10 +1,11 @@
-"""Estimation: fused rigid-body states → the formation's state vector (the paper's
-36-state for the bar and two UAVs).
+"""Estimation: fused rigid-body states → the formation's state vector (12 + 12N; the
+paper's 36-state for the bar and two UAVs).
 
-Rigid bodies (QTM names, configurable): ``bar`` (origin at the bar's CoM, body x axis from
-cable 1's end to cable 2's end), ``uav1``, ``uav2`` (origin at the CoM, FLU). The bar's
-roll about its own axis has no dynamics in the model (5) (n_b·ω_b = 0): it is set to 0,
-and the bar's angular velocity keeps only its part perpendicular to the bar.
+Rigid bodies (QTM names, configurable): the payload (origin at its CoM; the bar's body x
+axis from cable 1's end to cable 2's end), ``uav1`` … ``uavN`` (origin at the CoM, FLU). The
+bar's roll about its own axis has no dynamics in the model (5) (n_b·ω_b = 0): it is set to
+0, and the bar's angular velocity keeps only its part perpendicular to the bar. Any other
+rigid payload keeps its whole attitude and angular velocity.
 """
 
 from __future__ import annotations
@@ -23,19 +24,15 @@ from mocap.fusion import BodyState
 
 @dataclass(frozen=True)
 class BodyNames:
-    """QTM rigid-body names of the bar and the two UAVs."""
+    """QTM rigid-body names of the payload and the UAVs (UAV 1's first); ``is_bar``: the
+    payload is a bar, whose roll about its axis the model leaves out."""
 
-    bar: str = "bar"
-    uav1: str = "uav1"
-    uav2: str = "uav2"
-
-    @property
-    def uavs(self) -> tuple[str, ...]:
-        """The UAVs' names, UAV 1's first."""
-        return (self.uav1, self.uav2)
+    payload: str = "bar"
+    uavs: tuple[str, ...] = ("uav1", "uav2")
+    is_bar: bool = True
 
     def all(self) -> tuple[str, ...]:
-        return (self.bar, *self.uavs)
+        return (self.payload, *self.uavs)
 
 
 @dataclass(frozen=True)
@@ -74,14 +71,18 @@ def estimate_state(bodies: Mapping[str, BodyState], names: BodyNames = BodyNames
     """Assemble x ∈ R^(12 + 12N) from the fused bodies (NaN where a body was never
     measured)."""
     layout = FormationLayout(len(names.uavs))
-    bar = bodies.get(names.bar) or _missing(names.bar)
+    payload = bodies.get(names.payload) or _missing(names.payload)
     x = np.empty(layout.n_states)
-    x[P_B] = bar.position_m
-    x[V_B] = bar.velocity_mps
-    x[TH_B] = (0.0, bar.euler_zyx_rad[1], bar.euler_zyx_rad[2])
-    n_b = rotation_from_euler_zyx(*x[TH_B])[:, 0]
-    omega = bar.angular_velocity_world_radps
-    x[W_B] = omega - (omega @ n_b) * n_b
+    x[P_B] = payload.position_m
+    x[V_B] = payload.velocity_mps
+    omega = payload.angular_velocity_world_radps
+    if names.is_bar:
+        x[TH_B] = (0.0, payload.euler_zyx_rad[1], payload.euler_zyx_rad[2])
+        n_b = rotation_from_euler_zyx(*x[TH_B])[:, 0]
+        x[W_B] = omega - (omega @ n_b) * n_b
+    else:
+        x[TH_B] = payload.euler_zyx_rad
+        x[W_B] = omega
     for i, name in zip(layout.vehicles, names.uavs, strict=True):
         uav = bodies.get(name) or _missing(name)
         position, velocity, euler, rates = layout.uav_slices(i)

@@ -22,6 +22,7 @@ from typing import IO, Any, Literal, Protocol
 import numpy as np
 import pydantic_core
 
+from controllers.formation_params import FormationParams
 from geometry.arrays import FloatArray
 from geometry.formation import FormationLayout
 from supervisor.flight.tick_record import TickRecord
@@ -37,6 +38,17 @@ SUFFIXES: dict[str, LogFormat] = {".jsonl": "jsonl", ".mcap": "mcap"}
 
 
 _TICK_FIELDS = tuple(f.name for f in fields(TickRecord))
+
+
+def formation_header(params: FormationParams) -> dict[str, Any]:
+    """What a log's header says of the formation: each cable's attachment in the payload's
+    frame [m] (``attachments_m``) and, for the paper's bar, its arms d1, d2 (``arms_m``)."""
+    header: dict[str, Any] = {
+        "attachments_m": [list(point) for point in params.payload.attachments_m]
+    }
+    if params.payload.is_bar and params.n_vehicles == 2:
+        header["arms_m"] = list(params.bar_arms_m)
+    return header
 
 
 def new_log_path(folder: Path, started: datetime, extension: str = ".jsonl") -> Path:

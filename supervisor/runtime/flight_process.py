@@ -49,6 +49,7 @@ from supervisor.ipc.server import HELLO_TIMEOUT_S, Admission, admit, refusal, se
 from supervisor.logs.best_effort import BestEffortLog, write_error_words
 from supervisor.logs.flight_log import (
     LogFormat,
+    formation_header,
     mocap_recording_path,
     new_log_path,
 )
@@ -360,7 +361,7 @@ class FlightProcess:
         if frame is None:
             return
         names = self.driver.names
-        for link, name in zip(self.links, (names.uav1, names.uav2), strict=True):
+        for link, name in zip(self.links, names.uavs, strict=True):
             pose = frame.bodies.get(name)
             if pose is not None and pose.tracked:
                 link.send_mocap(pose.position_m, pose.quaternion, frame.receive_time_s)
@@ -541,7 +542,7 @@ class FlightProcess:
         header: dict[str, Any] = {
             "setup": self.settings.setup_name,
             "controller": self.core.controller,
-            "arms_m": list(self.core.params.bar_arms_m),
+            **formation_header(self.core.params),
         }
         if sequence is not None:
             header["mocap_recording"] = {

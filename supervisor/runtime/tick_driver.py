@@ -37,10 +37,11 @@ class TickDriver:
     def decide(
         self,
         now_s: float,
-        links_connected: tuple[bool, bool] = (True, True),
+        links_connected: tuple[bool, ...] | None = None,
         lateness_s: float = 0.0,
     ) -> TickResult:
-        """This tick's commands, from the estimate at ``now_s``. Frames fused after it are
+        """This tick's commands, from the estimate at ``now_s`` (``links_connected``: each
+        vehicle's link, None: all up). Frames fused after it are
         refused when they repeat themselves while the bodies fly
         (``FlightCore.bodies_in_motion``)."""
         result = self.core.tick(now_s, self.estimate_at(now_s), links_connected, lateness_s)

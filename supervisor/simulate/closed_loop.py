@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,7 +25,7 @@ from mocap.qtm_protocol import BodyPose
 from mocap.qtm_protocol import MocapFrame as QtmFrame
 from sim.measurement import MocapFrame as SimFrame
 from sim.measurement import MocapModel
-from sim.plant import Plant, body_slice, resting_state
+from sim.plant import Plant, resting_state
 from sim.truth import TruthStats
 from supervisor.app.assembly import (
     body_names_from_config,
@@ -33,13 +33,14 @@ from supervisor.app.assembly import (
     fusion_from_config,
     mocap_params_from_config,
     plant_params_from_config,
+    qtm_names_of_plant_bodies,
 )
 from supervisor.app.config import Config
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
 from supervisor.flight.setpoints import SetpointError
-from supervisor.logs.flight_log import FlightLogSink, open_flight_log
+from supervisor.logs.flight_log import FlightLogSink, formation_header, open_flight_log
 from supervisor.runtime.tick_driver import TickDriver
 from supervisor.simulate.scenarios import Scenario, Step, check_setpoints, scenario_config
 
@@ -47,17 +48,23 @@ TICK_S = 0.02
 STEP_TIMEOUT_S = 60.0
 
 
-def qtm_frame(frame: SimFrame) -> QtmFrame:
+def qtm_frame(frame: SimFrame, qtm_names: Mapping[str, str]) -> QtmFrame:
     """A simulated mocap frame as the QTM client would deliver it (µs capture stamp,
-    receive time = delivery time)."""
-    bodies = {
-        name: BodyPose.untracked(name)
-        if pose is None
-        else BodyPose(
-            name, True, pose.position_m, pose.quaternion, euler_zyx_from_quaternion(pose.quaternion)
+    receive time = delivery time), each plant body under its QTM name (``qtm_names``)."""
+    bodies = {}
+    for plant_name, pose in frame.poses.items():
+        name = qtm_names[plant_name]
+        bodies[name] = (
+            BodyPose.untracked(name)
+            if pose is None
+            else BodyPose(
+                name,
+                True,
+                pose.position_m,
+                pose.quaternion,
+                euler_zyx_from_quaternion(pose.quaternion),
+            )
         )
-        for name, pose in frame.poses.items()
-    }
     return QtmFrame(
         frame.frame_number, round(frame.capture_time_s * 1e6), bodies, frame.delivery_time_s
     )
@@ -170,6 +177,7 @@ class ClosedLoop:
         self.config = config
         self.plant = Plant(plant_params_from_config(config))
         self.mocap = MocapModel(mocap_params_from_config(config, seed))
+        self._qtm_names = qtm_names_of_plant_bodies(config)
         self.driver = TickDriver(
             flight_core_from_config(config, controller, clock=time.thread_time),
             fusion_from_config(config),
@@ -194,13 +202,18 @@ class ClosedLoop:
                 (position[0], position[1], position[2]), yaw, (yaw,) * params.n_vehicles, 0.0
             )
             eq = formation_equilibrium(params, reference)
-            self.plant.place_hanging((eq.uav_position(1), eq.uav_position(2)), (yaw, yaw))
+            vehicles = range(1, params.n_vehicles + 1)
+            self.plant.place_hanging(
+                [eq.uav_position(i) for i in vehicles], [yaw] * params.n_vehicles
+            )
 
-    def resting_heights(self) -> tuple[float, float, float]:
-        """Heights of the bar's and the UAVs' centres [m] when all rest on the ground."""
+    def resting_heights(self) -> tuple[float, ...]:
+        """Heights of the payload's and then each UAV's centre [m] when all rest on the
+        ground."""
         x = resting_state(self.plant.params)
-        z = [float(x[body_slice(name)][2]) for name in ("bar", "uav1", "uav2")]
-        return (z[0], z[1], z[2])
+        layout = self.plant.layout
+        names = (layout.payload_name, *layout.uav_names)
+        return tuple(float(x[layout.body_slice(name)][2]) for name in names)
 
     def estimate(self) -> Estimate:
         """Advance the mocap pipeline to ``now_s`` and estimate the state there."""
@@ -214,7 +227,7 @@ class ClosedLoop:
 
     def _fuse_frames(self) -> None:
         for frame in self.mocap.poll(self.now_s):
-            self.driver.fusion.update(qtm_frame(frame))
+            self.driver.fusion.update(qtm_frame(frame, self._qtm_names))
 
     def advance_plant(self, until_s: float) -> None:
         """Step the plant to ``until_s``, capturing mocap frames when they are due."""
@@ -257,12 +270,13 @@ def run_scenario(
     for load in scenario.load:
         loop.plant.add_load(load.external_load())
     script = ScenarioScript(scenario)
-    truth = TruthStats(loop.resting_heights()[0])
+    layout = loop.plant.layout
+    truth = TruthStats(loop.resting_heights()[0], (layout.payload_name, *layout.uav_names))
     header = {
         "setup": config.name,
         "scenario": scenario.name,
         "controller": controller,
-        "arms_m": list(loop.core.params.bar_arms_m),
+        **formation_header(loop.core.params),
     }
     log: FlightLogSink | None = open_flight_log(log_path, header) if log_path else None
     loop.driver.log = log

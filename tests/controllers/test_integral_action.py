@@ -136,7 +136,7 @@ def test_a_bar_heavier_than_the_model_hangs_at_the_reference_with_the_integral(
 
     def controller() -> CentralizedMpc | DecentralizedMpc:
         options = dataclasses.replace(
-            CONFIG.mpc.settings(name), late_after_s=10.0, reference_lead=lead
+            CONFIG.mpc_settings(name), late_after_s=10.0, reference_lead=lead
         )
         return controller_cls(lab_params, options, "daqp", clock=time.perf_counter)  # type: ignore[no-any-return]
 

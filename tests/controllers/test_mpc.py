@@ -39,11 +39,11 @@ BACKENDS = ["osqp", "daqp", "hpipm"]
 def settings(controller: str, **changes: object) -> MpcSettings:
     # The late-solve budget is a real-time concern; these tests check the control law.
     options: dict[str, object] = {"late_after_s": 10.0, **changes}
-    return dataclasses.replace(CONFIG.mpc.settings(controller), **options)  # type: ignore[arg-type]
+    return dataclasses.replace(CONFIG.mpc_settings(controller), **options)  # type: ignore[arg-type]
 
 
 def actuator_range(n_uavs: int) -> np.ndarray:
-    lim = CONFIG.mpc.settings("centralized").limits
+    lim = CONFIG.mpc_settings("centralized").limits
     return np.tile([lim.thrust_max_n - lim.thrust_min_n] + [2 * lim.torque_max_nm] * 3, n_uavs)
 
 
@@ -114,7 +114,7 @@ def test_backends_agree_on_the_same_qps(controller_cls: type, lab_params: Format
         b: controller_cls(lab_params, settings(name), b, clock=time.perf_counter) for b in BACKENDS
     }
     saturated = 0
-    lim = CONFIG.mpc.settings(name).limits
+    lim = CONFIG.mpc_settings(name).limits
     for k, (x, ref) in enumerate(saturating_sequence(lab_params)):
         plans = {b: c.step(x, ref, 0.02 * k) for b, c in controllers.items()}
         assert all(p.status is PlanStatus.OPTIMAL for p in plans.values())
@@ -342,7 +342,7 @@ def test_closed_loop_reaches_the_setpoint(
     run, reference = fly_offset_case(controller_cls, lab_params, 10.0, lead)
     assert first_time_inside_for_good(run, reference, 0.02, 2.0) <= 8.0
     inputs = np.array([p.u for p in run.plans])
-    lim = CONFIG.mpc.settings("centralized").limits
+    lim = CONFIG.mpc_settings("centralized").limits
     thrust = inputs[:, thrusts(LAYOUT)]
     assert thrust.min() >= lim.thrust_min_n and thrust.max() <= lim.thrust_max_n
     assert np.abs(inputs[:, torques(LAYOUT)]).max() <= lim.torque_max_nm + 1e-9

@@ -26,7 +26,7 @@ def test_lab_config_holds_the_papers_values() -> None:
     assert params.payload.perpendicular_inertia_kgm2 == 0.0706
     assert config.mpc.horizon == 30 and config.mpc.dt_s == 0.02
     assert config.mpc.torque_max_nm == 1.0 and config.mpc.thrust_min_n > 0.0
-    weights = config.mpc.centralized.to_weights()
+    weights = config.mpc.centralized.to_weights(2)
     assert len(weights.q_diag) == params.layout.n_states
     assert len(weights.r_diag) == params.layout.n_inputs
     assert weights.q_diag[:12] == (50, 50, 50, 50, 50, 50, 10, 10, 10, 1, 1, 5)
