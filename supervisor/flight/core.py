@@ -455,9 +455,9 @@ class FlightCore:
 
     def _land_other(self, lost: int, now_s: float) -> list[Notice]:
         """Vehicle ``lost`` is gone: leave it to its PX4's failsafe landing for the rest of
-        the flight and let the other set its bar end down alone (``set_down``), or, when
-        the UAVs fly alone anyway, descend with the abort. Two UAVs only: with more, which
-        would set the payload down is not decided yet (issue 31)."""
+        the flight and let the others set the payload down (``set_down``: with two UAVs,
+        the other lowers its bar end alone), or, when the UAVs fly alone anyway, descend
+        with the abort."""
         mode = self.modes.mode
         if not mode.airborne or mode is Mode.PX4_LANDING:
             return []
@@ -465,21 +465,35 @@ class FlightCore:
         if mode is not Mode.ABORT:
             self.modes.handle(Event.FAULT, now_s)
             self._entered(Mode.ABORT, now_s)
-        other = 3 - lost
+        others = self._connected_vehicles()
         x = self._last_estimate.x if self._last_estimate is not None else None
         hanging = self.phase in (Phase.LIFT, Phase.HOVER, Phase.TRACKING, Phase.LOWER)
+        if len(others) == 1:
+            who, what = f"UAV {others[0]}", "sets its bar end down alone"
+        else:
+            who, what = "UAVs " + ", ".join(map(str, others)), "set the payload down"
         if hanging and x is not None and np.all(np.isfinite(x)):
             self._enter_phase(Phase.SET_DOWN)
-            self._set_down_end = self._attachments(x)[other - 1].copy()
+            self._set_down_end = self._set_down_point(x)
             self._set_down_yaw = payload_yaw(x)
             self._set_down_speed = 0.0
             self._yaw_hold = self._layout.uav_yaws(x)
-            self.set_controller("decentralized", now_s)  # its agent models one UAV alone
-            action = f"UAV {other} sets its bar end down alone"
+            self.set_controller("decentralized", now_s)  # each agent models its UAV alone
+            action = f"{who} {what}"
         else:
-            action = f"UAV {other} descends"
+            action = f"{who} descend" if len(others) > 1 else f"{who} descends"
         text = f"vehicle {lost} link lost: {action}; UAV {lost} is left to its PX4 failsafe"
         return [Notice(NoticeKind.LAND_OTHER, text)]
+
+    def _connected_vehicles(self) -> list[int]:
+        """The UAVs still flown by the supervisor (all but the one left to its PX4)."""
+        return [i for i in self._layout.vehicles if i != self.left_to_px4]
+
+    def _set_down_point(self, x: FloatArray) -> FloatArray:
+        """Where the connected UAVs' attachments are, on average [m]: the point the set-down
+        lowers (with two UAVs, the other's bar end)."""
+        ends = self._attachments(x)
+        return np.mean([ends[i - 1] for i in self._connected_vehicles()], axis=0)
 
     # ---- phases ---------------------------------------------------------------------------
     def _entered(self, mode: Mode, now_s: float) -> None:
@@ -790,14 +804,15 @@ class FlightCore:
     def _set_down(
         self, now_s: float, x: FloatArray
     ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
-        """The connected UAV lowers its bar end to the ground at the abort rate, slower
-        (``SET_DOWN_BEHIND_MPS``) while the other end, with the lost UAV's failsafe
-        landing, is lower; its decentralized agent tracks the end (with the descent as the
-        reference's velocity, so it does not lag), the bar level at the held yaw."""
+        """The connected UAVs lower their attachments (with two UAVs, the other's bar end)
+        to the ground at the abort rate, slower (``SET_DOWN_BEHIND_MPS``) while the lost
+        UAV's attachment, with its failsafe landing, is lower; their decentralized agents
+        track the payload lowered so (with the descent as the reference's velocity, so they
+        do not lag), level at the held yaw."""
         assert self.left_to_px4 is not None
-        other = 3 - self.left_to_px4
-        ends = self._attachments(x)
-        mine, theirs = ends[other - 1], ends[self.left_to_px4 - 1]
+        connected = self._connected_vehicles()
+        mine = self._set_down_point(x)
+        theirs = self._attachments(x)[self.left_to_px4 - 1]
         behind = mine[2] - theirs[2] > SET_DOWN_LEVEL_M
         wanted = SET_DOWN_BEHIND_MPS if behind else self.settings.abort_rates.position_mps
         step = self.settings.abort_rates.acceleration_mps2 * self._dt_s
@@ -807,9 +822,11 @@ class FlightCore:
         z = max(self._ground_bar_z, self._set_down_end[2] - self._set_down_speed * self._dt_s)
         speed = self._set_down_speed if z > self._ground_bar_z else 0.0
         self._set_down_end[2] = z
-        # The payload level at the held yaw, its attachment ``other`` at the end's target.
+        # The payload level at the held yaw, the connected attachments' mean at the target.
         level = rotation_from_euler_zyx(0.0, 0.0, self._set_down_yaw)
-        centre = self._set_down_end - level @ self.params.payload.attachments_m[other - 1]
+        attachments = self.params.payload.attachments_m
+        held = np.mean([attachments[i - 1] for i in connected], axis=0)
+        centre = self._set_down_end - level @ held
         reference = FormationReference(
             (float(centre[0]), float(centre[1]), float(centre[2])),
             self._set_down_yaw,

@@ -132,8 +132,13 @@ class SafetyMonitor:
         lost = [i for i, connected in enumerate(links_connected, start=1) if not connected]
         if len(lost) == 1:
             faults.append(Fault("link", f"vehicle {lost[0]} link lost", Response.LAND_OTHER))
-        elif lost:
-            faults.append(Fault("link", "both vehicle links lost", Response.PX4_LAND))
+        elif lost:  # too few left to hold the payload: every PX4 lands on its own
+            which = (
+                "both vehicle links"
+                if len(lost) == len(links_connected) == 2
+                else "vehicle links " + ", ".join(map(str, lost))
+            )
+            faults.append(Fault("link", f"{which} lost", Response.PX4_LAND))
         x = estimate.x
         if np.all(np.isfinite(x)):
             self._geofence(x, faults)

@@ -135,6 +135,43 @@ def test_one_link_lost_leaves_that_vehicle_to_px4_and_the_other_sets_its_bar_end
     assert "both vehicle links lost" in result.notices[0].text
 
 
+def test_one_of_three_links_lost_the_other_two_set_the_plate_down_together() -> None:
+    """Three UAVs and a plate, vehicle 2 lost in a hover: the other two are flown on the
+    decentralized MPC and lower the payload, their attachments' mean at the abort rate,
+    the plate level at its yaw; vehicle 2 gets nothing. Two of three lost: too few to hold
+    it, every PX4 lands on its own."""
+    config = load_config(CONFIGS / "sim_tri.toml")
+    params = config.system.to_params()
+    yaws = (0.0,) * params.n_vehicles
+    x = formation_equilibrium(params, FormationReference((0.0, 0.0, 1.0), 0.3, yaws)).x
+    core = flight_core_from_config(config, clock=time.perf_counter)
+    core.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07, 0.07))
+    result = core.tick(0.02, Estimate(x, 0.005, ()), (True, False, True))
+    assert (result.mode, result.phase.value) == (Mode.ABORT, "set_down")
+    assert core.controller == "decentralized" and result.commanded == (True, False, True)
+    [notice] = result.notices
+    assert "vehicle 2 link lost: UAVs 1, 3 set the payload down" in notice.text, notice.text
+    references = []
+    for k in range(2, 80):
+        result = core.tick(0.02 * k, Estimate(x, 0.005, ()), (True, False, True))
+        assert not result.commands[1].motors_on and result.reference is not None
+        references.append(result.reference)
+    assert all(r.payload_yaw_rad == 0.3 and r.cone_angle_rad == 0.0 for r in references)
+    heights = np.array([r.payload_position_m[2] for r in references])
+    drops = -np.diff(heights)
+    abort_rate_mps = CoreSettings().abort_rates.position_mps
+    assert np.all(drops >= -1e-12) and math.isclose(drops.max(), 0.02 * abort_rate_mps)
+    # Straight down: the plate's centre keeps its place in the horizontal.
+    centres = np.array([r.payload_position_m[:2] for r in references])
+    assert np.allclose(centres, centres[0], atol=1e-12)
+
+    two_lost = flight_core_from_config(config, clock=time.perf_counter)
+    two_lost.start_in_hover(Estimate(x, 0.005, ()), 0.0, (0.02, 0.07, 0.07, 0.07))
+    result = two_lost.tick(0.02, Estimate(x, 0.005, ()), (False, True, False))
+    assert result.mode is Mode.PX4_LANDING
+    assert "vehicle links 1, 3 lost" in result.notices[0].text
+
+
 def test_setpoints_are_taken_only_in_a_mode_that_flies_them() -> None:
     """Disarmed, landing, aborting or killed a setpoint is refused (nothing is kept for the
     next take-off); armed it is taken, and a disarm empties the queue again."""
