@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from supervisor.app.config import Config
     from supervisor.app.flight_main import FlightStart
 
-LinkSockets = tuple[socket.socket, socket.socket]
+LinkSockets = tuple[socket.socket, ...]
 SigningKeys = dict[int, bytes] | None
 
 

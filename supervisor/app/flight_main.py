@@ -45,7 +45,7 @@ class FlightStart:
 
     listener: socket.socket
     token: str
-    link_sockets: tuple[socket.socket, socket.socket]
+    link_sockets: tuple[socket.socket, ...]
     relayed: bool
     restarted_because: str | None = None
     signing_keys: dict[int, bytes] | None = None  # by system id, read by serve
@@ -57,20 +57,16 @@ async def fly(
     """Run the flight process until SIGTERM or until ``parent`` closes its end."""
     if world is not None:
         vehicles = [host_port(address) for address in world["vehicles"]]
-        ports = world.get("link_ports") or (0, 0)
+        ports = world.get("link_ports") or [0] * len(vehicles)
         link_configs = link_configs_from_config(
-            config,
-            (vehicles[0], vehicles[1]),
-            (ports[0], ports[1]),
-            world.get("px4_events"),
-            start.signing_keys,
+            config, vehicles, ports, world.get("px4_events"), start.signing_keys
         )
     else:
         link_configs = link_configs_from_config(config, signing_keys=start.signing_keys)
     sockets = start.link_sockets
-    links = (
-        MavlinkLink(link_configs[0], sock=sockets[0]),
-        MavlinkLink(link_configs[1], sock=sockets[1]),
+    links = tuple(
+        MavlinkLink(link_config, sock=sock)
+        for link_config, sock in zip(link_configs, sockets, strict=True)
     )
     for link in links:
         await link.start()

@@ -93,7 +93,7 @@ def relay_addresses(config: Config, world: dict[str, Any] | None) -> list[str] |
 def run_relay_process(
     config: Config,
     world: dict[str, Any] | None,
-    sockets: tuple[socket.socket, socket.socket],
+    sockets: tuple[socket.socket, ...],
     parent: Connection,
     signing_keys: dict[int, bytes] | None = None,
 ) -> None:

@@ -68,9 +68,10 @@ def _bind_link_sockets(config: Config, world: dict[str, Any] | None) -> LinkSock
     relay both send from them (``supervisor.mavlink.relay``), and a restarted flight
     process from the same address again; on the configured interface (loopback for the
     embedded world)."""
-    ports = (world.get("link_ports") or [0, 0]) if world is not None else config.vehicles.ports
+    n = config.system.n_vehicles
+    ports = (world.get("link_ports") or [0] * n) if world is not None else config.vehicles.ports
     host = config.link_bind_host()
-    return bind_udp(host, ports[0]), bind_udp(host, ports[1])
+    return tuple(bind_udp(host, port) for port in ports)
 
 
 def _signing_keys(config: Config) -> SigningKeys:

@@ -493,7 +493,8 @@ class FlightCore:
         """Where the connected UAVs' attachments are, on average [m]: the point the set-down
         lowers (with two UAVs, the other's bar end)."""
         ends = self._attachments(x)
-        return np.mean([ends[i - 1] for i in self._connected_vehicles()], axis=0)
+        mean: FloatArray = np.mean([ends[i - 1] for i in self._connected_vehicles()], axis=0)
+        return mean
 
     # ---- phases ---------------------------------------------------------------------------
     def _entered(self, mode: Mode, now_s: float) -> None:

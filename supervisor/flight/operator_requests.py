@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
 from supervisor.flight.modes import Event
 from supervisor.flight.setpoints import Setpoint, SetpointError
 
@@ -27,9 +28,6 @@ POSITION_LIMIT_M = 100.0  # |x|, |y|, |z|: far beyond any motion-capture hall
 YAW_LIMIT_RAD = 2.0 * math.pi  # one turn either way (yaw is taken modulo 2π)
 THETA_L_LIMIT_RAD = math.pi / 2.0  # θ_l in [0, π/2): horizontal cables hold nothing
 DURATION_LIMIT_S = 3600.0  # hold and timeout: an hour
-# The API's setpoints name two UAVs' yaws, as the dashboard and the status do: the service
-# flies the paper's two UAVs (issue 31 generalizes the controllers, not yet the service).
-API_VEHICLES = 2
 # The tick core's queue capacity (supervisor.flight.setpoints.SetpointQueue): no request
 # can queue more, so a longer list is refused by its length before any entry is read.
 MAX_SETPOINTS_PER_REQUEST = 32
@@ -64,9 +62,10 @@ class SetpointFields(_Message):
     uav_yaw: Annotated[
         list[Yaw] | None,
         Field(
-            min_length=API_VEHICLES,
-            max_length=API_VEHICLES,
-            description="UAV 1's and UAV 2's yaw [rad] (default: the bar's)",
+            min_length=MIN_VEHICLES,
+            max_length=MAX_VEHICLES,
+            description="each UAV's yaw [rad], UAV 1's first, one per UAV of the setup "
+            "(default: the bar's)",
         ),
     ] = None
     theta_l: Annotated[CableAngle, Field(description="the cable angle θ_l [rad]")] = 0.0
@@ -84,13 +83,14 @@ class SetpointFields(_Message):
         )
 
     @classmethod
-    def of(cls, setpoint: Setpoint) -> SetpointFields:
-        """A setpoint as the API shows it (the UAV yaws filled in); not validated again:
-        it was when it was queued (the simulator's scenarios state their own ranges)."""
+    def of(cls, setpoint: Setpoint, n_vehicles: int) -> SetpointFields:
+        """A setpoint of ``n_vehicles`` UAVs as the API shows it (the UAV yaws filled in);
+        not validated again: it was when it was queued (the simulator's scenarios state
+        their own ranges)."""
         return cls.model_construct(
             bar_position=list(setpoint.bar_position_m),
             bar_yaw=setpoint.bar_yaw_rad,
-            uav_yaw=list(setpoint.uav_yaws(API_VEHICLES)),
+            uav_yaw=list(setpoint.uav_yaws(n_vehicles)),
             theta_l=setpoint.theta_l_rad,
             hold_s=setpoint.hold_s,
             timeout_s=setpoint.timeout_s,
@@ -169,9 +169,9 @@ def is_urgent(request: Request) -> bool:
     return isinstance(request, ModeRequest) and request.kind in URGENT_EVENTS
 
 
-def setpoint_json(setpoint: Setpoint | None) -> dict[str, Any] | None:
-    """A setpoint as the API shows it (radians, metres, seconds)."""
-    return None if setpoint is None else SetpointFields.of(setpoint).model_dump()
+def setpoint_json(setpoint: Setpoint | None, n_vehicles: int) -> dict[str, Any] | None:
+    """A setpoint of ``n_vehicles`` UAVs as the API shows it (radians, metres, seconds)."""
+    return None if setpoint is None else SetpointFields.of(setpoint, n_vehicles).model_dump()
 
 
 def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
@@ -198,7 +198,8 @@ def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
         core.clear_setpoints()
         return Reply(outcome=Outcome.OK)
     if isinstance(request, SetpointsQuery):
-        active = setpoint_json(core.queue.active)
-        queued = [setpoint_json(s) for s in core.queue.queued]
+        n = core.params.n_vehicles
+        active = setpoint_json(core.queue.active, n)
+        queued = [setpoint_json(s, n) for s in core.queue.queued]
         return Reply(outcome=Outcome.OK, data={"active": active, "queued": queued})
     return Reply(outcome=Outcome.INVALID, reason=f"{request.kind!r} is not for the tick core")

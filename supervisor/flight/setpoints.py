@@ -96,6 +96,11 @@ def validate_setpoint(
         raise SetpointError("setpoint values must be finite numbers")
     if setpoint.hold_s < 0.0:
         raise SetpointError("hold_s must be >= 0")
+    given = setpoint.uav_yaw_rad
+    if given is not None and len(given) != params.n_vehicles:
+        raise SetpointError(
+            f"uav_yaw: one yaw per UAV ({params.n_vehicles}), UAV 1's first; got {len(given)}"
+        )
     too_steep = theta_l_problem(setpoint.theta_l_rad, bounds)
     problems = [too_steep] if too_steep is not None else []
     try:

@@ -46,7 +46,7 @@ def build_telemetry(
     core: FlightCore,
     estimate: Estimate | None,
     last_tick: TickResult | None,
-    vehicles: tuple[VehicleView, VehicleView],
+    vehicles: tuple[VehicleView, ...],
     mocap: MocapView,
     tick_summary: dict[str, float | int],
     now_s: float,
@@ -119,8 +119,8 @@ def build_telemetry(
             "refused": dict(mocap.refused),
         },
         "setpoints": {
-            "active": setpoint_json(core.queue.active),
-            "queued": [setpoint_json(s) for s in core.queue.queued],
+            "active": setpoint_json(core.queue.active, layout.n_vehicles),
+            "queued": [setpoint_json(s, layout.n_vehicles) for s in core.queue.queued],
         },
         "plan": {
             "status": plan.status.value if plan is not None else None,

@@ -117,7 +117,7 @@ class FlightProcess:
         settings: FlightSettings,
         driver: TickDriver,
         mocap: MocapSource,
-        links: tuple[VehicleLink, VehicleLink],
+        links: tuple[VehicleLink, ...],
         log_folder: Path | None,
         clock: Callable[[], float] = time.monotonic,
         proof_of_life_s: float = PROOF_OF_LIFE_S,
@@ -308,7 +308,7 @@ class FlightProcess:
         newest = self._newest_frame if self._frames_since_tick else None
         self._count_frames(self._frames_since_tick, started)
         self._frames_since_tick = 0
-        connected = (self.links[0].connected, self.links[1].connected)
+        connected = tuple(link.connected for link in self.links)
         result = self.driver.decide(started, connected, timing.lateness_s)
         latency_ms = wait_ms = math.nan
         if self.streaming and result.mode is not Mode.PX4_LANDING:
@@ -599,7 +599,7 @@ class FlightProcess:
             self.core,
             self.driver.estimate,
             self.last_tick,
-            (self.links[0].view(), self.links[1].view()),
+            tuple(link.view() for link in self.links),
             mocap,
             summary,
             self.clock(),

@@ -2,19 +2,20 @@
 
 A scenario starts either hovering at the hanging equilibrium (``start = "hover"``, as the
 paper's Section VII) or resting on the ground (``start = "ground"``). Each ``[[step]]`` is
-a bar setpoint (``bar_position`` [m], ``bar_yaw_deg``, ``uav_yaw_deg`` [ψ1, ψ2] (default:
-the bar yaw), ``theta_l_deg``, ``hold_s``, and ``timeout_s``, after which the queue moves
+a bar setpoint (``bar_position`` [m], ``bar_yaw_deg``, ``uav_yaw_deg`` [ψ1, …, ψN]
+(default: the bar yaw), ``theta_l_deg``, ``hold_s``, and ``timeout_s``, after which the queue moves
 on even if the setpoint was not reached) or an operator action (``action = "takeoff"`` —
 arm and take off, done when hovering; ``"hover"`` — wait ``hold_s``; ``"land"`` — done
 when landed and disarmed; ``"abort"`` — done when landed and disarmed). A ``[control]``
 table sets keys of the setup's ``control`` section for this scenario alone (the reference's
 rates, take-off height, ..., key by key over the setup's; ``scenario_config``). Each
-``[[load]]`` acts on a body of the plant (``body`` "bar", "uav1" or "uav2"; ``force_n`` and
-``torque_nm`` [x, y, z] in the arena frame; ``start_s`` after the scenario starts, on the
-plant's clock; ``duration_s``, none: to the end; ``profile`` "steady" or "gust",
-``sim/loads.py``): a push or a gust. Before a scenario flies, ``check_setpoints`` refuses
-it when a setpoint step cannot be flown in the setup (the arena, and the feasibility
-bounds of ``supervisor.flight.feasibility``), naming the step and the bound.
+``[[load]]`` acts on a body of the plant (``body`` "bar" or "payload", "uav1" … "uavN";
+``force_n`` and ``torque_nm`` [x, y, z] in the arena frame; ``start_s`` after the scenario
+starts, on the plant's clock; ``duration_s``, none: to the end; ``profile`` "steady" or
+"gust", ``sim/loads.py``): a push or a gust. Before a scenario flies, ``check_setpoints``
+refuses it when a load names a body the setup has not, or a setpoint step cannot be flown
+in the setup (the arena, and the feasibility bounds of ``supervisor.flight.feasibility``),
+naming the step and the bound.
 """
 
 from __future__ import annotations
@@ -24,9 +25,19 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
-from sim.loads import ExternalLoad
+from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
+from sim.loads import BODIES, ExternalLoad
+from sim.plant import layout_of
+from supervisor.app.assembly import plant_params_from_config
 from supervisor.app.config import (
     Config,
     ConfigError,
@@ -50,7 +61,9 @@ class Step(_Strict):
     action: Literal["takeoff", "hover", "land", "abort"] | None = None
     bar_position: Vec3 | None = None
     bar_yaw_deg: FiniteFloat = 0.0
-    uav_yaw_deg: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] | None = None
+    uav_yaw_deg: (
+        Annotated[list[FiniteFloat], Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)] | None
+    ) = None
     theta_l_deg: FiniteFloat = 0.0
     hold_s: NonNegativeFloat = 5.0
     timeout_s: PositiveFloat | None = None
@@ -68,9 +81,9 @@ class Step(_Strict):
         assert self.bar_position is not None
         bar_yaw = math.radians(self.bar_yaw_deg)
         uav_yaw = (
-            (math.radians(self.uav_yaw_deg[0]), math.radians(self.uav_yaw_deg[1]))
+            tuple(math.radians(yaw) for yaw in self.uav_yaw_deg)
             if self.uav_yaw_deg is not None
-            else (bar_yaw, bar_yaw)
+            else None  # each UAV the bar's yaw
         )
         return Setpoint(
             (self.bar_position[0], self.bar_position[1], self.bar_position[2]),
@@ -85,12 +98,19 @@ class Step(_Strict):
 class Load(_Strict):
     """An external force and torque on one body of the plant (``sim.loads.ExternalLoad``)."""
 
-    body: Literal["bar", "uav1", "uav2"]
+    body: str
     force_n: Vec3
     torque_nm: Vec3 = [0.0, 0.0, 0.0]
     start_s: NonNegativeFloat = 0.0
     duration_s: PositiveFloat | None = None
     profile: Literal["steady", "gust"] = "steady"
+
+    @field_validator("body")
+    @classmethod
+    def _known_body(cls, body: str) -> str:
+        if body not in BODIES:
+            raise ValueError(f"one of {', '.join(BODIES)}, not {body!r}")
+        return body
 
     @model_validator(mode="after")
     def _gust_ends(self) -> Load:
@@ -187,8 +207,16 @@ def scenario_config(config: Config, scenario: Scenario) -> Config:
 
 
 def check_setpoints(scenario: Scenario, config: Config) -> None:
-    """Raise ``ConfigError`` naming the first setpoint step that ``config`` cannot fly
-    (outside its arena, or an equilibrium beyond its bounds), before anything flies."""
+    """Raise ``ConfigError`` naming the first load on a body ``config``'s plant does not
+    have, or the first setpoint step it cannot fly (outside its arena, or an equilibrium
+    beyond its bounds), before anything flies."""
+    bodies = layout_of(plant_params_from_config(config)).body_names
+    for number, load in enumerate(scenario.load, start=1):
+        if load.body not in bodies:
+            raise ConfigError(
+                f"scenario {scenario.name}, load {number}: setup {config.name} has no body "
+                f"{load.body!r} (its bodies: {', '.join(bodies)})"
+            )
     params = config.system.to_params()
     arena = Arena.between(config.arena.min_m, config.arena.max_m)
     bounds = config.setpoint_bounds()

@@ -133,7 +133,7 @@ def test_a_scenario_s_loads_are_external_loads_on_the_plant(tmp_path: Path) -> N
 @pytest.mark.parametrize(
     ("load", "message"),
     [
-        ('body = "uav3"\nforce_n = [1, 0, 0]', "load.0.body"),
+        ('body = "uav9"\nforce_n = [1, 0, 0]', "load.0.body"),
         ('body = "bar"\nforce_n = [1, 0]', "load.0.force_n"),
         ('body = "bar"\nforce_n = [1, 0, 0]\nprofile = "gust"', "a gust needs a duration_s"),
         ('body = "bar"\nforce_n = [1, 0, 0]\nduration_s = 0', "load.0.duration_s"),
@@ -144,3 +144,17 @@ def test_bad_loads_are_refused_naming_the_key(tmp_path: Path, load: str, message
     path.write_text(f'name = "x"\nstart = "hover"\n[[load]]\n{load}\n[[step]]\naction = "land"\n')
     with pytest.raises(ConfigError, match=message):
         load_scenario(str(path))
+
+
+def test_a_load_on_a_body_the_setup_has_not_is_refused_before_it_flies(tmp_path: Path) -> None:
+    """A scenario may name any UAV; flown on a setup without it, it is refused naming the
+    load and the setup's bodies."""
+    path = tmp_path / "third.toml"
+    path.write_text(
+        'name = "third"\nstart = "hover"\n[[load]]\nbody = "uav3"\nforce_n = [1, 0, 0]\n'
+        '[[step]]\naction = "land"\n'
+    )
+    scenario = load_scenario(str(path))
+    check_setpoints(scenario, load_config(CONFIGS / "sim_tri.toml"))  # it has a UAV 3
+    with pytest.raises(ConfigError, match=r"load 1: setup sim has no body 'uav3' \(its bodies"):
+        check_setpoints(scenario, load_config(CONFIGS / "sim.toml"))
