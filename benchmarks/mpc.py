@@ -40,9 +40,12 @@ BASELINE_BACKEND = "osqp"
 Sequence = list[tuple[np.ndarray, FormationReference]]
 
 
-def record_sequence(params: FormationParams, settings: MpcSettings, ticks: int) -> Sequence:
-    """States and references of a closed loop on the nonlinear model (RK4, 4 substeps)."""
-    controller = CentralizedMpc(params, settings, REFERENCE_BACKEND, clock=time.perf_counter)
+def record_sequence(
+    params: FormationParams, settings: MpcSettings, ticks: int, backend: str = REFERENCE_BACKEND
+) -> Sequence:
+    """States and references of a closed loop on the nonlinear model (RK4, 4 substeps),
+    flown by the centralized MPC on ``backend``."""
+    controller = CentralizedMpc(params, settings, backend, clock=time.perf_counter)
     f = FormationModel(params).dynamics
     layout = params.layout
     n = layout.n_vehicles

@@ -11,10 +11,12 @@ simulated PX4 is up or rebooting. ``expire(now_s)``, called as the world's clock
 ends the faults whose time is up. What the effects see is the set as of the last
 ``start``/``clear``/``expire`` call: between two world steps (2 ms) nothing changes.
 
-A fault of a kind already active *on the same target* (the same body or vehicle, or the
-kind alone for the target-less kinds) replaces it: its parameters and its timer. Faults on
-different targets, or of different kinds, are active together; on a frame they apply in
-the order body lost → jump → freeze, then silence or UDP loss decide whether it leaves.
+A fault names its target: a rigid body QTM streams, or a vehicle 1 … N of the world
+(``FaultSet.check``). A fault of a kind already active *on the same target* (the same body
+or vehicle, or the kind alone for the target-less kinds) replaces it: its parameters and
+its timer. Faults on different targets, or of different kinds, are active together; on a
+frame they apply in the order body lost → jump → freeze, then silence or UDP loss decide
+whether it leaves.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from typing import Any, ClassVar, Final, TypeVar
 
 import numpy as np
 
+from geometry.formation import MAX_VEHICLES
 from mocap.qtm_protocol import BodyPose
 from sim.loads import ExternalLoad
 
@@ -35,7 +38,6 @@ REBOOT_S: Final = 3.0
 about what a Pixhawk-class flight controller takes from reset to its first MAVLink
 heartbeat (bootloader, NuttX start-up, the start-up script; a few seconds — not measured
 here)."""
-VEHICLES: Final = (1, 2)
 
 
 class FaultError(ValueError):
@@ -67,8 +69,11 @@ def _check_duration(duration_s: float | None) -> None:
 
 
 def _check_vehicle(vehicle: int) -> None:
-    if not (isinstance(vehicle, int) and not isinstance(vehicle, bool) and vehicle in VEHICLES):
-        raise FaultError("vehicle", f"1 or 2, got {vehicle!r}")
+    # Any vehicle a world may have; which of them this world has is FaultSet.check's.
+    if not (
+        isinstance(vehicle, int) and not isinstance(vehicle, bool) and 1 <= vehicle <= MAX_VEHICLES
+    ):
+        raise FaultError("vehicle", f"a vehicle number, 1 to {MAX_VEHICLES}, got {vehicle!r}")
 
 
 def _check_body(body: str) -> None:
@@ -180,7 +185,7 @@ class Px4Reboot:
 @dataclass(frozen=True)
 class UdpLoss:
     """Each UDP datagram of the world — mocap frames to every UDP client, MAVLink both ways
-    for both simulated PX4s — is dropped with probability ``fraction``, independently (one
+    for every simulated PX4 — is dropped with probability ``fraction``, independently (one
     generator seeded from ``sim.seed``). Frames streamed over TCP are not lost (TCP
     retransmits)."""
 
@@ -256,10 +261,11 @@ def parameters(fault: Fault) -> dict[str, Any]:
     return values
 
 
-def parse_fault(request: Mapping[str, object], body_names: Sequence[str]) -> Fault:
+def parse_fault(request: Mapping[str, object], body_names: Sequence[str], n_vehicles: int) -> Fault:
     """The fault a request describes (``kind``, ``duration_s`` and the kind's fields; a
-    ``None`` value counts as absent), checked against the configured rigid bodies.
-    Raises ``FaultError`` naming the first field that is wrong; nothing else."""
+    ``None`` value counts as absent), checked against the configured rigid bodies and the
+    world's ``n_vehicles`` vehicles (``check_target``). Raises ``FaultError`` naming the
+    first field that is wrong; nothing else."""
     given = {name: value for name, value in request.items() if value is not None}
     kind_name = given.pop("kind", None)
     if kind_name is None:
@@ -281,16 +287,22 @@ def parse_fault(request: Mapping[str, object], body_names: Sequence[str]) -> Fau
         fault: Fault = kind(**given)  # type: ignore[arg-type]
     except TypeError as error:  # not reachable with the checks above; a clear error anyway
         raise FaultError("kind", str(error)) from None
-    check_body(fault, body_names)
+    check_target(fault, body_names, n_vehicles)
     return fault
 
 
-def check_body(fault: Fault, body_names: Sequence[str]) -> None:
-    """Raise ``FaultError`` when ``fault`` names a rigid body QTM does not stream."""
+def check_target(fault: Fault, body_names: Sequence[str], n_vehicles: int) -> None:
+    """Raise ``FaultError`` when ``fault`` names a rigid body QTM does not stream or a
+    vehicle beyond the world's ``n_vehicles`` (numbered 1 … N)."""
     body = getattr(fault, "body", None)
     if body is not None and body not in body_names:
         raise FaultError(
             "body", f"{body!r} is not a configured rigid body (mocap.bodies: {list(body_names)})"
+        )
+    vehicle = getattr(fault, "vehicle", None)
+    if vehicle is not None and vehicle > n_vehicles:
+        raise FaultError(
+            "vehicle", f"{vehicle} is not a vehicle of this world (its vehicles: 1 to {n_vehicles})"
         )
 
 
@@ -340,10 +352,12 @@ class ActiveFault:
 
 class FaultSet:
     """The faults in effect in one world, and their effects. ``body_names``: the rigid
-    bodies QTM streams (what ``body`` may name); ``seed``: of the UDP-loss draws."""
+    bodies QTM streams (what ``body`` may name); ``n_vehicles``: the world's simulated PX4s
+    (``vehicle`` names 1 … N); ``seed``: of the UDP-loss draws."""
 
-    def __init__(self, body_names: Sequence[str], seed: int = 0) -> None:
+    def __init__(self, body_names: Sequence[str], n_vehicles: int, seed: int = 0) -> None:
         self.body_names = tuple(body_names)
+        self.n_vehicles = n_vehicles
         self._active: list[ActiveFault] = []
         self._frozen: Mapping[str, BodyPose] | None = None
         # Its own stream, apart from the measurement model's and the heartbeats'.
@@ -355,10 +369,15 @@ class FaultSet:
         """The faults in effect, oldest first."""
         return tuple(self._active)
 
+    def check(self, fault: Fault) -> None:
+        """``FaultError`` when ``fault`` names a body QTM does not stream or a vehicle this
+        world does not have."""
+        check_target(fault, self.body_names, self.n_vehicles)
+
     def start(self, fault: Fault, now_s: float) -> tuple[ActiveFault, ActiveFault | None]:
         """Put ``fault`` in effect at ``now_s``; returns it and the fault it replaced (same
-        kind, same target), if any. ``FaultError`` for a body QTM does not stream."""
-        check_body(fault, self.body_names)
+        kind, same target), if any. ``FaultError`` as ``check`` says."""
+        self.check(fault)
         replaced = next((a for a in self._active if target(a.fault) == target(fault)), None)
         if replaced is not None:
             self._active.remove(replaced)

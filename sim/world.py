@@ -1,5 +1,5 @@
-"""The simulated world in real time: the plant, two simulated PX4s and a simulated QTM
-server, on loopback, as ``uavbar-supervisor sitl`` runs it and ``serve`` starts it.
+"""The simulated world in real time: the plant, one simulated PX4 per UAV (N of them) and
+a simulated QTM server, on loopback, as ``uavbar-supervisor sitl`` runs it and ``serve`` starts it.
 
 The plant follows the wall clock: every ``step_period_s`` it is advanced to "now" (whole
 RK4 steps), capturing mocap frames on the measurement model's schedule; each frame is
@@ -35,7 +35,7 @@ from geometry.frames import euler_zyx_from_quaternion
 from mocap.qtm_protocol import BodyPose
 from sim.faults import ActiveFault, Fault, FaultSet, LinkLost, Px4Reboot, UdpLoss
 from sim.measurement import MocapFrame, MocapModel, MocapParams
-from sim.plant import Plant, body_slice, resting_state
+from sim.plant import Plant
 from sim.plant_params import PlantParams
 from sim.qtm_server import QtmServer
 from sim.stalls import StallLog
@@ -104,9 +104,6 @@ class WorldAddresses:
     vehicles: tuple[str, ...]
 
 
-PLANT_BODIES = ("bar", "uav1", "uav2")
-
-
 def _poses(frame: MocapFrame, names: dict[str, str]) -> dict[str, BodyPose]:
     """The frame's poses under the names QTM streams (``names``: plant body → QTM name)."""
     poses = {}
@@ -127,7 +124,10 @@ def _poses(frame: MocapFrame, names: dict[str, str]) -> dict[str, BodyPose]:
 
 
 class SimulatedWorld:
-    """Plant + mocap model + QTM server + vehicles, advanced on the wall clock."""
+    """Plant + mocap model + QTM server + one vehicle per UAV (``vehicles(plant, uav)`` for
+    UAV 1 … N of the plant), advanced on the wall clock. ``body_names``: the names QTM
+    streams the payload and UAV 1 … N under, in that order (``mocap.bodies``); None: the
+    plant's own names."""
 
     def __init__(
         self,
@@ -135,7 +135,7 @@ class SimulatedWorld:
         mocap_params: MocapParams,
         vehicles: VehicleFactory,
         *,
-        body_names: Sequence[str] = PLANT_BODIES,
+        body_names: Sequence[str] | None = None,
         qtm_host: str = "127.0.0.1",
         qtm_port: int = 22223,
         step_period_s: float = 0.002,
@@ -144,14 +144,21 @@ class SimulatedWorld:
         fault_seed: int = 0,
     ) -> None:
         self.plant = Plant(plant_params)
+        layout = self.plant.layout
+        self.plant_bodies = (layout.payload_name, *layout.uav_names)
+        """The plant's bodies in the order of ``body_names``: the payload, then UAV 1 … N."""
+        names = self.plant_bodies if body_names is None else tuple(body_names)
+        if len(names) != len(self.plant_bodies):
+            raise ValueError(
+                f"body_names: the payload's and one per UAV ({len(self.plant_bodies)} names), "
+                f"got {list(names)}"
+            )
         self.mocap = MocapModel(mocap_params)
-        self.vehicles = [vehicles(self.plant, i) for i in (1, 2)]
-        self.qtm = QtmServer(
-            list(body_names), host=qtm_host, port=qtm_port, rate_hz=None, clock=clock
-        )
-        self._qtm_names = dict(zip(PLANT_BODIES, body_names, strict=True))
-        self._plant_bodies = dict(zip(body_names, PLANT_BODIES, strict=True))
-        self.faults = FaultSet(body_names, fault_seed)
+        self.vehicles = [vehicles(self.plant, uav) for uav in range(1, layout.n_uavs + 1)]
+        self.qtm = QtmServer(list(names), host=qtm_host, port=qtm_port, rate_hz=None, clock=clock)
+        self._qtm_names = dict(zip(self.plant_bodies, names, strict=True))
+        self._plant_names = dict(zip(names, self.plant_bodies, strict=True))
+        self.faults = FaultSet(names, layout.n_uavs, fault_seed)
         """The faults in effect (``inject``, ``clear_faults``)."""
         self.qtm.packet_filter = self.faults.keep_mocap_packet
         for uav, vehicle in enumerate(self.vehicles, start=1):
@@ -165,9 +172,9 @@ class SimulatedWorld:
         self._clock = clock
         self._t0 = 0.0
         self._following_the_clock = False  # run() makes world time the clock's, less _t0
-        bar_rest_z_m = float(resting_state(plant_params)[body_slice("bar")][2])
-        self.truth = TruthStats(bar_rest_z_m)
-        """Cable tension and slack while the bar hangs, the worst tilt (logged every
+        payload_rest_z_m = float(self._resting_state[layout.body_slice(layout.payload_name)][2])
+        self.truth = TruthStats(payload_rest_z_m, bodies=self.plant_bodies)
+        """Cable tension and slack while the payload hangs, the worst tilt (logged every
         ``TRUTH_REPORT_PERIOD_S`` and at close)."""
         self._truth_reported_s = 0.0
         self.stalls = StallLog()
@@ -246,8 +253,9 @@ class SimulatedWorld:
 
     def inject(self, fault: Fault) -> ActiveFault:
         """Put ``fault`` in effect now (replacing one of its kind on the same target).
-        ``FaultError`` for a body QTM does not stream; ``WorldRefusedError`` when these
-        vehicles cannot have it."""
+        ``FaultError`` for a body QTM does not stream or a vehicle the world does not have;
+        ``WorldRefusedError`` when these vehicles cannot have it."""
+        self.faults.check(fault)
         refusal = self._refusal(fault)
         if refusal is not None:
             raise WorldRefusedError(refusal)
@@ -281,7 +289,7 @@ class SimulatedWorld:
         """The plant's external loads: the pushes in effect (each ends on its own time,
         within the plant's steps, even between two world steps)."""
         self.plant.clear_loads()
-        for load in self.faults.loads(self._plant_bodies):
+        for load in self.faults.loads(self._plant_names):
             self.plant.add_load(load)
 
     def _power_vehicles(self) -> None:
@@ -320,7 +328,7 @@ class SimulatedWorld:
             )
         cleared = self.clear_faults()
         self.plant.set_state(self._resting_state)
-        for uav in (1, 2):
+        for uav in range(1, len(self.vehicles) + 1):
             self.plant.command(uav, 0.0, np.zeros(3))
         for vehicle in vehicles:
             vehicle.reset_model()

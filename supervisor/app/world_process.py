@@ -1,6 +1,6 @@
 """The simulated world as a service: ``uavbar-supervisor sitl`` runs it in the foreground,
-``serve`` (with ``sim.embedded``) in a child process. Plant, two simulated PX4s and the
-QTM server, built from the configuration, in real time until SIGINT/SIGTERM (or, as a
+``serve`` (with ``sim.embedded``) in a child process. Plant, one simulated PX4 per UAV and
+the QTM server, built from the configuration, in real time until SIGINT/SIGTERM (or, as a
 child, until its parent goes away). As ``serve``'s child it also answers the API process's
 fault-injection and reset requests on the world channel (``handle_world_request``)."""
 
@@ -11,7 +11,7 @@ import contextlib
 import logging
 import signal
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
@@ -33,7 +33,6 @@ from sim.px4_firmware import (
 )
 from sim.px4_sitl import Px4SitlVehicle
 from sim.world import (
-    PLANT_BODIES,
     SimulatedVehicle,
     SimulatedWorld,
     VehicleFactory,
@@ -68,10 +67,14 @@ WORLD_PRIORITY = 5
 
 
 def build_world(
-    config: Config, qtm_port: int, vehicle_local_ports: tuple[int, int], host: str = "127.0.0.1"
+    config: Config, qtm_port: int, vehicle_local_ports: Sequence[int], host: str = "127.0.0.1"
 ) -> SimulatedWorld:
-    """The world of ``config``; a simulated vehicle i sends to the supervisor's
+    """The world of ``config``, one vehicle per UAV; simulated vehicle i listens on
+    ``vehicle_local_ports[i]`` (one per UAV; 0: a free port) and sends to the supervisor's
     ``vehicles.ports[i]`` until a client talks to it, a real PX4 to its instance's port."""
+    n = config.system.n_vehicles
+    if len(vehicle_local_ports) != n:
+        raise ValueError(f"vehicle_local_ports: one per UAV ({n}), got {list(vehicle_local_ports)}")
     plant_params = plant_params_from_config(config)
     events = CATALOG_PATH
     if config.sim.vehicles == "px4_sitl":
@@ -111,9 +114,10 @@ def build_world(
 def _px4_sitl_vehicles(
     config: Config, px4_dir: Path, mixer: QuadMixer, host: str
 ) -> VehicleFactory:
-    """One real PX4 per UAV, on two free instance numbers, each in its own folder under the
-    log folder (PX4's console output in ``px4.log`` there), booting with a lab's parameters."""
-    instances = free_instances(2)
+    """One real PX4 per UAV, on consecutive free instance numbers, each in its own folder
+    under the log folder (PX4's console output in ``px4.log`` there), booting with a lab's
+    parameters."""
+    instances = free_instances(config.system.n_vehicles)
     params = config.system.to_params()
     shares_kg = hanging_mass_shares_kg(params)
     unit_torque = mixer.unit_torque_nm()
@@ -161,7 +165,7 @@ def handle_world_request(world: SimulatedWorld, request: WorldRequest) -> Reply:
     data: dict[str, Any] = {}
     try:
         if isinstance(request, StartFault):
-            fault = parse_fault(request.fault.model_dump(), world.body_names)
+            fault = parse_fault(request.fault.model_dump(), world.body_names, len(world.vehicles))
             data["fault"] = world.inject(fault).view(world.plant.time_s)
         elif isinstance(request, ClearFaults):
             data["cleared"] = [ended.view(world.plant.time_s) for ended in world.clear_faults()]
@@ -169,7 +173,7 @@ def handle_world_request(world: SimulatedWorld, request: WorldRequest) -> Reply:
             data["cleared"] = [ended.view(world.plant.time_s) for ended in world.reset()]
             data["reset"] = True
             data["resting_positions"] = {
-                name: world.plant.body(name).position_m.tolist() for name in PLANT_BODIES
+                name: world.plant.body(name).position_m.tolist() for name in world.plant_bodies
             }
         else:
             assert isinstance(request, ListFaults)
@@ -195,7 +199,7 @@ async def _answer_connection(world: SimulatedWorld, channel: WorldChannel) -> No
 async def run_world(
     config: Config,
     qtm_port: int,
-    vehicle_local_ports: tuple[int, int],
+    vehicle_local_ports: Sequence[int],
     on_ready: Callable[[dict[str, Any]], None],
     stop: asyncio.Event,
     listener: socket.socket | None = None,
@@ -247,7 +251,8 @@ def run_world_process(
     async def main() -> None:
         async with stop_event(ready) as stop:
             try:
-                await run_world(config, 0, (0, 0), ready.send, stop, listener, WORLD_PRIORITY)
+                free_ports = (0,) * config.system.n_vehicles
+                await run_world(config, 0, free_ports, ready.send, stop, listener, WORLD_PRIORITY)
             except Exception as error:
                 ready.send({"error": repr(error)})
                 raise
@@ -269,7 +274,7 @@ def run_sitl(config: Config) -> int:
                 i + 1,
                 vehicle,
                 port,
-                i + 1,
+                config.vehicles.system_ids[i],
             )
         log.info("running in real time; Ctrl-C stops")
 
@@ -278,7 +283,7 @@ def run_sitl(config: Config) -> int:
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
-        ports = (API_LOCAL_PORT, API_LOCAL_PORT + 1)
+        ports = tuple(API_LOCAL_PORT + k for k in range(config.system.n_vehicles))
         await run_world(config, config.mocap.port, ports, show, stop)
 
     asyncio.run(main())

@@ -4,10 +4,10 @@
 A fault is a JSON object discriminated on ``kind``, the same type the REST body of
 ``POST /api/sim/faults`` is parsed into, so a malformed one is refused (422, naming the
 field) before it leaves the API process. The world checks it again as the authority
-(``sim.faults.parse_fault``: the rigid body must be one QTM streams) — the kinds and their
-fields here mirror ``sim.faults``, which the API process may not import; a test holds the
-two equal. A request is discriminated on ``action``; the reply is the flight channel's
-``Reply`` (outcome, reason, data).
+(``sim.faults.parse_fault``: the rigid body must be one QTM streams, the vehicle one of
+its 1 … N) — the kinds and their fields here mirror ``sim.faults``, which the API process
+may not import; a test holds the two equal. A request is discriminated on ``action``; the
+reply is the flight channel's ``Reply`` (outcome, reason, data).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, TypeAdapter
 
+from geometry.formation import MAX_VEHICLES
 from supervisor.flight.operator_requests import Reply
 
 # The bounds of sim.faults (MAX_DURATION_S, MAX_OFFSET_M, PUSH_MAX_N), which this module
@@ -38,7 +39,12 @@ def _integral_number(value: object) -> object:
 
 Vehicle = Annotated[
     int,
-    Field(ge=1, le=2, strict=True, description="vehicle 1 or 2"),
+    Field(
+        ge=1,
+        le=MAX_VEHICLES,
+        strict=True,
+        description=f"a vehicle number, 1 to {MAX_VEHICLES} (the world's: 1 to its N)",
+    ),
     BeforeValidator(_integral_number),
 ]
 Body = Annotated[str, Field(min_length=1, description="a rigid body of mocap.bodies")]

@@ -194,7 +194,7 @@ async def test_delete_ends_every_fault(sim_api: SimApi) -> None:
         ({"kind": "mocap_silent", "vehicle": 1}, "vehicle"),
         ({"kind": "mocap_body_lost"}, "body"),
         ({"kind": "mocap_jump", "body": "bar", "offset_m": [1, 2]}, "offset_m"),
-        ({"kind": "link_lost", "vehicle": 3}, "vehicle"),
+        ({"kind": "link_lost", "vehicle": 9}, "vehicle"),
         ({"kind": "px4_reboot", "vehicle": "1"}, "vehicle"),
         ({"kind": "udp_loss", "fraction": 1.5}, "fraction"),
         ({"kind": "udp_loss", "fraction": 0.1, "duration_s": -1}, "duration_s"),
@@ -216,6 +216,16 @@ async def test_a_body_the_world_does_not_have_is_409_and_nothing_is_applied(
     response = await sim_api.fault({"kind": "mocap_body_lost", "body": "ghost"})
     assert response.status_code == 409
     assert "body: 'ghost' is not a configured" in response.json()["detail"]
+    assert sim_api.world.fault_views() == []
+
+
+async def test_a_vehicle_the_world_does_not_have_is_409_and_nothing_is_applied(
+    sim_api: SimApi,
+) -> None:
+    """Vehicle 3 fits the schema (1 to 8); this world has two."""
+    response = await sim_api.fault({"kind": "link_lost", "vehicle": 3})
+    assert response.status_code == 409
+    assert "vehicle: 3 is not a vehicle of this world" in response.json()["detail"]
     assert sim_api.world.fault_views() == []
 
 
@@ -333,8 +343,10 @@ async def test_fault_refusals_exit_1_with_the_reason(
     sim_api: SimApi, capsys: pytest.CaptureFixture[str]
 ) -> None:
     url = sim_api.url
-    assert await cli(url, "fault", "link_lost", "--vehicle", "3") == 1
-    assert "link_lost.vehicle: Input should be less than or equal to 2" in capsys.readouterr().err
+    assert await cli(url, "fault", "link_lost", "--vehicle", "9") == 1
+    assert "link_lost.vehicle: Input should be less than or equal to 8" in capsys.readouterr().err
+    assert await cli(url, "fault", "link_lost", "--vehicle", "3") == 1  # this world has two
+    assert "(409): vehicle: 3 is not a vehicle of this world" in capsys.readouterr().err
     assert await cli(url, "fault", "mocap_silent", "--fraction", "0.2") == 1
     assert "mocap_silent.fraction: Extra inputs are not permitted" in capsys.readouterr().err
     assert await cli(url, "fault", "udp_loss", "--fraction", "nan") == 2  # a usage error

@@ -28,6 +28,7 @@ from sim.faults import (
 from sim.loads import ExternalLoad
 
 BODIES = ("bar", "uav1", "uav2")
+VEHICLES = 2
 
 
 def poses(x_m: float = 0.0) -> dict[str, BodyPose]:
@@ -39,7 +40,7 @@ def poses(x_m: float = 0.0) -> dict[str, BodyPose]:
 
 
 def faults(*started: Any, now_s: float = 0.0) -> FaultSet:
-    fault_set = FaultSet(BODIES, seed=3)
+    fault_set = FaultSet(BODIES, VEHICLES, seed=3)
     for fault in started:
         fault_set.start(fault, now_s)
     return fault_set
@@ -73,6 +74,7 @@ def faults(*started: Any, now_s: float = 0.0) -> FaultSet:
         ({"kind": "push", "body": "bar", "force_n": [1, 0, 0], "offset_m": [0, 0, 0]}, "offset_m"),
         ({"kind": "link_lost"}, "vehicle"),
         ({"kind": "link_lost", "vehicle": 3}, "vehicle"),
+        ({"kind": "link_lost", "vehicle": 9}, "vehicle"),
         ({"kind": "link_lost", "vehicle": True}, "vehicle"),
         ({"kind": "px4_reboot", "vehicle": 0}, "vehicle"),
         ({"kind": "udp_loss", "fraction": 1.5}, "fraction"),
@@ -89,28 +91,46 @@ def faults(*started: Any, now_s: float = 0.0) -> FaultSet:
 )
 def test_an_invalid_fault_names_the_field(request_: dict[str, Any], field: str) -> None:
     with pytest.raises(FaultError) as raised:
-        parse_fault(request_, BODIES)
+        parse_fault(request_, BODIES, VEHICLES)
     assert raised.value.field == field
     assert str(raised.value).startswith(f"{field}: ")
 
 
 def test_valid_faults_parse_with_their_defaults() -> None:
-    assert parse_fault({"kind": "mocap_silent"}, BODIES) == MocapSilent(None)
+    assert parse_fault({"kind": "mocap_silent"}, BODIES, VEHICLES) == MocapSilent(None)
     jump = parse_fault(
         {"kind": "mocap_jump", "body": "uav1", "offset_m": [0.1, 0, -0.2], "duration_s": 2},
         BODIES,
+        VEHICLES,
     )
     assert jump == MocapJump("uav1", (0.1, 0, -0.2), 2)
     # A reboot always ends: without a duration it takes the boot time.
-    assert parse_fault({"kind": "px4_reboot", "vehicle": 2}, BODIES) == Px4Reboot(2, REBOOT_S)
-    assert parse_fault({"kind": "udp_loss", "fraction": 0, "duration_s": None}, BODIES) == (
-        UdpLoss(0)
-    )
+    reboot = parse_fault({"kind": "px4_reboot", "vehicle": 2}, BODIES, VEHICLES)
+    assert reboot == Px4Reboot(2, REBOOT_S)
+    loss = parse_fault({"kind": "udp_loss", "fraction": 0, "duration_s": None}, BODIES, VEHICLES)
+    assert loss == UdpLoss(0)
 
 
 def test_a_body_must_be_one_qtm_streams_when_started_too() -> None:
     with pytest.raises(FaultError, match="not a configured rigid body"):
         faults().start(MocapBodyLost("ghost"), 0.0)
+
+
+def test_a_vehicle_must_be_one_of_the_worlds_when_parsed_and_started() -> None:
+    """Three vehicles and a plate: vehicle 3 is one of them, vehicle 4 is not."""
+    bodies = ("plate", "uav1", "uav2", "uav3")
+    assert parse_fault({"kind": "link_lost", "vehicle": 3}, bodies, 3) == LinkLost(3)
+    with pytest.raises(FaultError) as raised:
+        parse_fault({"kind": "px4_reboot", "vehicle": 4}, bodies, 3)
+    assert raised.value.field == "vehicle"
+    assert str(raised.value) == ("vehicle: 4 is not a vehicle of this world (its vehicles: 1 to 3)")
+    fault_set = FaultSet(bodies, 3)
+    fault_set.start(Px4Reboot(3, 1.0), 0.0)
+    assert not fault_set.powered(3) and fault_set.powered(2)
+    assert not fault_set.keep_mavlink(3, inbound=True)
+    with pytest.raises(FaultError, match="4 is not a vehicle of this world"):
+        fault_set.start(LinkLost(4), 0.0)
+    assert [a.fault for a in fault_set.active] == [Px4Reboot(3, 1.0)]
 
 
 # ---- expiry ----
@@ -234,7 +254,7 @@ def test_udp_loss_drops_that_fraction_of_udp_datagrams(fraction: float) -> None:
 
 def test_udp_loss_is_reproducible_from_the_seed() -> None:
     def draws(seed: int) -> list[bool]:
-        fault_set = FaultSet(BODIES, seed)
+        fault_set = FaultSet(BODIES, VEHICLES, seed)
         fault_set.start(UdpLoss(0.5), 0.0)
         return [fault_set.keep_mocap_packet(True) for _ in range(200)]
 
@@ -248,10 +268,10 @@ def test_faults_are_frozen_values() -> None:
 
 def test_a_push_is_a_load_on_the_plant_body_for_its_time() -> None:
     push = parse_fault(
-        {"kind": "push", "body": "uav1", "force_n": [1, 0, -2], "duration_s": 2}, BODIES
+        {"kind": "push", "body": "uav1", "force_n": [1, 0, -2], "duration_s": 2}, BODIES, VEHICLES
     )
     assert push == Push("uav1", (1, 0, -2), 2.0)
-    steady = parse_fault({"kind": "push", "body": "bar", "force_n": [0, -50, 50]}, BODIES)
+    steady = parse_fault({"kind": "push", "body": "bar", "force_n": [0, -50, 50]}, BODIES, VEHICLES)
     fault_set = faults(push, now_s=5.0)
     fault_set.start(steady, 6.0)
     plant_body = {"bar": "bar", "uav1": "uav2", "uav2": "uav1"}  # QTM's names → the plant's

@@ -27,10 +27,15 @@ BODIES = ("bar", "uav1", "uav2")
 
 
 @contextlib.asynccontextmanager
-async def running_world(overrides: tuple[str, ...] = ()) -> AsyncIterator[SimulatedWorld]:
+async def running_world(
+    overrides: tuple[str, ...] = (), setup: str = "sim.toml"
+) -> AsyncIterator[SimulatedWorld]:
+    """The world of ``setup`` (a file of configs/) running on the wall clock, every vehicle
+    on a free port."""
     # No random dropouts: every body of every frame is compared with the plant.
-    config = load_config(CONFIGS / "sim.toml", ["sim.mocap.dropout_probability=0.0", *overrides])
-    world = build_world(config, qtm_port=0, vehicle_local_ports=(0, 0))
+    config = load_config(CONFIGS / setup, ["sim.mocap.dropout_probability=0.0", *overrides])
+    free_ports = (0,) * config.system.n_vehicles
+    world = build_world(config, qtm_port=0, vehicle_local_ports=free_ports)
     await world.start()
     runner = asyncio.create_task(world.run())
     try:

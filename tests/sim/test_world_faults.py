@@ -108,14 +108,16 @@ def test_the_datagram_filter_drops_what_arrives_and_what_leaves() -> None:
 
 
 # ---- the world, advanced by hand ------------------------------------------------------------
-def world_of(*overrides: str) -> SimulatedWorld:
-    config = load_config(CONFIGS / "sim.toml", ["sim.mocap.dropout_probability=0.0", *overrides])
-    return build_world(config, qtm_port=0, vehicle_local_ports=(0, 0))
+def world_of(*overrides: str, setup: str = "sim.toml") -> SimulatedWorld:
+    """The world of ``setup`` (a file of configs/), not started: advanced by hand."""
+    config = load_config(CONFIGS / setup, ["sim.mocap.dropout_probability=0.0", *overrides])
+    return build_world(config, qtm_port=0, vehicle_local_ports=(0,) * config.system.n_vehicles)
 
 
 def endpoints(world: SimulatedWorld) -> list[Px4Endpoint]:
+    """Its simulated PX4s, one per UAV of its plant."""
     vehicles = [v for v in world.vehicles if isinstance(v, Px4Endpoint)]
-    assert len(vehicles) == 2
+    assert len(vehicles) == world.plant.layout.n_uavs
     return vehicles
 
 

@@ -21,6 +21,7 @@ from supervisor.ipc.world_messages import (
     LinkLostFault,
     ListFaults,
     MocapJumpFault,
+    Px4RebootFault,
     StartFault,
     WorldRequest,
     WorldRequestMessage,
@@ -57,7 +58,8 @@ def test_a_fault_survives_the_channel_as_its_type() -> None:
         ({"kind": "mocap_silent", "body": "bar"}, ("mocap_silent", "body")),
         ({"kind": "mocap_body_lost"}, ("mocap_body_lost", "body")),
         ({"kind": "mocap_jump", "body": "bar", "offset_m": [0, 0]}, ("mocap_jump", "offset_m")),
-        ({"kind": "link_lost", "vehicle": 3}, ("link_lost", "vehicle")),
+        ({"kind": "link_lost", "vehicle": 0}, ("link_lost", "vehicle")),
+        ({"kind": "link_lost", "vehicle": 9}, ("link_lost", "vehicle")),
         ({"kind": "link_lost", "vehicle": True}, ("link_lost", "vehicle")),
         ({"kind": "link_lost", "vehicle": "1"}, ("link_lost", "vehicle")),
         ({"kind": "link_lost", "vehicle": 1.5}, ("link_lost", "vehicle")),
@@ -86,10 +88,13 @@ def test_malformed_faults_are_refused_at_the_parse_naming_the_field(
         assert "kind" in error["msg"]
 
 
-def test_a_vehicle_is_any_json_integer_1_or_2() -> None:
-    """JSON Schema's integer: 1.0 is 1 (the OpenAPI document says "integer")."""
+def test_a_vehicle_is_any_json_integer_1_to_8() -> None:
+    """JSON Schema's integer: 1.0 is 1 (the OpenAPI document says "integer"). Whether the
+    world has that vehicle is the world's to say (``sim.faults.check_target``)."""
     fault = FAULT.validate_python({"kind": "link_lost", "vehicle": 2.0})
     assert isinstance(fault, LinkLostFault) and fault.vehicle == 2
+    fault = FAULT.validate_python({"kind": "px4_reboot", "vehicle": 8})
+    assert isinstance(fault, Px4RebootFault) and fault.vehicle == 8
 
 
 async def test_requests_and_replies_over_a_socket_pair() -> None:
