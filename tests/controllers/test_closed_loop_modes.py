@@ -32,7 +32,7 @@ def mpc(
     controller_cls: type, name: str, lead: ReferenceLead | None = None
 ) -> CentralizedMpc | DecentralizedMpc:
     settings = dataclasses.replace(
-        CONFIG.mpc.settings(name), late_after_s=10.0, reference_lead=lead or ReferenceLead()
+        CONFIG.mpc_settings(name), late_after_s=10.0, reference_lead=lead or ReferenceLead()
     )
     return controller_cls(CONFIG.system.to_params(), settings, "daqp", clock=time.perf_counter)  # type: ignore[no-any-return]
 

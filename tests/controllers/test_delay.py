@@ -146,7 +146,7 @@ def test_a_compensated_closed_loop_seeing_the_state_100_ms_late_settles(
 
     def controller() -> CentralizedMpc | DecentralizedMpc:
         options = dataclasses.replace(
-            CONFIG.mpc.settings(name), late_after_s=10.0, reference_lead=lead
+            CONFIG.mpc_settings(name), late_after_s=10.0, reference_lead=lead
         )
         return controller_cls(lab_params, options, "daqp", clock=time.perf_counter)  # type: ignore[no-any-return]
 

@@ -24,7 +24,7 @@ CONFIG = load_config(CONFIGS / "kth_sml.toml")
 def lab_qp(params: FormationParams, deviation: float, seed: int) -> OcpQp:
     """A centralized-MPC QP of the lab (Table I) at random yaws, from a perturbed state."""
     rng = np.random.default_rng(seed)
-    settings = CONFIG.mpc.settings("centralized")
+    settings = CONFIG.mpc_settings("centralized")
     reference = FormationReference(
         (0.0, 0.0, 1.0), rng.uniform(-3, 3), (rng.uniform(-3, 3), 0.2), 0.3
     )
