@@ -23,7 +23,7 @@ import functools
 import gc
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,7 +104,7 @@ class WorldAddresses:
     vehicles: tuple[str, ...]
 
 
-def _poses(frame: MocapFrame, names: dict[str, str]) -> dict[str, BodyPose]:
+def qtm_poses(frame: MocapFrame, names: Mapping[str, str]) -> dict[str, BodyPose]:
     """The frame's poses under the names QTM streams (``names``: plant body → QTM name)."""
     poses = {}
     for body, pose in frame.poses.items():
@@ -233,7 +233,7 @@ class SimulatedWorld:
         # and frames stamped as they leave would be 4 ms apart in motion but microseconds
         # apart in time (the supervisor's filter then saw metres per second that were not).
         for frame in self.mocap.poll(until_s):
-            poses = self.faults.frame(_poses(frame, self._qtm_names))
+            poses = self.faults.frame(qtm_poses(frame, self._qtm_names))
             at_s = self._t0 + frame.delivery_time_s if self._following_the_clock else None
             self.qtm.publish(poses, at_s=at_s)
 

@@ -20,13 +20,12 @@ from typing import Any
 import numpy as np
 
 from controllers.formation_equilibria import FormationReference, formation_equilibrium
-from geometry.frames import euler_zyx_from_quaternion
-from mocap.qtm_protocol import BodyPose
 from mocap.qtm_protocol import MocapFrame as QtmFrame
 from sim.measurement import MocapFrame as SimFrame
 from sim.measurement import MocapModel
 from sim.plant import Plant, resting_state
 from sim.truth import TruthStats
+from sim.world import qtm_poses
 from supervisor.app.assembly import (
     body_names_from_config,
     flight_core_from_config,
@@ -51,20 +50,7 @@ STEP_TIMEOUT_S = 60.0
 def qtm_frame(frame: SimFrame, qtm_names: Mapping[str, str]) -> QtmFrame:
     """A simulated mocap frame as the QTM client would deliver it (µs capture stamp,
     receive time = delivery time), each plant body under its QTM name (``qtm_names``)."""
-    bodies = {}
-    for plant_name, pose in frame.poses.items():
-        name = qtm_names[plant_name]
-        bodies[name] = (
-            BodyPose.untracked(name)
-            if pose is None
-            else BodyPose(
-                name,
-                True,
-                pose.position_m,
-                pose.quaternion,
-                euler_zyx_from_quaternion(pose.quaternion),
-            )
-        )
+    bodies = qtm_poses(frame, qtm_names)
     return QtmFrame(
         frame.frame_number, round(frame.capture_time_s * 1e6), bodies, frame.delivery_time_s
     )
