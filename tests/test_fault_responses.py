@@ -126,9 +126,11 @@ async def test_one_vehicle_lost_the_other_sets_the_bar_down_and_both_end_disarme
 ) -> None:
     """Vehicle 1's link lost for good: it is left to its PX4's failsafe landing; UAV 2's
     own MPC sets its bar end down (phase ``set_down``), its cable taut all the way, and
-    lands; nothing tilts beyond 30° or descends faster than 1 m/s; once the link is back
-    both vehicles show themselves disarmed. (Cable 1 goes slack when its bar end touches
-    the ground and UAV 1's PX4 lands on: that is the lost UAV's failsafe, not a fault.)"""
+    lands; nothing tilts beyond 30° or descends faster than 1 m/s. On the ground the mode
+    stays ``disarming`` while vehicle 1 is not heard (arming says why); once the link is
+    back both vehicles show themselves disarmed and so does the mode. (Cable 1 goes slack
+    when its bar end touches the ground and UAV 1's PX4 lands on: that is the lost UAV's
+    failsafe, not a fault.)"""
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
         await service.take_off(http)
         await asyncio.sleep(2.0)
@@ -139,10 +141,16 @@ async def test_one_vehicle_lost_the_other_sets_the_bar_down_and_both_end_disarme
         assert status["mode"] == "abort" and status["controller"] == "decentralized"
         said = " ".join(n["message"] for n in status["notices"])
         assert "vehicle 1 link lost: UAV 2 sets its bar end down alone" in said, said
-        await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
+        landed = await service.wait_for(
+            http, lambda s: s["mode"] == "disarming", 60.0, "landed, vehicle 1 unheard"
+        )
+        assert "UAV 1 is not heard" in (landed["arm_blocked_by"] or ""), landed
         assert (await http.delete("/api/sim/faults")).status_code == 200
         await service.wait_for(
-            http, lambda s: s["armed"] == [False, False], 20.0, "both vehicles disarmed"
+            http,
+            lambda s: s["mode"] == "disarmed" and s["armed"] == [False, False],
+            20.0,
+            "both vehicles disarmed",
         )
     [path] = flight_logs(tmp_path)
     log = read_flight_log(path)

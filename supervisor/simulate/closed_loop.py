@@ -207,8 +207,12 @@ class ClosedLoop:
         return self.driver.estimate_at(self.now_s)
 
     def decide(self) -> TickResult:
-        """The tick at ``now_s`` on the frames delivered by then."""
+        """The tick at ``now_s`` on the frames delivered by then. The plant's vehicles have
+        no arming of their own: landed (``disarming``), they are disarmed by the next tick,
+        as a flight process hears its vehicles before it decides."""
         self._fuse_frames()
+        if self.core.modes.mode is Mode.DISARMING:
+            self.core.vehicles_disarmed(self.now_s)
         return self.driver.decide(self.now_s)
 
     def _fuse_frames(self) -> None:
@@ -225,15 +229,12 @@ class ClosedLoop:
         self.now_s = until_s
 
     def apply(self, result: TickResult) -> None:
-        """Hand the tick's commands to the plant (motors off: zero thrust and torque). The
-        plant's vehicles have no arming of their own: landed, they are disarmed at once."""
+        """Hand the tick's commands to the plant (motors off: zero thrust and torque)."""
         for uav, command in enumerate(result.commands, start=1):
             if command.motors_on:
                 self.plant.command(uav, command.thrust_n, command.torque_nm)
             else:
                 self.plant.command(uav, 0.0, np.zeros(3))
-        if self.core.modes.mode is Mode.DISARMING:
-            self.core.vehicles_disarmed(self.now_s)
 
 
 def run_scenario(

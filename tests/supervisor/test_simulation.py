@@ -60,7 +60,7 @@ def test_takeoff_and_landing_end_disarmed_on_the_ground(sim_config: Config, tmp_
     assert result.log_path is not None
     log = read_flight_log(result.log_path)
     modes = [mode for mode, _ in itertools.groupby(log.modes)]
-    assert modes == ["disarmed", "takeoff", "hover", "landing", "disarmed"]
+    assert modes == ["disarmed", "takeoff", "hover", "landing", "disarming", "disarmed"]
     # While hovering the bar was held 1 m above where it lay.
     hover = np.array([m == "hover" for m in log.modes])
     assert np.max(np.abs(log.state[hover, 2] - log.state[0, 2] - 1.0)) < 0.1
