@@ -2,7 +2,7 @@
 
 asyncio's own timers wake up to a millisecond late (the selector's timeout is rounded up
 to whole milliseconds), too coarse for a 20 ms loop that wants sub-millisecond lateness.
-``DeadlineTicker`` therefore sleeps in a small helper thread (``time.sleep`` wakes within
+``DeadlineTicker`` therefore waits in a small helper thread (a timed lock wait wakes within
 tens of microseconds) and wakes the event loop with ``call_soon_threadsafe``. A tick that
 finds itself a whole period late skips the missed deadlines (counted), never bunches up.
 
@@ -76,9 +76,14 @@ class _WakeThread:
                 assert self._request is not None
                 deadline, future = self._request
                 self._request = None
-            remaining = deadline - self._clock()
-            if remaining > 0.0:
-                time.sleep(remaining)
+                # A timed wait on the lock wakes as precisely as a sleep, but close() (or a
+                # tick that a trigger started early asking for the next) cuts it short.
+                remaining = deadline - self._clock()
+                while remaining > 0.0 and self._request is None and not self._stopped:
+                    self._lock.wait(remaining)
+                    remaining = deadline - self._clock()
+                if self._stopped:
+                    return
             try:
                 self._loop.call_soon_threadsafe(_resolve, future)
             except RuntimeError:  # the loop closed while we slept

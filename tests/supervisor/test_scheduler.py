@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
+import threading
 import time
 
 import pytest
@@ -77,43 +78,100 @@ def test_period_must_be_positive() -> None:
         DeadlineTicker(0.0)
 
 
+class HandClock:
+    """A clock that stands still until the test moves it: the trigger tests then depend on
+    no scheduling (a 10 s period outlasts the test; the wake thread never fires)."""
+
+    def __init__(self) -> None:
+        self.now_s = 0.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
+async def waiting_tick(ticker: DeadlineTicker) -> asyncio.Task[TickTiming]:
+    """The next tick, started and left waiting for its deadline."""
+    task = asyncio.create_task(ticker.__anext__())
+    await asyncio.sleep(0)
+    return task
+
+
+async def settle() -> None:
+    for _ in range(3):
+        await asyncio.sleep(0)
+
+
 async def test_a_trigger_inside_the_window_starts_the_tick_at_once() -> None:
-    ticker = DeadlineTicker(0.05)
+    clock = HandClock()
+    ticker = DeadlineTicker(10.0, clock=clock)
     try:
         first = await anext(ticker)
-        ticker.early_window_s = 0.02
-        loop = asyncio.get_running_loop()
-        loop.call_later(0.01, ticker.trigger)  # 40 ms before the deadline: outside, ignored
-        loop.call_later(0.035, ticker.trigger)  # 15 ms before it: inside
-        second = await anext(ticker)
+        ticker.early_window_s = 2.0
+        tick = await waiting_tick(ticker)
+        clock.now_s = 6.0  # 4 s before the deadline: outside the window, ignored
+        ticker.trigger()
+        await settle()
+        assert not tick.done()
+        clock.now_s = 8.5  # 1.5 s before it: inside
+        ticker.trigger()
+        await settle()
+        assert tick.done()
+        second = tick.result()
     finally:
         ticker.close()
-    assert second.deadline_s == pytest.approx(first.deadline_s + 0.05, abs=1e-12)
-    assert -0.018 < second.lateness_s < -0.005  # started early, by the trigger
+    assert first.lateness_s == 0.0
+    assert second.deadline_s == 10.0
+    assert second.lateness_s == -1.5  # started early, by the trigger
 
 
 async def test_the_window_never_reaches_back_more_than_half_a_period() -> None:
-    ticker = DeadlineTicker(0.04)
+    clock = HandClock()
+    ticker = DeadlineTicker(10.0, clock=clock)
     try:
         await anext(ticker)
-        ticker.early_window_s = 1.0
-        asyncio.get_running_loop().call_later(0.01, ticker.trigger)  # 30 ms early: ignored
-        second = await anext(ticker)
+        ticker.early_window_s = 100.0
+        tick = await waiting_tick(ticker)
+        clock.now_s = 4.0  # 6 s early: more than half a period, ignored
+        ticker.trigger()
+        await settle()
+        assert not tick.done()
+        clock.now_s = 5.5
+        ticker.trigger()
+        await settle()
+        assert tick.done() and tick.result().lateness_s == -4.5
     finally:
         ticker.close()
-    assert second.lateness_s >= 0.0
 
 
 async def test_a_trigger_with_no_tick_waiting_starts_nothing_later() -> None:
-    ticker = DeadlineTicker(0.02)
+    clock = HandClock()
+    ticker = DeadlineTicker(10.0, clock=clock)
     try:
         ticker.trigger()  # before the first tick
         first = await anext(ticker)
-        ticker.early_window_s = 0.01
-        ticker.trigger()  # between ticks, with no tick waiting yet
-        busy(0.012)  # the next tick is now 8 ms away: inside the window
-        second = await anext(ticker)
+        ticker.early_window_s = 2.0
+        clock.now_s = 9.0  # inside the next tick's window, with no tick waiting yet
+        ticker.trigger()
+        tick = await waiting_tick(ticker)
+        await settle()
+        assert not tick.done()  # the earlier trigger was not kept for it
+        tick.cancel()
     finally:
         ticker.close()
-    assert first.lateness_s >= 0.0
-    assert second.lateness_s >= 0.0  # the earlier trigger was not kept for it
+    assert first.lateness_s == 0.0
+    with pytest.raises(asyncio.CancelledError):
+        await tick
+
+
+def wake_threads() -> int:
+    return sum(thread.name == "tick-wake" for thread in threading.enumerate())
+
+
+async def test_close_ends_the_wake_thread_waiting_for_a_far_deadline() -> None:
+    ticker = DeadlineTicker(3600.0)
+    await anext(ticker)
+    tick = await waiting_tick(ticker)
+    waiting = wake_threads()
+    ticker.close()
+    tick.cancel()
+    assert wake_threads() == waiting - 1
