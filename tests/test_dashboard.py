@@ -21,7 +21,8 @@ from tests.test_px4_sitl import PX4_REFUSAL, require_gps_for_arming
 from tests.test_service import require_px4
 
 CHROMIUM = shutil.which("chromium")
-IMAGES = Path(__file__).resolve().parent.parent / "docs" / "images"
+# Written where git does not see them; copied into docs/images by hand once looked at.
+IMAGES = Path(__file__).resolve().parent.parent / "build" / "screenshots"
 SCREENSHOT = IMAGES / "dashboard.png"
 DESKTOP = ViewportSize(width=1500, height=1000)
 SMALL = ViewportSize(width=1024, height=700)
@@ -134,7 +135,6 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
         await expect(notices).to_contain_text(re.compile(r"\d+ s ago — swing: bar yaw"))
         await expect(page.get_by_test_id("controller")).to_have_text("centralized")
         await page.wait_for_timeout(3000)  # a few seconds of live plots for the picture
-        SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
         await page.screenshot(path=str(SCREENSHOT))
 
         banner = page.get_by_test_id("banner")
@@ -392,12 +392,20 @@ APART = ("top", "views", "flight-panel", "setpoint-panel")
 async def assert_laid_out(page: Page, viewport: ViewportSize) -> None:
     """The controls, both views and the setpoint form inside the window; the header, the
     views and the two panels side by side, none over another; no sideways scrolling."""
-    boxes = {}
-    for name in (*IN_SIGHT, *APART):
-        found = page.locator(f"#{name}") if name == "top" else page.get_by_test_id(name)
-        box = await found.bounding_box()
+    # All boxes read in one script, from one layout: read one by one, a notice that came
+    # in between grew the header under the views already measured.
+    boxes = await page.evaluate(
+        """names => Object.fromEntries(names.map(name => {
+            const found = name === "top" ? document.getElementById(name)
+                : document.querySelector(`[data-testid="${name}"]`);
+            const box = found?.getBoundingClientRect();
+            return [name, box && box.width > 0 && box.height > 0
+                ? {x: box.x, y: box.y, width: box.width, height: box.height} : null];
+        }))""",
+        [*IN_SIGHT, *APART],
+    )
+    for name, box in boxes.items():
         assert box is not None, f"{name} is not laid out"
-        boxes[name] = box
     for name in IN_SIGHT:
         b = boxes[name]
         inside = b["x"] >= 0 and b["y"] >= 0
