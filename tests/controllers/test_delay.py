@@ -148,7 +148,7 @@ def test_a_compensated_closed_loop_seeing_the_state_100_ms_late_settles(
         options = dataclasses.replace(
             CONFIG.mpc_settings(name), late_after_s=10.0, reference_lead=lead
         )
-        return controller_cls(lab_params, options, "daqp", clock=time.perf_counter)  # type: ignore[no-any-return]
+        return controller_cls(lab_params, options, "hpipm", clock=time.perf_counter)  # type: ignore[no-any-return]
 
     errors, saturated = _fly_late(controller(), lab_params, 5, compensate=True)
     assert errors[-50:].max() < 0.02 and saturated < 0.05

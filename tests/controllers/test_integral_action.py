@@ -138,7 +138,7 @@ def test_a_bar_heavier_than_the_model_hangs_at_the_reference_with_the_integral(
         options = dataclasses.replace(
             CONFIG.mpc_settings(name), late_after_s=10.0, reference_lead=lead
         )
-        return controller_cls(lab_params, options, "daqp", clock=time.perf_counter)  # type: ignore[no-any-return]
+        return controller_cls(lab_params, options, "hpipm", clock=time.perf_counter)  # type: ignore[no-any-return]
 
     layout = lab_params.layout
     assert _steady_error(controller(), heavy, ReferenceIntegrator(layout, 0.4)) < 0.02
