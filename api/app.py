@@ -21,6 +21,7 @@ import json
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -66,6 +67,7 @@ from supervisor.flight.operator_requests import (
 )
 from supervisor.flight.operator_requests import Request as FlightRequest
 from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoints
+from supervisor.flight.status import FlightStatus, ProcessStatus, Status, WorldStatus
 from supervisor.ipc.client import FlightClient, SubscriptionEndedError
 from supervisor.ipc.world_client import WorldClient
 from supervisor.ipc.world_messages import (
@@ -154,11 +156,29 @@ def _answer(reply: Reply) -> JSONResponse:
     )
 
 
-def _flight_status(flight: FlightClient) -> dict[str, Any]:
-    """The flight process's latest status, and whether it is stale."""
-    body = dict(flight.latest or {})
-    body["stale"] = flight.telemetry_age_s > TELEMETRY_STALE_S or not flight.connected
-    return body
+@dataclass(frozen=True)
+class StatusSource:
+    """The status as the API tells it: the flight process's latest status, whether it is
+    stale, ``serve``'s processes (None: no table) and the simulated world (None: none)."""
+
+    flight: FlightClient
+    processes: Callable[[], dict[str, ProcessStatus]] | None
+    world: WorldClient | None
+
+    def of(self, flight_status: FlightStatus) -> Status:
+        """``flight_status`` with what the API process knows now."""
+        flight = self.flight
+        return Status.of(
+            flight_status,
+            stale=flight.telemetry_age_s > TELEMETRY_STALE_S or not flight.connected,
+            processes=self.processes() if self.processes is not None else {},
+            world=self.world.view() if self.world is not None else WorldStatus(embedded=False),
+        )
+
+    def now(self) -> Status | None:
+        """The status now; None before any telemetry from the flight process."""
+        latest = self.flight.latest
+        return self.of(latest) if latest is not None else None
 
 
 WaitSeconds = Annotated[
@@ -174,23 +194,36 @@ WaitSeconds = Annotated[
 ]
 
 
+async def _settled(
+    statuses: StatusSource, goal: outcomes.Goal, sent_at_s: float, wait_s: float
+) -> outcomes.Outcome:
+    """The outcome of a request sent at ``sent_at_s``, judged on each status for at most
+    ``wait_s``."""
+    staleness = outcomes.Staleness()
+    while True:
+        status, now_s = statuses.now(), time.monotonic()
+        if status is not None:
+            stale_for_s = staleness.stale_for_s(status, now_s)
+            outcome = outcomes.judge(goal, status, now_s - sent_at_s, stale_for_s, wait_s)
+            if outcome is not None:
+                return outcome
+        elif now_s - sent_at_s > wait_s:
+            # Not after an accepted request (its status comes before its reply); said, not
+            # waited on for ever.
+            return outcomes.Outcome(outcomes.Verdict.FAILED, "no status from the flight process")
+        await asyncio.sleep(WAIT_INTERVAL_S)
+
+
 async def _answer_once_settled(
-    flight: FlightClient, request: FlightRequest, goal: outcomes.Goal, wait_s: float | None
+    statuses: StatusSource, request: FlightRequest, goal: outcomes.Goal, wait_s: float | None
 ) -> JSONResponse:
     """The flight process's answer to ``request``; with ``wait_s``, once its outcome is
     known (the notices since it was sent are the reasons)."""
     sent_at_s = time.monotonic()
-    reply = await flight.request(request)
+    reply = await statuses.flight.request(request)
     if wait_s is None or not reply.ok:
         return _answer(reply)
-    staleness = outcomes.Staleness()
-    while True:
-        status, now_s = _flight_status(flight), time.monotonic()
-        stale_for_s = staleness.stale_for_s(status, now_s)
-        outcome = outcomes.judge(goal, status, now_s - sent_at_s, stale_for_s, wait_s)
-        if outcome is not None:
-            break
-        await asyncio.sleep(WAIT_INTERVAL_S)
+    outcome = await _settled(statuses, goal, sent_at_s, wait_s)
     body = {"accepted": True, **reply.data}
     body["outcome"] = {"reached": outcome.reached, "message": outcome.message}
     if outcome.reached:
@@ -226,7 +259,7 @@ def create_app(
     bounds: SetpointBounds,
     policy: HttpPolicy,
     world: WorldClient | None = None,
-    processes: Callable[[], dict[str, Any]] | None = None,
+    processes: Callable[[], dict[str, ProcessStatus]] | None = None,
 ) -> FastAPI:
     """The FastAPI application serving ``flight`` (``params``, ``arena`` and ``bounds``: the
     system, its flight volume and what the vehicles can hold, for the equilibria it reports
@@ -251,10 +284,11 @@ def create_app(
             _json_text({"detail": problems}), status_code=422, media_type="application/json"
         )
 
-    app.include_router(_status_routes(flight, params, bounds, processes, policy, world))
-    app.include_router(_operator_routes(flight, policy))
-    app.include_router(_setpoint_routes(flight, params, arena, bounds, policy))
-    app.include_router(_telemetry_route(flight, policy, world))
+    statuses = StatusSource(flight, processes, world)
+    app.include_router(_status_routes(statuses, params, bounds, policy))
+    app.include_router(_operator_routes(statuses, policy))
+    app.include_router(_setpoint_routes(statuses, params, arena, bounds, policy))
+    app.include_router(_telemetry_route(statuses, policy))
     app.include_router(_sim_routes(world, flight, policy))
     if STATIC_DIR.is_dir():
         _dashboard(app)
@@ -304,27 +338,22 @@ def _access_table(app: FastAPI) -> dict[tuple[str, str], Access]:
 
 
 def _status_routes(
-    flight: FlightClient,
+    statuses: StatusSource,
     params: FormationParams,
     bounds: SetpointBounds,
-    processes: Callable[[], dict[str, Any]] | None,
     policy: HttpPolicy,
-    world: WorldClient | None,
 ) -> APIRouter:
     router = APIRouter()
 
-    @router.get("/api/status", **_operation(Access.READ, policy, 503))
-    async def status() -> JSONResponse:
+    @router.get("/api/status", response_model=Status, **_operation(Access.READ, policy, 503))
+    async def status() -> Status | JSONResponse:
         """Mode, controller, vehicles, bar, mocap health, setpoints and tick timing; with
         an embedded simulated world, ``world``: its faults and its own stalls (moments a
         busy computer did not run it, when its mocap and vehicles paused too)."""
-        if flight.latest is None:
+        now = statuses.now()
+        if now is None:
             return JSONResponse({"detail": "no telemetry from the flight process yet"}, 503)
-        body = _flight_status(flight)
-        if processes is not None:
-            body["processes"] = processes()
-        body["world"] = world.view() if world is not None else {"embedded": False}
-        return JSONResponse(body)
+        return now
 
     @router.get("/api/equilibria", **_operation(Access.READ, policy, 422))
     async def equilibria(
@@ -348,10 +377,11 @@ def _status_routes(
     return router
 
 
-def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
+def _operator_routes(statuses: StatusSource, policy: HttpPolicy) -> APIRouter:
     """The mode requests and the controller switch (the token; abort: the token or the
     dashboard's own origin)."""
     router = APIRouter()
+    flight = statuses.flight
     token = _operation(Access.TOKEN, policy, *FLIGHT)
 
     async def operator(kind: OperatorEvent) -> JSONResponse:
@@ -360,11 +390,11 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
     async def awaited(
         kind: OperatorEvent, goal: outcomes.Goal, wait_s: float | None
     ) -> JSONResponse:
-        return await _answer_once_settled(flight, ModeRequest(kind=kind), goal, wait_s)
+        return await _answer_once_settled(statuses, ModeRequest(kind=kind), goal, wait_s)
 
     @router.post("/api/arm", **token)
     async def arm(wait_s: WaitSeconds = None) -> JSONResponse:
-        """Arm both vehicles (motors idle on the ground); with ``wait_s``, until both PX4s
+        """Arm every vehicle (motors idle on the ground); with ``wait_s``, until every PX4
         say they are armed."""
         return await awaited("arm", outcomes.armed, wait_s)
 
@@ -404,7 +434,7 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
 
     @router.post("/api/kill", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
     async def kill(body: KillRequest) -> JSONResponse:
-        """Force-disarm both vehicles at once, in the air too: they fall."""
+        """Force-disarm every vehicle at once, in the air too: they fall."""
         return await operator("kill")
 
     @router.post("/api/mode", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
@@ -412,14 +442,14 @@ def _operator_routes(flight: FlightClient, policy: HttpPolicy) -> APIRouter:
         """Switch the controller (bumpless in flight); with ``wait_s``, until it flies."""
         switch = ControllerRequest(controller=body.controller)
         return await _answer_once_settled(
-            flight, switch, outcomes.controller(body.controller), wait_s
+            statuses, switch, outcomes.controller(body.controller), wait_s
         )
 
     return router
 
 
 def _setpoint_routes(
-    flight: FlightClient,
+    statuses: StatusSource,
     params: FormationParams,
     arena: Arena,
     bounds: SetpointBounds,
@@ -427,6 +457,7 @@ def _setpoint_routes(
 ) -> APIRouter:
     """Reading the queue is ``read``; changing it needs the token."""
     router = APIRouter()
+    flight = statuses.flight
 
     @router.get("/api/setpoints", **_operation(Access.READ, policy, *FLIGHT))
     async def get_setpoints() -> JSONResponse:
@@ -451,8 +482,8 @@ def _setpoint_routes(
             # Well-formed (the schema holds) but not flyable here: 409, as the queue's
             # refusals; 422 is kept for what the schema itself refuses.
             return JSONResponse({"accepted": False, "detail": str(error)}, 409)
-        flown = outcomes.setpoint_flown(entries[-1].model_dump())
-        return await _answer_once_settled(flight, QueueRequest(setpoints=entries), flown, wait_s)
+        flown = outcomes.setpoint_flown(entries[-1])
+        return await _answer_once_settled(statuses, QueueRequest(setpoints=entries), flown, wait_s)
 
     @router.delete("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT))
     async def delete_setpoints() -> JSONResponse:
@@ -524,25 +555,23 @@ def _sim_routes(world: WorldClient | None, flight: FlightClient, policy: HttpPol
     return router
 
 
-def _telemetry_route(
-    flight: FlightClient, policy: HttpPolicy, world: WorldClient | None
-) -> APIRouter:
+def _telemetry_route(statuses: StatusSource, policy: HttpPolicy) -> APIRouter:
     router = APIRouter()
+    flight = statuses.flight
     # Every subscriber gets the same message object: it is serialized once, not per client.
     last: dict[str, Any] = {"message": None, "text": ""}
 
-    def text_of(message: dict[str, Any]) -> str:
+    def text_of(message: FlightStatus) -> str:
         if message is not last["message"]:
-            # The embedded world's own stalls, as the status has them: the page tells a
-            # gap of this computer's making from the lab's.
-            sent = message if world is None else {**message, "world": world.view()}
-            last["message"], last["text"] = message, _json_text(sent)
+            # The status as GET /api/status has it, the embedded world's own stalls too:
+            # the page tells a gap of this computer's making from the lab's.
+            last["message"], last["text"] = message, statuses.of(message).model_dump_json()
         return str(last["text"])
 
     @router.websocket(TELEMETRY_PATH)
     async def telemetry(websocket: WebSocket) -> None:
-        """Telemetry messages as JSON, at the flight process's rate (25 Hz); with an
-        embedded simulated world, each carries ``world`` as the status does. When the API
+        """Telemetry messages as JSON, at the flight process's rate (25 Hz): each the status
+        ``GET /api/status`` answers (``Status``), as it stands when it comes. When the API
         listens beyond loopback it takes the token, in the handshake's ``Authorization``
         header or (a browser cannot set one) as the first message, ``{"token": TOKEN}``;
         without it the socket is closed with code 4401."""

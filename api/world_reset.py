@@ -14,6 +14,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from supervisor.flight.status import FlightStatus
 from supervisor.ipc.client import FlightClient, SubscriptionEndedError
 
 TRACKED_WITHIN_M = 0.03  # the estimate at the reset pose: mocap noise is ~1 mm
@@ -26,13 +27,14 @@ def _distance(a: Sequence[float | None], b: Sequence[float]) -> float:
     return math.dist([float(v) for v in a if v is not None], b)
 
 
-def tracked_at(status: Mapping[str, Any], positions: Mapping[str, Sequence[float]]) -> bool:
+def tracked_at(status: FlightStatus, positions: Mapping[str, Sequence[float]]) -> bool:
     """Whether the telemetry ``status`` has fresh motion capture with every body within
     ``TRACKED_WITHIN_M`` of ``positions`` (body name → arena position [m])."""
-    if not status.get("mocap", {}).get("healthy"):
+    if not status.mocap.healthy:
         return False
-    estimated = {"bar": status["bar"]["position"]} | {
-        f"uav{i}": uav["position"] for i, uav in enumerate(status["uavs"], start=1)
+    payload = status.bar.position  # the status's "bar" is the payload of any setup
+    estimated = {"bar": payload, "payload": payload} | {
+        f"uav{i}": uav.position for i, uav in enumerate(status.uavs, start=1)
     }
     return all(
         _distance(estimated[name], position) <= TRACKED_WITHIN_M
@@ -47,7 +49,7 @@ async def settle_after_reset(
     ``positions``; what the reset's reply adds: ``tracked`` and the pre-arm verdict then
     (``arm_blocked_by``: null when the pre-arm checks pass)."""
     subscription = flight.subscribe()  # its first message is the latest one
-    status: dict[str, Any] | None = None
+    status: FlightStatus | None = None
     try:
         async with asyncio.timeout(SETTLE_TIMEOUT_S):
             while status is None or not tracked_at(status, positions):
@@ -57,5 +59,5 @@ async def settle_after_reset(
     finally:
         flight.unsubscribe(subscription)
     tracked = status is not None and tracked_at(status, positions)
-    blocked = status.get("arm_blocked_by") if status is not None else "no telemetry"
+    blocked = status.arm_blocked_by if status is not None else "no telemetry"
     return {"tracked": tracked, "arm_blocked_by": blocked}

@@ -36,7 +36,8 @@ import aiohttp
 import httpx
 import numpy as np
 
-from benchmarks.service import RunningService, all_connected, running_service
+from benchmarks.service import RunningService, all_connected, all_disarmed, running_service
+from supervisor.flight.status import Status
 
 TOKEN = "api-load-benchmark-token"
 ABORT_TIMEOUT_S = 2.0
@@ -168,15 +169,14 @@ async def run(
             return await measure(service, rate_hz, n_websockets, n_aborts, every_s)
 
 
-async def status_through_the_load(http: httpx.AsyncClient) -> dict[str, Any]:
+async def status_through_the_load(http: httpx.AsyncClient) -> Status:
     """The status, asked again after each 503 (the gate sheds everything but abort and kill
     under the flood) as its Retry-After says, for up to 30 s."""
     for _ in range(30):
         response = await http.get("/api/status")
         if response.status_code != 503:
             response.raise_for_status()
-            status: dict[str, Any] = response.json()
-            return status
+            return Status.model_validate_json(response.content)
         await asyncio.sleep(float(response.headers.get("retry-after", "1")))
     raise RuntimeError("the status was shed for 30 s")
 
@@ -205,12 +205,12 @@ async def measure(
             stop.set()
             load_report = await asyncio.to_thread(report.get, True, 60.0)
             await asyncio.to_thread(load.join, 10.0)
-        await service.wait_for(http, lambda s: s["armed"] == [False, False], 90.0, "disarmed")
+        await service.wait_for(http, all_disarmed, 90.0, "disarmed")
     return {
         "baseline": figures(baseline),
         "under_load": figures(loaded),
-        "first_abort_from": hover["mode"],
-        "mode_at_the_end": at_the_end["mode"],
+        "first_abort_from": hover.mode.value,
+        "mode_at_the_end": at_the_end.mode.value,
         "first_abort_ms": None if loaded[0] is None else loaded[0] * 1000.0,
         "slowest_under_load": sorted(
             ((round(t * 1000.0, 1), i) for i, t in enumerate(loaded) if t is not None),

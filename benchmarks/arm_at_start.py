@@ -21,13 +21,14 @@ from typing import Any
 import httpx
 
 from benchmarks.service import running_service
+from supervisor.flight.status import Status
 
 TOKEN = "arm-at-start-token"
 POLL_S = 0.02
 READY_WITHIN_S = 60.0
 
 
-async def first_null_blocker(http: httpx.AsyncClient) -> tuple[dict[str, Any], list[str]]:
+async def first_null_blocker(http: httpx.AsyncClient) -> tuple[Status, list[str]]:
     """Poll the status until ``arm_blocked_by`` is null; that status and every distinct
     blocker seen on the way (oldest first)."""
     seen: list[str] = []
@@ -35,8 +36,8 @@ async def first_null_blocker(http: httpx.AsyncClient) -> tuple[dict[str, Any], l
     while time.monotonic() < deadline:
         response = await http.get("/api/status")
         if response.status_code == 200:
-            status = response.json()
-            blocker = status["arm_blocked_by"]
+            status = Status.model_validate_json(response.content)
+            blocker = status.arm_blocked_by
             if blocker is None:
                 return status, seen
             if not seen or seen[-1] != blocker:
@@ -55,7 +56,7 @@ async def one_start(index: int, fly: bool) -> dict[str, Any]:
             result: dict[str, Any] = {
                 "start": index,
                 "ready_s": ready_s,
-                "mode_when_ready": status["mode"],
+                "mode_when_ready": status.mode.value,
                 "arm": armed.status_code,
                 "arm_refusal": None if armed.status_code == 200 else armed.text,
                 "blockers_seen": len(blockers),

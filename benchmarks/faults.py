@@ -21,8 +21,10 @@ from typing import Any
 
 import httpx
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import RunningService, all_disarmed, in_mode, notices, running_service
 from benchmarks.tick import world_truth
+from supervisor.flight.modes import Mode
+from supervisor.flight.status import Status
 from supervisor.logs.flight_log import read_flight_log
 
 TOKEN = "faults-benchmark-token"
@@ -33,7 +35,8 @@ async def hover(service: RunningService, http: httpx.AsyncClient) -> Path:
     """Take off and hover 2 s; the flight's log."""
     status = await service.take_off(http, again_after_world_stall=False)
     await asyncio.sleep(2.0)
-    return Path(status["log"])
+    assert status.log is not None, "no flight log"
+    return Path(status.log)
 
 
 async def inject(http: httpx.AsyncClient, **fault: Any) -> float:
@@ -42,16 +45,16 @@ async def inject(http: httpx.AsyncClient, **fault: Any) -> float:
     return time.monotonic()
 
 
-async def until_down(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+async def until_down(service: RunningService, http: httpx.AsyncClient) -> Status:
     """Land if still flying; the status once disarmed."""
     status = await service.status(http)
-    if status["mode"] in ("hover", "tracking"):
+    if status.mode in (Mode.HOVER, Mode.TRACKING):
         (await http.post("/api/land")).raise_for_status()
-    return await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "on the ground")
+    return await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "on the ground")
 
 
-def said(status: dict[str, Any]) -> str:
-    return " | ".join(n["message"] for n in status["notices"]) or "-"
+def said(status: Status) -> str:
+    return " | ".join(notices(status)) or "-"
 
 
 def mocap_silent(duration_s: float) -> Case:
@@ -61,12 +64,12 @@ def mocap_silent(duration_s: float) -> Case:
         if duration_s < 1.0:
             await asyncio.sleep(1.0)
             status = await service.status(http)
-            return {"mode_after_1s": status["mode"], "notices": said(status)}
+            return {"mode_after_1s": status.mode.value, "notices": said(status)}
         await service.wait_for(
             http,
-            lambda s: [u["px4_mode"] for u in s["uavs"]] == ["AUTO.LAND", "AUTO.LAND"],
+            lambda s: all(u.px4_mode == "AUTO.LAND" for u in s.uavs),
             5.0,
-            "both PX4s landing",
+            "every PX4 landing",
         )
         both_landing_s = time.monotonic() - injected
         status = await until_down(service, http)
@@ -89,7 +92,7 @@ def frozen_flight_process(freeze_s: float) -> Case:
         await asyncio.sleep(freeze_s)
         os.kill(flight, signal.SIGCONT)
         await asyncio.sleep(3.0)
-        mode = (await service.status(http))["mode"]
+        mode = (await service.status(http)).mode.value
         status = await until_down(service, http)
         failsafe_setpoints = sum("arrived in its failsafe" in line for line in service.output)
         return {
@@ -106,7 +109,7 @@ async def link_lost(service: RunningService, http: httpx.AsyncClient) -> dict[st
     await hover(service, http)
     injected = await inject(http, kind="link_lost", vehicle=1)
     status = await service.wait_for(
-        http, lambda s: s["mode"] == "disarmed" and s["armed"][1] is False, 90.0, "down"
+        http, lambda s: s.mode is Mode.DISARMED and not s.armed[1], 90.0, "down"
     )
     return {"down_after_s": round(time.monotonic() - injected, 1), "notices": said(status)}
 
@@ -117,15 +120,13 @@ async def killed_flight_process(service: RunningService, http: httpx.AsyncClient
     killed = time.monotonic()
     await service.wait_for(
         http,
-        lambda s: s["processes"]["flight"]["restarts"] == 1 and not s["stale"],
+        lambda s: s.processes["flight"].restarts == 1 and not s.stale,
         30.0,
         "the flight process back",
     )
     back_s = time.monotonic() - killed
     refused = await http.post("/api/arm")
-    status = await service.wait_for(
-        http, lambda s: s["armed"] == [False, False], 60.0, "both PX4s disarmed"
-    )
+    status = await service.wait_for(http, all_disarmed, 60.0, "every PX4 disarmed")
     return {
         "flight_process_back_after_s": round(back_s, 2),
         "arm_while_landing": refused.status_code,
@@ -152,9 +153,7 @@ async def killed_api_process(service: RunningService, http: httpx.AsyncClient) -
     cli_s = time.monotonic() - started
     os.kill(api, signal.SIGKILL)
     killed = time.monotonic()
-    await service.wait_for(
-        http, lambda s: s["processes"]["api"]["restarts"] == 1, 30.0, "the API back"
-    )
+    await service.wait_for(http, lambda s: s.processes["api"].restarts == 1, 30.0, "the API back")
     back_s = time.monotonic() - killed
     status = await until_down(service, http)
     answer = json.loads(out or b"{}")
@@ -167,7 +166,7 @@ async def killed_api_process(service: RunningService, http: httpx.AsyncClient) -
 
 
 async def displaced_arm(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
-    await service.wait_for(http, lambda s: s["mocap"]["healthy"], 60.0, "healthy mocap")
+    await service.wait_for(http, lambda s: s.mocap.healthy, 60.0, "healthy mocap")
     await inject(http, kind="mocap_jump", body="uav1", offset_m=[1.0, 0.0, 0.0])
     await asyncio.sleep(0.5)
     refused = await http.post("/api/arm")

@@ -21,8 +21,10 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
-from benchmarks.service import running_service
+from benchmarks.service import in_mode, notices, running_service
 from benchmarks.tick import world_truth
+from supervisor.flight.modes import Mode
+from supervisor.flight.status import Status
 
 TOKEN = "hover-soak-token"
 # The quick part of the suite, over and over: what a developer runs beside a flight.
@@ -86,18 +88,16 @@ async def one_hover(hover_s: float) -> dict[str, Any]:
             end = time.monotonic() + hover_s
             while time.monotonic() < end:
                 status = await service.status(http)
-                modes.add(status["mode"])
+                modes.add(status.mode)
                 await asyncio.sleep(1.0)
-            hovering = modes == {"hover"}
+            hovering = modes == {Mode.HOVER}
             if hovering:
                 (await http.post("/api/land")).raise_for_status()
-            status = await service.wait_for(
-                http, lambda s: s["mode"] == "disarmed", 90.0, "on the ground"
-            )
+            status = await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "on the ground")
             stalls = (await http.get("/api/sim/faults")).json().get("stalls", {})
             result = {
-                "ok": hovering and not status["notices"],
-                "modes": sorted(modes),
+                "ok": hovering and not status.notices,
+                "modes": sorted(mode.value for mode in modes),
                 "wall_s": round(time.monotonic() - started, 1),
                 **_brief(status),
                 "world_stalls": stalls.get("count"),
@@ -107,10 +107,10 @@ async def one_hover(hover_s: float) -> dict[str, Any]:
     return {**result, **{k: truth.get(k) for k in ("max_uav_tilt_deg", "slack_events")}}
 
 
-def _brief(status: dict[str, Any]) -> dict[str, Any]:
+def _brief(status: Status) -> dict[str, Any]:
     return {
-        "missed_deadlines": status["tick"]["missed_deadlines"],
-        "notices": " | ".join(n["message"] for n in status["notices"]) or "-",
+        "missed_deadlines": status.tick.missed_deadlines,
+        "notices": " | ".join(notices(status)) or "-",
     }
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import re
 import signal
@@ -17,32 +18,57 @@ from typing import Any
 
 import httpx
 
+from supervisor.flight.modes import Mode
+from supervisor.flight.status import Status
+
 START_TIMEOUT_S = 120.0
+BRIEF = {"mode", "phase", "bar", "setpoints", "faults", "notices"}  # of a status, timed out
 CHILDREN = ("world", "relay", "flight", "api")  # serve's processes, uavbar-NAME
 
 
-ENDS = frozenset({"hover", "abort", "px4_landing", "killed", "disarmed"})  # of a take-off
+ENDS = frozenset({Mode.HOVER, Mode.ABORT, Mode.PX4_LANDING, Mode.KILLED, Mode.DISARMED})
 
 
-def world_stalls(status: dict[str, Any]) -> int:
+def world_stalls(status: Status) -> int:
     """How many stalls of its own the embedded world has reported (0 without one)."""
-    return int(status.get("world", {}).get("stalls", {}).get("count", 0))
+    stalls = status.world.stalls
+    return stalls.count if stalls is not None else 0
 
 
-def all_connected(status: dict[str, Any]) -> bool:
-    """Healthy mocap and both vehicle links with their modes known (a heartbeat heard: arming
+def all_connected(status: Status) -> bool:
+    """Healthy mocap and every vehicle link with its mode known (a heartbeat heard: arming
     is refused before), as the status shows them, and the system out of the ``px4_landing``
-    a flight process starts in until it has heard both vehicles."""
+    a flight process starts in until it has heard every vehicle."""
     return (
-        bool(status["mocap"]["healthy"])
-        and status["mode"] != "px4_landing"
-        and all(u["connected"] and u["px4_mode"] != "unknown" for u in status["uavs"])
+        status.mocap.healthy
+        and status.mode is not Mode.PX4_LANDING
+        and all(u.connected and u.px4_mode != "unknown" for u in status.uavs)
     )
 
 
-def ready_to_arm(status: dict[str, Any]) -> bool:
+def ready_to_arm(status: Status) -> bool:
     """Nothing would refuse an arm now (``arm_blocked_by`` null)."""
-    return status["arm_blocked_by"] is None
+    return status.arm_blocked_by is None
+
+
+def in_mode(*modes: Mode) -> Callable[[Status], bool]:
+    """Whether the status's mode is one of ``modes``."""
+    return lambda status: status.mode in modes
+
+
+def all_disarmed(status: Status) -> bool:
+    """Every vehicle says it is disarmed."""
+    return not any(status.armed)
+
+
+def position_m(position: Sequence[float | None]) -> list[float]:
+    """An estimated position (x, y, z) [m] as numbers: NaN where it is not known."""
+    return [math.nan if v is None else v for v in position]
+
+
+def notices(status: Status) -> list[str]:
+    """The status's notices, oldest first."""
+    return [notice.message for notice in status.notices]
 
 
 @dataclass
@@ -74,7 +100,7 @@ class RunningService:
 
     async def take_off(
         self, http: httpx.AsyncClient, *, again_after_world_stall: bool = True
-    ) -> dict[str, Any]:
+    ) -> Status:
         """Wait for healthy mocap and both links, arm, take off; the status once hovering.
 
         A take-off that ends otherwise while the simulated world reported stalls of its own
@@ -90,41 +116,40 @@ class RunningService:
                 response = await http.post(f"/api/{step}")
                 if response.status_code != 200:
                     raise RuntimeError(f"{step} refused: {response.text}")
-            status = await self.wait_for(http, lambda s: s["mode"] in ENDS, 60.0, "hover")
-            if status["mode"] == "hover":
+            status = await self.wait_for(http, in_mode(*ENDS), 60.0, "hover")
+            if status.mode is Mode.HOVER:
                 return status
-            notices = [n["message"] for n in status["notices"]]
+            said, mode = notices(status)[-1:], status.mode.value
             if not retries_left or world_stalls(status) == stalls_before:
-                raise RuntimeError(f"take-off ended in {status['mode']}: {notices[-1:]}")
+                raise RuntimeError(f"take-off ended in {mode}: {said}")
             retries_left -= 1
-            print(f"take-off ended in {status['mode']} while the world stalled: {notices[-1:]}")
-            await self.wait_for(http, lambda s: s["armed"] == [False, False], 90.0, "disarmed")
+            print(f"take-off ended in {mode} while the world stalled: {said}")
+            await self.wait_for(http, all_disarmed, 90.0, "disarmed")
             (await http.post("/api/sim/reset")).raise_for_status()
 
-    async def status(self, http: httpx.AsyncClient) -> dict[str, Any]:
+    async def status(self, http: httpx.AsyncClient) -> Status:
         response = await http.get("/api/status")
         response.raise_for_status()
-        result: dict[str, Any] = response.json()
-        return result
+        return Status.model_validate_json(response.content)
 
     async def wait_for(
         self,
         http: httpx.AsyncClient,
-        condition: Callable[[dict[str, Any]], bool],
+        condition: Callable[[Status], bool],
         timeout_s: float,
         what: str,
-    ) -> dict[str, Any]:
+    ) -> Status:
         """Poll ``/api/status`` until ``condition(status)``; raises ``TimeoutError``."""
         deadline = time.monotonic() + timeout_s
-        last: dict[str, Any] = {}
+        last: Status | None = None
         while time.monotonic() < deadline:
             response = await http.get("/api/status")
             if response.status_code == 200:
-                last = response.json()
+                last = Status.model_validate_json(response.content)
                 if condition(last):
                     return last
             await asyncio.sleep(0.1)
-        brief = {k: last.get(k) for k in ("mode", "phase", "bar", "setpoints", "faults", "notices")}
+        brief = last.model_dump_json(include=BRIEF) if last is not None else "no status"
         raise TimeoutError(f"timed out after {timeout_s} s waiting for {what}; last: {brief}")
 
 
@@ -141,10 +166,14 @@ async def running_service(
     *,
     program: Sequence[str] = (sys.executable, "-m", "supervisor.cli.main"),
     cwd: Path | None = None,
+    setup: str | None = None,
 ) -> AsyncIterator[RunningService]:
     """Start ``serve`` (embedded simulator, API on a free port), stop it with SIGINT.
-    ``program`` runs the CLI (an installed ``uavbar-supervisor``, say) in ``cwd``."""
+    ``program`` runs the CLI (an installed ``uavbar-supervisor``, say) in ``cwd``;
+    ``setup`` names the setup (``--config``; serve's default without)."""
     arguments = [*program[1:], "serve", "--set", "api.port=0"]
+    if setup is not None:
+        arguments += ["--config", setup]
     arguments += ["--set", f'log.folder="{log_folder}"']
     for override in overrides:
         arguments += ["--set", override]

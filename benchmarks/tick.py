@@ -32,7 +32,8 @@ import aiohttp
 import numpy as np
 import websockets
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import RunningService, in_mode, notices, running_service
+from supervisor.flight.modes import Mode
 from supervisor.logs.flight_log import read_flight_log
 from supervisor.logs.report import summarize as summarize_flight
 
@@ -100,7 +101,7 @@ async def fly(service: RunningService, duration_s: float) -> str:
     Returns the flight log's path."""
     async with service.client() as http:
         status = await service.take_off(http, again_after_world_stall=False)
-        log = str(status["log"])
+        log = str(status.log)
         started = time.monotonic()
         while time.monotonic() - started < duration_s:
             for setpoint in PAPER_SETPOINTS:
@@ -108,7 +109,7 @@ async def fly(service: RunningService, duration_s: float) -> str:
                 response.raise_for_status()
             await service.wait_for(
                 http,
-                lambda s: not s["setpoints"]["active"] and not s["setpoints"]["queued"],
+                lambda s: s.setpoints.active is None and not s.setpoints.queued,
                 300.0,
                 "the setpoints",
             )
@@ -116,10 +117,10 @@ async def fly(service: RunningService, duration_s: float) -> str:
         if landing.status_code != 200:
             status = await service.status(http)
             raise RuntimeError(
-                f"the flight did not last: {landing.text}; faults {status['faults']};"
-                f" notices {status.get('notices')}"
+                f"the flight did not last: {landing.text}; faults {status.faults};"
+                f" notices {notices(status)}"
             )
-        await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landing")
+        await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "landing")
         return log
 
 
@@ -224,28 +225,30 @@ async def run(
 
 
 TRUTH_LINE = re.compile(
-    r"truth: bar hanging ([\d.]+) s, min cable tension (-?[\d.]+) N, slack events (\d+), "
-    r"max UAV tilt ([\d.]+) deg, max descent ([\d.]+) m/s above [\d.]+ m "
-    r"\(bar ([\d.]+), uav1 ([\d.]+), uav2 ([\d.]+)\)"
+    r"truth: (\w+) hanging ([\d.]+) s, min cable tension (-?[\d.]+) N, slack events (\d+), "
+    r"max UAV tilt ([\d.]+) deg, max descent ([\d.]+) m/s above [\d.]+ m \(([^)]*)\)"
 )
+DESCENT_OF_A_BODY = re.compile(r"(\w+) ([\d.]+)")
 
 
 def world_truth(output: list[str]) -> dict[str, float]:
-    """The simulated world's figures from its last truth line (empty without one)."""
+    """The simulated world's figures from its last truth line (empty without one): the
+    payload's hanging time (``bar_hanging_s``, or ``payload_hanging_s`` for another
+    payload) and each body's fastest descent (``max_descent_uav1_mps``, ...)."""
     matches = [match for line in output if (match := TRUTH_LINE.search(line))]
     if not matches:
         return {}
-    hanging, tension, slack, tilt, descent, bar, uav1, uav2 = matches[-1].groups()
-    return {
-        "bar_hanging_s": float(hanging),
+    payload, hanging, tension, slack, tilt, descent, by_body = matches[-1].groups()
+    figures = {
+        f"{payload}_hanging_s": float(hanging),
         "min_tension_hanging_n": float(tension),
         "slack_events": int(slack),
         "max_uav_tilt_deg": float(tilt),
         "max_descent_mps": float(descent),
-        "max_descent_bar_mps": float(bar),
-        "max_descent_uav1_mps": float(uav1),
-        "max_descent_uav2_mps": float(uav2),
     }
+    for name, body_descent in DESCENT_OF_A_BODY.findall(by_body):
+        figures[f"max_descent_{name}_mps"] = float(body_descent)
+    return figures
 
 
 def main(argv: list[str] | None = None) -> int:

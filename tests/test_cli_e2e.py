@@ -15,7 +15,16 @@ import httpx
 import pytest
 import websockets
 
-from benchmarks.service import CHILDREN, RunningService, all_connected, running_service
+from benchmarks.service import (
+    CHILDREN,
+    RunningService,
+    all_connected,
+    all_disarmed,
+    position_m,
+    running_service,
+)
+from supervisor.flight.modes import Mode
+from supervisor.flight.phases import Phase
 
 TOKEN = "cli-e2e-token-0123456789"
 ROOT = Path(__file__).resolve().parent.parent
@@ -92,23 +101,24 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
         assert (await cli("arm", "--wait"))[0] == 0
         status, out, err = await cli("takeoff", "--wait")
         assert status == 0 and "airborne, hover" in out, err
-        assert (await service.status(http))["mode"] == "hover"
+        assert (await service.status(http)).mode is Mode.HOVER
         status, out, err = await cli(
             "setpoint", "0.3", "0", "1.1", "--yaw-deg", "10", "--hold-s", "1", "--wait"
         )
         assert status == 0 and "reached and held" in out, err
-        bar = (await service.status(http))["bar"]
-        assert abs(bar["position"][0] - 0.3) < 0.1 and abs(bar["yaw"] - 0.1745) < 0.1
+        bar = (await service.status(http)).bar
+        assert abs(position_m(bar.position)[0] - 0.3) < 0.1
+        assert bar.yaw is not None and abs(bar.yaw - 0.1745) < 0.1
         status, out, err = await cli("land", "--wait")
         assert status == 0 and "landed and disarmed" in out, err
-        assert (await service.status(http))["armed"] == [False, False]
+        assert all_disarmed(await service.status(http))
 
         # A take-off that an abort ends: exit 1 with the abort's reason. (The landing put
         # the UAVs down 0.3 m from the bar's ends: the world's reset puts them back.)
         status, out, err = await reset_and_arm(service, http)
         assert status == 0, err
         takeoff = asyncio.create_task(cli("takeoff", "--wait"))
-        await service.wait_for(http, lambda s: s["phase"] == "lift", 30.0, "lifting the bar")
+        await service.wait_for(http, lambda s: s.phase is Phase.LIFT, 30.0, "lifting the bar")
         fault = {"kind": "link_lost", "vehicle": 1, "duration_s": 3.0}
         assert (await http.post("/api/sim/faults", json=fault)).status_code == 200
         status, out, err = await takeoff
@@ -116,7 +126,7 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
             out,
             err,
         )
-        await service.wait_for(http, lambda s: s["armed"] == [False, False], 90.0, "landed")
+        await service.wait_for(http, all_disarmed, 90.0, "landed")
 
         status, out, err = await cli("takeoff", "--wait", "--timeout", "1")
         assert status == 1 and "refused (409)" in err  # disarmed: refused at once

@@ -16,7 +16,16 @@ import httpx
 import pytest
 from playwright.async_api import Browser, Page, ViewportSize, async_playwright, expect
 
-from benchmarks.service import RunningService, all_connected, running_service
+from benchmarks.service import (
+    RunningService,
+    all_connected,
+    all_disarmed,
+    in_mode,
+    position_m,
+    running_service,
+)
+from supervisor.flight.modes import Mode
+from supervisor.flight.status import ArenaBox
 from tests.test_px4_sitl import PX4_REFUSAL, require_gps_for_arming
 from tests.test_service import require_px4
 
@@ -150,10 +159,8 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed", timeout=90_000)
         await expect(banner).to_be_hidden()
         async with service.client() as http:
-            status = await service.wait_for(
-                http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
-            )
-        assert status["bar"]["position"][2] < 0.05
+            status = await service.wait_for(http, all_disarmed, 10.0, "vehicles disarmed")
+        assert position_m(status.bar.position)[2] < 0.05
         assert not PAGE_ERRORS, PAGE_ERRORS
 
 
@@ -218,7 +225,7 @@ async def press_abort_from_a_hover(
         response = await answered.value
         assert response.status == 200, await response.text()
         await expect(page.get_by_test_id("mode")).to_have_text(re.compile("abort|disarmed"))
-        await service.wait_for(http, lambda s: s["armed"] == [False, False], 90.0, "disarmed")
+        await service.wait_for(http, all_disarmed, 90.0, "disarmed")
         (await http.post("/api/sim/reset")).raise_for_status()  # the resting pose again
     return float(response.request.timing["responseEnd"]) / 1000.0
 
@@ -379,7 +386,7 @@ async def test_a_monitors_abort_a_lost_link_and_a_lost_stream_are_shown_as_such(
             )
             await expect(page.get_by_test_id("uav1-px4")).to_contain_text("(link lost)")
             (await http.delete("/api/sim/faults")).raise_for_status()
-            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+            await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "landed")
             await expect(page.get_by_test_id("banner")).to_be_hidden()
             await expect(page.get_by_test_id("notices")).to_contain_text("vehicle 1 link lost")
         assert not PAGE_ERRORS, PAGE_ERRORS
@@ -449,7 +456,7 @@ async def test_the_layout_at_1024_by_700_keeps_the_views_and_the_setpoints_in_si
             await page.screenshot(path=str(IMAGES / "dashboard-abort.png"))
             await assert_laid_out(page, DESKTOP)
             (await http.delete("/api/sim/faults")).raise_for_status()
-            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+            await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "landed")
         assert not PAGE_ERRORS, PAGE_ERRORS
 
 
@@ -462,7 +469,7 @@ async def bar_drawn_and_projected(
 ) -> tuple[dict[str, float], list[float]]:
     """The 3D view's orange pixels (the bar) and where the view's camera puts the bar's
     estimated middle (from ``/api/status``), in CSS pixels from the canvas's top left."""
-    position = (await service.status(http))["bar"]["position"]
+    position = (await service.status(http)).bar.position
     await page.wait_for_timeout(500)  # a few messages drawn since
     drawn = await colour_pixels(page, "#view3d", BAR_ORANGE)
     projected: list[float] = await page.evaluate("p => window.uavbarView3d.project(p)", position)
@@ -498,7 +505,7 @@ async def test_the_3d_view_draws_the_arena_and_follows_the_bar(
             assert box is not None
             await page.screenshot(path=str(IMAGES / "dashboard-3d.png"), clip=box)
             (await http.post("/api/land")).raise_for_status()
-            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
+            await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "landed")
         assert not PAGE_ERRORS, PAGE_ERRORS
 
 
@@ -568,14 +575,14 @@ async def assert_in_sight(page: Page, viewport: ViewportSize, names: tuple[str, 
         assert seen["onTop"], f"{name} is under another element at {seen['middle']}"
 
 
-async def assert_whole_arena_drawn(page: Page, arena: dict[str, list[float]]) -> None:
+async def assert_whole_arena_drawn(page: Page, arena: ArenaBox) -> None:
     """The top and side views draw the status's whole arena, inside their canvases and in
     the window with nothing over it; the 3D view draws it (labels included) uncut."""
     for selector, axes in (("#top-view", (0, 1)), ("#side-view", (0, 2))):
         seen = await page.evaluate(ARENA_DRAWN_JS, selector)
         drawn, canvas = seen["drawn"], seen["canvas"]
-        assert drawn["min"] == [arena["min"][a] for a in axes], (selector, drawn, arena)
-        assert drawn["max"] == [arena["max"][a] for a in axes], (selector, drawn, arena)
+        assert drawn["min"] == [arena.min[a] for a in axes], (selector, drawn, arena)
+        assert drawn["max"] == [arena.max[a] for a in axes], (selector, drawn, arena)
         assert 0 <= drawn["left"] < drawn["right"] <= canvas["width"], (selector, seen)
         assert 0 <= drawn["top"] < drawn["bottom"] <= canvas["height"], (selector, seen)
         assert all(seen["onTop"]), f"{selector}: a corner of the arena is out of sight: {seen}"
@@ -584,7 +591,7 @@ async def assert_whole_arena_drawn(page: Page, arena: dict[str, list[float]]) ->
             assert off < 30, f"{selector}: no outline drawn at a corner: {seen}"
     canvas = await page.get_by_test_id("view3d").bounding_box()
     assert canvas is not None
-    lo, hi, m = arena["min"], arena["max"], LABELS_OUTSIDE_M
+    lo, hi, m = arena.min, arena.max, LABELS_OUTSIDE_M
     xs, ys, zs = (lo[0] - m, hi[0] + m), (lo[1] - m, hi[1] + m), (lo[2], hi[2])
     corners = [[x, y, z] for x in xs for y in ys for z in zs]
     for corner in corners:
@@ -593,9 +600,7 @@ async def assert_whole_arena_drawn(page: Page, arena: dict[str, list[float]]) ->
         assert inside, f"the 3D view cuts {corner} off: drawn at {x, y} in {canvas}"
 
 
-async def assert_the_operator_sees_it(
-    page: Page, viewport: ViewportSize, arena: dict[str, list[float]]
-) -> None:
+async def assert_the_operator_sees_it(page: Page, viewport: ViewportSize, arena: ArenaBox) -> None:
     await assert_in_sight(page, viewport, (*CONTROLS, *BAR_STATE, "error-plot", "view3d"))
     await assert_in_sight(page, viewport, ("top-view", "side-view"))
     for name in SAID_HERE:  # empty lines have no height: their place is in sight
@@ -630,7 +635,7 @@ async def test_the_controls_bar_and_plots_in_sight_and_armed_disarmed_aborted_di
     async with running_service(TOKEN, tmp_path) as service:
         page = await open_dashboard(browser, service, TOKEN, MEDIUM)
         async with service.client() as http:
-            arena = (await service.status(http))["arena"]
+            arena = (await service.status(http)).arena
         mode, reset, reason = (page.get_by_test_id(n) for n in ("mode", "reset", "flight-reason"))
         last_flight = page.get_by_test_id("last-flight")
         await expect(reset).to_be_visible()

@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.service import running_service
+from benchmarks.service import all_disarmed, in_mode, notices, running_service
 from benchmarks.tick import world_truth
 from geometry.state import payload_points
 from supervisor.app.config import CONFIG_DIR, load_config
+from supervisor.flight.modes import Mode
+from supervisor.flight.phases import Phase
 from supervisor.flight.safety import SafetyLimits
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_faults_e2e import fault
@@ -39,17 +41,17 @@ async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_
         await fault(http, kind="mocap_silent", duration_s=0.05)
         await asyncio.sleep(1.0)
         status = await service.status(http)
-        assert status["mode"] == "hover" and status["streaming"] and not status["notices"]
+        assert status.mode is Mode.HOVER and status.streaming and not status.notices
 
         [silent] = (await fault(http, kind="mocap_silent", duration_s=5.0))["faults"]
         status = await service.wait_for(
-            http, lambda s: s["mode"] == "px4_landing", 5.0, "the hand-over to PX4"
+            http, in_mode(Mode.PX4_LANDING), 5.0, "the hand-over to PX4"
         )
-        assert not status["streaming"]
-        assert "each PX4 lands on its own" in status["notices"][-1]["message"]
+        assert not status.streaming
+        assert "each PX4 lands on its own" in status.notices[-1].message
         await service.wait_for(
             http,
-            lambda s: [u["px4_mode"] for u in s["uavs"]] == ["AUTO.LAND", "AUTO.LAND"],
+            lambda s: all(u.px4_mode == "AUTO.LAND" for u in s.uavs),
             2.0,
             "both PX4s landing",
         )
@@ -61,9 +63,9 @@ async def test_mocap_silent_briefly_is_flown_through_and_for_long_hands_over_to_
         limit_s = SafetyLimits().mocap_coast_s + 0.1
         assert max(landing_s.values()) - silent["started_s"] <= limit_s, (landing_s, silent)
         status = await service.wait_for(
-            http, lambda s: s["mode"] == "disarmed", 60.0, "landed and disarmed by PX4"
+            http, in_mode(Mode.DISARMED), 60.0, "landed and disarmed by PX4"
         )
-        assert status["armed"] == [False, False]
+        assert all_disarmed(status)
     [path] = flight_logs(tmp_path)
     log = read_flight_log(path)
     handed = log.modes.index("px4_landing")
@@ -90,12 +92,10 @@ async def test_a_frozen_flight_process_never_flips_a_uav_nor_commands_one_in_fai
         if freeze_s >= OFFBOARD_LOSS_TIMEOUT_S:
             # Frozen as long as PX4's offboard-loss timeout: every PX4 is in its failsafe,
             # whatever it last reported, and is handed over before anything is sent.
-            said = " ".join(n["message"] for n in status["notices"])
+            said = " ".join(notices(status))
             assert "beyond PX4's offboard-loss timeout (0.5 s)" in said, said
-        status = await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
-        await service.wait_for(
-            http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
-        )
+        status = await service.wait_for(http, in_mode(Mode.DISARMED), 60.0, "landed")
+        await service.wait_for(http, all_disarmed, 10.0, "vehicles disarmed")
     assert not [line for line in service.output if "arrived in its failsafe" in line]
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth
@@ -114,7 +114,7 @@ async def test_arming_with_a_uav_a_metre_from_its_bar_end_is_refused_with_the_re
         assert re.search(r"cannot arm: UAV 1 stands 1\.\d\d m from its bar end", refused.text)
         await asyncio.sleep(1.5)  # a heartbeat later: no vehicle was armed meanwhile
         status = await service.status(http)
-        assert status["mode"] == "disarmed" and status["armed"] == [False, False]
+        assert status.mode is Mode.DISARMED and all_disarmed(status)
         assert (await http.delete("/api/sim/faults")).status_code == 200
         await asyncio.sleep(0.5)
         assert (await http.post("/api/arm")).status_code == 200
@@ -136,19 +136,19 @@ async def test_one_vehicle_lost_the_other_sets_the_bar_down_and_both_end_disarme
         await asyncio.sleep(2.0)
         await fault(http, kind="link_lost", vehicle=1)
         status = await service.wait_for(
-            http, lambda s: s["phase"] == "set_down", 5.0, "UAV 2 setting the bar down"
+            http, lambda s: s.phase is Phase.SET_DOWN, 5.0, "UAV 2 setting the bar down"
         )
-        assert status["mode"] == "abort" and status["controller"] == "decentralized"
-        said = " ".join(n["message"] for n in status["notices"])
+        assert status.mode is Mode.ABORT and status.controller == "decentralized"
+        said = " ".join(notices(status))
         assert "vehicle 1 link lost: UAV 2 sets its bar end down alone" in said, said
         landed = await service.wait_for(
-            http, lambda s: s["mode"] == "disarming", 60.0, "landed, vehicle 1 unheard"
+            http, in_mode(Mode.DISARMING), 60.0, "landed, vehicle 1 unheard"
         )
-        assert "UAV 1 is not heard" in (landed["arm_blocked_by"] or ""), landed
+        assert "UAV 1 is not heard" in (landed.arm_blocked_by or ""), landed
         assert (await http.delete("/api/sim/faults")).status_code == 200
         await service.wait_for(
             http,
-            lambda s: s["mode"] == "disarmed" and s["armed"] == [False, False],
+            lambda s: s.mode is Mode.DISARMED and all_disarmed(s),
             20.0,
             "both vehicles disarmed",
         )

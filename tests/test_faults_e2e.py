@@ -18,7 +18,8 @@ import httpx
 import pytest
 import qtm_rt
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import RunningService, all_disarmed, position_m, running_service
+from supervisor.flight.status import Status
 from tests.test_service import TOKEN, ready
 
 pytestmark = pytest.mark.slow
@@ -77,21 +78,21 @@ async def test_mocap_faults_seen_by_the_sdk_and_the_supervisor(tmp_path: Path) -
             await asyncio.sleep(0.5)
             assert len(packets) == silent_from  # not one frame
             status = await service.status(http)
-            assert not status["mocap"]["healthy"]
+            assert not status.mocap.healthy
             await eventually(lambda: len(packets) > silent_from + 10, 20.0, "frames again")
             numbers = [p.framenumber for p in packets[silent_from - 1 : silent_from + 1]]
             assert numbers[1] - numbers[0] > 50  # QTM counted on through the silence
-        await service.wait_for(http, lambda s: s["mocap"]["healthy"], 20.0, "healthy again")
+        await service.wait_for(http, lambda s: s.mocap.healthy, 20.0, "healthy again")
         assert logged(service, "fault started at") and logged(service, "mocap_silent for 1 s")
         assert logged(service, "(expired): mocap_silent")
 
         await fault(http, kind="mocap_body_lost", body="bar", duration_s=3.0)
         status = await service.wait_for(
-            http, lambda s: "bar" in s["mocap"]["unhealthy"], 20.0, "the bar untracked"
+            http, lambda s: "bar" in s.mocap.unhealthy, 20.0, "the bar untracked"
         )
-        assert "uav1" not in status["mocap"]["unhealthy"]
-        assert status["bar"]["position"] == [None, None, None] or not status["mocap"]["healthy"]
-        await service.wait_for(http, lambda s: s["mocap"]["healthy"], 30.0, "the bar back")
+        assert "uav1" not in status.mocap.unhealthy
+        assert status.bar.position == [None, None, None] or not status.mocap.healthy
+        await service.wait_for(http, lambda s: s.mocap.healthy, 30.0, "the bar back")
         assert (await http.get("/api/sim/faults")).json()["faults"] == []
 
 
@@ -101,54 +102,46 @@ async def test_link_lost_and_px4_reboot_seen_by_the_supervisor(tmp_path: Path) -
         await fault(http, kind="link_lost", vehicle=1, duration_s=5.0)
         # Within the link timeout (vehicles.link_loss_s, 1.5 s) and a busy machine's slack.
         status = await service.wait_for(
-            http, lambda s: not s["uavs"][0]["connected"], 10.0, "vehicle 1 disconnected"
+            http, lambda s: not s.uavs[0].connected, 10.0, "vehicle 1 disconnected"
         )
-        assert status["uavs"][1]["connected"]
-        await service.wait_for(
-            http, lambda s: s["uavs"][0]["connected"], 30.0, "vehicle 1 reconnected"
-        )
+        assert status.uavs[1].connected
+        await service.wait_for(http, lambda s: s.uavs[0].connected, 30.0, "vehicle 1 reconnected")
 
         await fault(http, kind="px4_reboot", vehicle=2, duration_s=3.0)
-        await service.wait_for(
-            http, lambda s: not s["uavs"][1]["connected"], 10.0, "vehicle 2 rebooting"
-        )
+        await service.wait_for(http, lambda s: not s.uavs[1].connected, 10.0, "vehicle 2 rebooting")
         status = await service.wait_for(
             http,
-            lambda s: s["uavs"][1]["connected"] and s["uavs"][1]["px4_mode"] != "unknown",
+            lambda s: s.uavs[1].connected and s.uavs[1].px4_mode != "unknown",
             30.0,
             "vehicle 2 booted",
         )
-        assert status["armed"] == [False, False]
+        assert all_disarmed(status)
         assert logged(service, "PX4 2: power off (rebooting)") and logged(service, "PX4 2: booted")
 
 
 async def test_reset_refused_while_armed_then_the_resting_pose_is_back(tmp_path: Path) -> None:
     async with running_service(TOKEN, tmp_path) as service, service.client() as http:
         await ready(service, http)
-        resting = (await service.status(http))["bar"]["position"]
+        resting = position_m((await service.status(http)).bar.position)
         await service.take_off(http)
         response = await http.post("/api/setpoints", json={"bar_position": [0.6, 0.3, 1.0]})
         assert response.status_code == 200
         await service.wait_for(
-            http, lambda s: abs(s["bar"]["position"][0] - 0.6) < 0.1, 40.0, "the bar moved"
+            http, lambda s: abs(position_m(s.bar.position)[0] - 0.6) < 0.1, 40.0, "the bar moved"
         )
         refused = await http.post("/api/sim/reset")
         assert refused.status_code == 409 and "armed" in refused.json()["detail"]
         assert (await http.post("/api/abort")).status_code == 200
-        await service.wait_for(
-            http, lambda s: s["armed"] == [False, False], 90.0, "landed and disarmed"
-        )
-        landed = (await service.status(http))["bar"]["position"]
+        await service.wait_for(http, all_disarmed, 90.0, "landed and disarmed")
+        landed = position_m((await service.status(http)).bar.position)
         assert abs(landed[0] - resting[0]) > 0.3  # somewhere else than it started
         response = await http.post("/api/sim/reset")
         assert response.status_code == 200, response.text
         assert response.json()["reset"] and response.json()["faults"] == []
 
-        def back(status: dict[str, Any]) -> bool:
-            position = status["bar"]["position"]
-            return None not in position and all(
-                abs(a - b) < 0.05 for a, b in zip(position, resting, strict=True)
-            )
+        def back(status: Status) -> bool:
+            position = position_m(status.bar.position)
+            return all(abs(a - b) < 0.05 for a, b in zip(position, resting, strict=True))
 
         await service.wait_for(http, back, 20.0, "the bar back in its resting pose")
         assert logged(service, "world reset at")

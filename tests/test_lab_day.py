@@ -18,7 +18,16 @@ from typing import Any
 import httpx
 import pytest
 
-from benchmarks.service import CHILDREN, RunningService, running_service
+from benchmarks.service import (
+    CHILDREN,
+    RunningService,
+    in_mode,
+    notices,
+    position_m,
+    running_service,
+)
+from supervisor.flight.modes import Mode
+from supervisor.flight.status import Status
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_service import hovers_within_5_cm
 
@@ -52,14 +61,14 @@ async def take_off_at_once(http: httpx.AsyncClient) -> None:
     assert response.json()["outcome"]["reached"]
 
 
-async def disarmed(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+async def disarmed(service: RunningService, http: httpx.AsyncClient) -> Status:
     """Wait until landed and disarmed; no status on the way says disarmed while a vehicle
     says it is armed (landed, it says ``disarming`` until every vehicle is heard disarmed)."""
 
-    def down(status: dict[str, Any]) -> bool:
-        if status["mode"] == "disarmed":
-            assert status["armed"] == [False, False], status["armed"]
-        return bool(status["mode"] == "disarmed")
+    def down(status: Status) -> bool:
+        if status.mode is Mode.DISARMED:
+            assert not any(status.armed), status.armed
+        return status.mode is Mode.DISARMED
 
     return await service.wait_for(http, down, DISARMED_WITHIN_S, "landed and disarmed")
 
@@ -78,19 +87,19 @@ async def test_land_abort_land_in_a_row_with_nothing_moved(tmp_path: Path) -> No
             assert ready["mode"] == "disarmed"
             await take_off_at_once(http)
             status = await service.status(http)
-            assert status["mode"] == "hover", status["notices"][-1:]
+            assert status.mode is Mode.HOVER, notices(status)[-1:]
             if flight == 0:
                 await hovers_within_5_cm(service, http)
             if ending == "abort":
                 away = {"bar_position": [1.0, 0.0, 1.2], "hold_s": 5.0}
                 assert (await http.post("/api/setpoints", json=away)).status_code == 200
-                await service.wait_for(http, lambda s: s["mode"] == "tracking", 10.0, "tracking")
+                await service.wait_for(http, in_mode(Mode.TRACKING), 10.0, "tracking")
             answer = await http.post(f"/api/{ending}")
             assert answer.status_code == 200 and answer.json()["mode"] in ("landing", "abort")
             status = await disarmed(service, http)
-            assert status["bar"]["position"][2] < 0.05
-            assert all(uav["position"][2] < 0.15 for uav in status["uavs"])
-            assert status["setpoints"] == {"active": None, "queued": []}
+            assert position_m(status.bar.position)[2] < 0.05
+            assert all(position_m(uav.position)[2] < 0.15 for uav in status.uavs)
+            assert status.setpoints.active is None and not status.setpoints.queued
         await stop_as_systemd_does(service)
     said = "\n".join(service.output)
     assert said.rstrip().endswith("stopped")
@@ -153,24 +162,24 @@ async def test_a_log_disk_that_fills_in_flight_stops_the_log_not_the_flight(
         service.client() as http,
     ):
         await service.take_off(http)
-        pids = {name: p["pid"] for name, p in (await service.status(http))["processes"].items()}
+        pids = {name: p.pid for name, p in (await service.status(http)).processes.items()}
         status = await service.wait_for(
-            http, lambda s: s["log_stopped"] is not None, 60.0, "the log to stop"
+            http, lambda s: s.log_stopped is not None, 60.0, "the log to stop"
         )
-        assert status["log_stopped"].startswith("log disk full"), status["log_stopped"]
-        assert status["log"] is None
-        assert any(n["message"].startswith("log: log disk full") for n in status["notices"])
+        assert str(status.log_stopped).startswith("log disk full"), status.log_stopped
+        assert status.log is None
+        assert any(said.startswith("log: log disk full") for said in notices(status))
         await asyncio.sleep(3.0)  # the hover goes on without its log
         status = await service.status(http)
-        assert status["mode"] == "hover" and status["mocap"]["healthy"], status["notices"]
-        after = {name: p["pid"] for name, p in status["processes"].items()}
+        assert status.mode is Mode.HOVER and status.mocap.healthy, notices(status)
+        after = {name: p.pid for name, p in status.processes.items()}
         assert after == pids  # no process died or restarted
         landed = await http.post("/api/land?wait_s=90", timeout=100.0)
         assert landed.status_code == 200, landed.text
         blocked = await service.wait_for(
-            http, lambda s: "MB free" in (s["arm_blocked_by"] or ""), 10.0, "arming blocked"
+            http, lambda s: "MB free" in (s.arm_blocked_by or ""), 10.0, "arming blocked"
         )
-        assert "MB free (at least 0.1 MB" in blocked["arm_blocked_by"]
+        assert "MB free (at least 0.1 MB" in str(blocked.arm_blocked_by)
         refused = await http.post("/api/arm")
         assert refused.status_code == 409 and "MB free" in refused.text
     said = "\n".join(service.output)

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from benchmarks.service import running_service
+from benchmarks.service import all_disarmed, in_mode, running_service
 from benchmarks.tick import world_truth
 from supervisor.app.assembly import (
     body_names_from_config,
@@ -28,7 +28,7 @@ from supervisor.app.config_files import DEFAULT_SETUP
 from supervisor.cli.output import format_status
 from supervisor.flight.modes import Mode
 from supervisor.flight.safety import Response, SafetyLimits
-from supervisor.logs.flight_log import LOG_LAYOUT, read_flight_log
+from supervisor.logs.flight_log import read_flight_log
 from supervisor.logs.mocap_replay import check_flight, describe, flight_recording
 from tests.test_fault_responses import TICK_MS
 from tests.test_faults_e2e import fault
@@ -60,17 +60,17 @@ async def test_a_lost_frozen_or_jumping_mocap_hands_over_to_px4_at_its_limit(
         await asyncio.sleep(2.0)  # a stable hover
         await fault(http, kind=kind, duration_s=1.0, **fields)
         status = await service.wait_for(
-            http, lambda s: s["mode"] == "px4_landing", 5.0, "the hand-over to PX4"
+            http, in_mode(Mode.PX4_LANDING), 5.0, "the hand-over to PX4"
         )
-        assert not status["streaming"]
-        message = status["notices"][-1]["message"]
+        assert not status.streaming
+        message = status.notices[-1].message
         assert re.search(said, message) and "each PX4 lands on its own" in message, message
-        refused: dict[str, Any] = status["mocap"]["refused"]
+        refused = status.mocap.refused
         shown = format_status(status)  # what `uavbar-supervisor status` prints
         status = await service.wait_for(
-            http, lambda s: s["mode"] == "disarmed", 60.0, "landed and disarmed by PX4"
+            http, in_mode(Mode.DISARMED), 60.0, "landed and disarmed by PX4"
         )
-        assert status["armed"] == [False, False]
+        assert all_disarmed(status)
     if kind == "mocap_freeze":
         assert refused["repeated"] >= 3 * SafetyLimits().max_refused_poses, refused
         assert "refused:" in shown and f"repeated {refused['repeated']}" in shown, shown
@@ -89,8 +89,8 @@ async def test_a_lost_frozen_or_jumping_mocap_hands_over_to_px4_at_its_limit(
     # No refused pose reached the estimate the MPC flew on: from the hover to the hand-over,
     # no tick-to-tick step of a UAV beyond what 20 ms of hovering allow (a jump is 1 m).
     hovering = [k for k in range(handed + 1) if log.modes[k] == "hover" or k == handed]
-    for i in LOG_LAYOUT.vehicles:
-        positions = LOG_LAYOUT.uav_position(log.state[hovering].T, i).T
+    for i in log.layout.vehicles:
+        positions = log.layout.uav_position(log.state[hovering].T, i).T
         steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
         assert np.max(steps) < 0.02, (i, np.max(steps))
     truth = world_truth(service.output)

@@ -11,12 +11,14 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import pytest
 
-from benchmarks.service import running_service
+from benchmarks.service import all_disarmed, in_mode, notices, position_m, running_service
 from benchmarks.tick import world_truth
+from supervisor.flight.modes import Mode
+from supervisor.flight.phases import Phase
+from supervisor.flight.status import Status
 from tests.test_service import TOKEN, reached
 
 pytestmark = pytest.mark.slow
@@ -68,13 +70,13 @@ async def test_abort_reaches_the_flight_process_without_the_api_and_a_killed_api
         # New connections wait in serve's backlog for the new API process.
         async with service.client() as http:
             status = await service.wait_for(
-                http, lambda s: s["processes"]["api"]["restarts"] == 1, 30.0, "the API back"
+                http, lambda s: s.processes["api"].restarts == 1, 30.0, "the API back"
             )
             back_s = time.monotonic() - killed
             assert back_s <= API_BACK_S, back_s
-            assert status["processes"]["api"]["pid"] == service.child_pid("uavbar-api") != api
-            assert status["mode"] in ("abort", "disarming", "disarmed"), status["mode"]
-            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
+            assert status.processes["api"].pid == service.child_pid("uavbar-api") != api
+            assert status.mode in (Mode.ABORT, Mode.DISARMING, Mode.DISARMED), status.mode
+            await service.wait_for(http, in_mode(Mode.DISARMED), 60.0, "landed")
     assert any("the api process died (killed by SIGKILL)" in line for line in service.output)
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth
@@ -98,40 +100,40 @@ async def test_a_killed_flight_process_leaves_the_vehicles_to_px4_and_arming_wai
         await asyncio.sleep(2.0)
         os.kill(service.child_pid("uavbar-flight"), signal.SIGKILL)
 
-        def back_never_saying_ground(s: dict[str, Any]) -> bool:
-            assert s["mode"] != "disarmed" and s["phase"] != "ground", (s["mode"], s["armed"])
+        def back_never_saying_ground(s: Status) -> bool:
+            assert s.mode is not Mode.DISARMED and s.phase is not Phase.GROUND, (s.mode, s.armed)
             return (
-                s["processes"]["flight"]["restarts"] == 1
-                and not s["stale"]
-                and all(u["px4_mode"] != "unknown" for u in s["uavs"])  # a heartbeat heard
+                s.processes["flight"].restarts == 1
+                and not s.stale
+                and all(u.px4_mode != "unknown" for u in s.uavs)  # a heartbeat heard
             )
 
         status = await service.wait_for(
             http, back_never_saying_ground, 30.0, "the flight process back"
         )
-        said = " ".join(n["message"] for n in status["notices"])
+        said = " ".join(notices(status))
         assert "the flight process died (killed by SIGKILL)" in said, said
         refusals = 0
-        while status["mode"] != "disarmed":
+        while status.mode is not Mode.DISARMED:
             # Never safer than the truth: PX4's, until both are heard disarmed.
-            assert status["mode"] == "px4_landing" and status["phase"] == "px4", status
-            assert not status["streaming"]  # it flies nothing
-            assert status["arm_blocked_by"], status
+            assert status.mode is Mode.PX4_LANDING and status.phase is Phase.PX4, status
+            assert not status.streaming  # it flies nothing
+            assert status.arm_blocked_by, status
             refused = await http.post("/api/arm")
             if refused.status_code == 200:
                 break  # both heard disarmed between the status read and the request
             assert refused.status_code == 409, refused.text
-            assert "wait until both PX4s have landed and disarmed" in refused.text, refused.text
+            assert "wait until every PX4 has landed and disarmed" in refused.text, refused.text
             refusals += 1
             await asyncio.sleep(0.2)
             status = await service.status(http)
         else:
-            assert status["armed"] == [False, False], status
-            assert all(u["connected"] for u in status["uavs"]), status["uavs"]
+            assert all_disarmed(status), status
+            assert all(u.connected for u in status.uavs), status.uavs
             assert (await http.post("/api/arm")).status_code == 200
         assert refusals > 0, "the vehicles had disarmed before the flight process was back"
         status = await service.status(http)
-        assert all(u["position"][2] < 0.2 for u in status["uavs"]), status["uavs"]
+        assert all(position_m(u.position)[2] < 0.2 for u in status.uavs), status.uavs
         assert (await http.post("/api/disarm")).status_code == 200
     truth = world_truth(service.output)
     assert truth["max_uav_tilt_deg"] < 30.0, truth

@@ -14,19 +14,20 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import httpx
 import numpy as np
 import pytest
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import RunningService, all_disarmed, in_mode, notices, running_service
 from benchmarks.tick import world_truth
 from geometry.frames import rotation_from_quaternion
 from mocap.client import QtmClient
 from px4_mavlink.codec import MavlinkCodec
 from px4_mavlink.events import EventCatalog
 from sim.px4_firmware import OFFBOARD_LOCAL_PORT, resolve_px4_dir
+from supervisor.flight.modes import Mode
+from supervisor.flight.status import Status
 from supervisor.mavlink.parameters import MAV_PARAM_TYPE_INT32, encode_param_value
 from supervisor.mavlink.session import px4_mode_name
 from tests.test_service import TOKEN, ready, require_px4
@@ -94,7 +95,7 @@ async def watch_px4s(catalog: EventCatalog, watches: dict[int, Px4Watch], until:
 
 async def freeze_flight_process(
     service: RunningService, http: httpx.AsyncClient, freeze_s: float
-) -> dict[str, Any]:
+) -> Status:
     """SIGSTOP the flight process for ``freeze_s``, then: below PX4's offboard-loss timeout
     the hover goes on streaming (then a landing is asked for); beyond it the system is
     handed to PX4 and streams nothing. The status that showed it."""
@@ -105,13 +106,13 @@ async def freeze_flight_process(
     if freeze_s < OFFBOARD_LOSS_TIMEOUT_S:
         await asyncio.sleep(3.0)
         status = await service.status(http)
-        assert status["mode"] == "hover" and status["streaming"], status["notices"]
+        assert status.mode is Mode.HOVER and status.streaming, status.notices
         assert (await http.post("/api/land")).status_code == 200
         return status
     status = await service.wait_for(
-        http, lambda s: s["mode"] in ("px4_landing", "disarmed"), 5.0, "handed over"
+        http, in_mode(Mode.PX4_LANDING, Mode.DISARMED), 5.0, "handed over"
     )
-    assert not status["streaming"]
+    assert not status.streaming
     return status
 
 
@@ -169,8 +170,8 @@ async def test_killed_flight_process_px4_lands_the_bar_itself(tmp_path: Path) ->
         assert "AUTO.LAND" in {mode for _, mode in watch.modes}, (i, watch.modes)
     assert landed_at is not None, "the UAVs did not land within 25 s"
     assert worst_tilt < 30.0, (worst_tilt, worst_at, world_truth(service.output))
-    assert status["processes"]["flight"]["restarts"] == 1
-    said = " ".join(n["message"] for n in status["notices"])
+    assert status.processes["flight"].restarts == 1
+    said = " ".join(notices(status))
     assert "the flight process died (killed by SIGKILL)" in said, said
 
 
@@ -196,7 +197,7 @@ async def test_a_frozen_flight_process_on_real_px4_never_flips_a_uav(
         await asyncio.sleep(1.0)
         stopped = time.monotonic()
         await freeze_flight_process(service, http, freeze_s)
-        await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
+        await service.wait_for(http, in_mode(Mode.DISARMED), 60.0, "landed")
         listener.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await listener
@@ -239,13 +240,13 @@ async def test_a_refused_arm_carries_px4s_own_reason(tmp_path: Path) -> None:
         await ready(service, http)
         await require_gps_for_arming(service)
         response = await http.post("/api/arm")
-        status = await service.wait_for(http, lambda s: bool(s["notices"]), 5.0, "a notice")
+        status = await service.wait_for(http, lambda s: bool(s.notices), 5.0, "a notice")
     assert response.status_code == 409, response.text
     reason = response.json()["detail"]
     assert PX4_REFUSAL.search(reason), reason
-    notices = " ".join(n["message"] for n in status["notices"])
-    assert "arming refused" in notices and PX4_REFUSAL.search(notices), notices
-    assert status["armed"] == [False, False]
+    said = " ".join(notices(status))
+    assert "arming refused" in said and PX4_REFUSAL.search(said), said
+    assert all_disarmed(status)
 
 
 # "Arming denied: …" (its EVENT) and "Preflight Fail: …" (its text) are PX4's words, never

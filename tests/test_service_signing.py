@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.service import RunningService, running_service
+from benchmarks.service import RunningService, all_disarmed, in_mode, position_m, running_service
 from px4_mavlink.codec import MavlinkCodec
 from supervisor.cli.main import main
+from supervisor.flight.modes import Mode
 
 TOKEN = "e2e-token-0123456789"
 FORCE_DISARM = 21196
@@ -80,12 +81,10 @@ async def test_a_signed_flight_and_an_unsigned_kill_refused(tmp_path: Path) -> N
             sender.close()
         await asyncio.sleep(1.0)
         status = await service.status(http)
-        assert status["armed"] == [True, True] and status["mode"] == "hover"
-        for uav in status["uavs"]:  # unsigned: each PX4's telemetry before it had the key
-            assert uav["link_refused"]["unsigned"] > 0 and uav["link_refused"]["bad_signature"] == 0
+        assert all(status.armed) and status.mode is Mode.HOVER
+        for uav in status.uavs:  # unsigned: each PX4's telemetry before it had the key
+            assert uav.link_refused["unsigned"] > 0 and uav.link_refused["bad_signature"] == 0
         assert (await http.post("/api/land")).status_code == 200
-        status = await service.wait_for(http, lambda s: s["mode"] == "disarmed", 90.0, "landed")
-        status = await service.wait_for(
-            http, lambda s: s["armed"] == [False, False], 10.0, "vehicles disarmed"
-        )
-        assert all(uav["position"][2] < 0.15 for uav in status["uavs"])
+        status = await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "landed")
+        status = await service.wait_for(http, all_disarmed, 10.0, "vehicles disarmed")
+        assert all(position_m(uav.position)[2] < 0.15 for uav in status.uavs)

@@ -21,8 +21,10 @@ const state = {
   lastCheckAt: 0, silentMs: 0, renderPending: false,
 };
 // [page time s, value] for the last PLOT_SECONDS; null breaks the line (no live data).
-const plots = { error: [], solve: [], battery1: [], battery2: [] };
-const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", uav2: "#c58bff", ref: "#9be39b", grid: "#2a333c", edge: "#5c6a78", muted: "#8c98a4", text: "#e6e9ec" };
+const plots = { error: [], solve: [], battery: [[], []] };  // battery: one series per UAV
+const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", ref: "#9be39b", grid: "#2a333c", edge: "#5c6a78", muted: "#8c98a4", text: "#e6e9ec" };
+// Each UAV's line in the battery plot, UAV 1's first.
+const UAV_COLOURS = ["#4ea1ff", "#c58bff", "#5fd3c6", "#f27a8f", "#e0d25a", "#9fb7ff", "#ff9f5a", "#7be07b"];
 const tickHistory = [];  // [page time s, tick count, missed deadlines], the last TICK_WINDOW_S
 
 // What each mode that is not normal flight means, in words; level "bad" or "warn".
@@ -241,8 +243,8 @@ function markStale(stale) {
   document.body.classList.toggle("stale", stale);
   document.getElementById("stale-note").textContent = stale ? "STALE: no live data" : "";
   if (stale) {
-    for (const id of ["lamp-mocap", "lamp-uav1", "lamp-uav2", "lamp-tick"]) {
-      lamp(id, "unknown", "no live data: the telemetry stream is not arriving");
+    for (const element of document.querySelectorAll(".lamps .lamp")) {
+      lamp(element.id, "unknown", "no live data: the telemetry stream is not arriving");
     }
     tickHistory.length = 0;
   }
@@ -268,7 +270,7 @@ function watchStaleness() {
   if (state.stale) {
     renderBanner();  // the age of what is shown keeps counting
     const now = performance.now() / 1000;
-    for (const series of Object.values(plots)) pushHistory(series, now, null);
+    for (const series of [plots.error, plots.solve, ...plots.battery]) pushHistory(series, now, null);
     drawPlots(now);
   }
 }
@@ -291,6 +293,39 @@ function replaceItems(id, items) {
   if (list.dataset.key === key) return;
   list.dataset.key = key;
   list.replaceChildren(...items);
+}
+
+// The page is written for two UAVs (the paper's); a status that lists more adds each one's
+// lamp, column in the vehicles table, yaw field and battery line, made from UAV 2's.
+function ensureVehicles(count) {
+  for (let n = 3; n <= count; n += 1) {
+    if (document.getElementById(`lamp-uav${n}`)) continue;
+    const renamed = (element) => {
+      const copy = element.cloneNode(true);
+      for (const node of [copy, ...copy.querySelectorAll("*")]) {
+        for (const attribute of ["id", "data-testid", "name", "class"]) {
+          const value = node.getAttribute(attribute);
+          if (value) node.setAttribute(attribute, value.replace("uav2", `uav${n}`).replace("link2", `link${n}`));
+        }
+      }
+      return copy;
+    };
+    const previousLamp = document.getElementById(`lamp-uav${n - 1}`);
+    const newLamp = renamed(document.getElementById("lamp-uav2"));
+    newLamp.textContent = `UAV ${n}`;
+    newLamp.title = `vehicle ${n} link: no data yet`;
+    previousLamp.after(newLamp);
+    for (const row of document.querySelectorAll("table.vehicles tr")) {
+      const uav2Cell = row.children[2];  // every new column is a copy of UAV 2's
+      const added = uav2Cell.tagName === "TH" ? document.createElement("th") : renamed(uav2Cell);
+      if (uav2Cell.tagName === "TH") added.textContent = `UAV ${n}`;
+      else added.textContent = "–";
+      row.appendChild(added);
+    }
+    const previousYaw = document.querySelector(`#setpoint-form input[name="uav${n - 1}"]`);
+    previousYaw.after(" ", renamed(document.querySelector('#setpoint-form input[name="uav2"]')));
+    plots.battery.push([]);
+  }
 }
 
 function lamp(id, level, title) {
@@ -504,6 +539,7 @@ function render(t) {
   renderNotices(t.notices || []);
   renderWorldStalls(t.world);
   renderBanner();
+  ensureVehicles(t.uavs.length);
   lamp("lamp-mocap", ...mocapLamp(t.mocap));
   t.uavs.forEach((uav, i) => lamp(`lamp-uav${i + 1}`, ...uavLamp(uav, i + 1)));
   const tick = t.tick || {};
@@ -537,7 +573,7 @@ function render(t) {
   const now = performance.now() / 1000;
   pushHistory(plots.error, now, t.bar.error_m);
   pushHistory(plots.solve, now, t.plan ? t.plan.solve_ms : null);
-  t.uavs.forEach((uav, i) => pushHistory(plots[`battery${i + 1}`], now, uav.connected ? uav.battery_v : null));
+  t.uavs.forEach((uav, i) => pushHistory(plots.battery[i], now, uav.connected ? uav.battery_v : null));
   drawViews(t);
   drawPlots(now);
 }
@@ -545,10 +581,9 @@ function render(t) {
 function drawPlots(now) {
   drawPlot("error-plot", [{ points: plots.error, colour: COLOURS.uav }], now, "m", true);
   drawPlot("solve-plot", [{ points: plots.solve, colour: COLOURS.uav }], now, "ms", true);
-  drawPlot("battery-plot", [
-    { points: plots.battery1, colour: COLOURS.uav, label: "UAV 1" },
-    { points: plots.battery2, colour: COLOURS.uav2, label: "UAV 2" },
-  ], now, "V", false);
+  drawPlot("battery-plot", plots.battery.map((points, i) => (
+    { points, colour: UAV_COLOURS[i % UAV_COLOURS.length], label: `UAV ${i + 1}` }
+  )), now, "V", false);
 }
 
 function greyed(selector, stale) {
@@ -718,7 +753,7 @@ function drawView(id, t, arena, a, b) {
   if (reference) {
     g.setLineDash([5, 4]);
     g.strokeStyle = "#9be39b";
-    line(g, px, reference.bar_ends);
+    line(g, px, outline(reference.bar_ends));
     reference.uav_positions.forEach((uav, i) => {
       dot(g, px(uav), 6, null, "#9be39b");
       line(g, px, [uav, reference.bar_ends[i]]);
@@ -729,7 +764,7 @@ function drawView(id, t, arena, a, b) {
   if (ends && ends.every((e) => e.every((v) => v !== null))) {
     g.lineWidth = 4;
     g.strokeStyle = "#f0a030";
-    line(g, px, ends);
+    line(g, px, outline(ends));
     g.lineWidth = 1;
     t.uavs.forEach((uav, i) => {
       if (uav.position.some((v) => v === null)) return;
@@ -742,6 +777,9 @@ function drawView(id, t, arena, a, b) {
     });
   }
 }
+
+// A payload's outline: the bar's two ends, or the closed polygon of three or more.
+const outline = (ends) => (ends.length > 2 ? [...ends, ends[0]] : ends);
 
 function line(g, px, points) {
   g.beginPath();
@@ -766,9 +804,8 @@ function setpointFromForm(form) {
     theta_l: radians(v("theta_l")),
     hold_s: Number(v("hold")),
   };
-  if (v("uav1") !== "" || v("uav2") !== "") {
-    body.uav_yaw = [radians(v("uav1") || v("yaw")), radians(v("uav2") || v("yaw"))];
-  }
+  const uavYaws = [...form.querySelectorAll('input[name^="uav"]')].map((input) => input.value);
+  if (uavYaws.some((yaw) => yaw !== "")) body.uav_yaw = uavYaws.map((yaw) => radians(yaw || v("yaw")));
   return body;
 }
 

@@ -87,24 +87,49 @@ function arenaObjects(arena) {
   return group;
 }
 
-// A line whose two ends are moved every message.
+// A line through points moved every message (a cable: two; a plate's outline: N + 1).
+const MAX_LINE_POINTS = 9;
+
 function movingLine(colour, dashed = false) {
   const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute("position", new THREE.Float32BufferAttribute(new Float32Array(6), 3));
+  geometry.setAttribute("position", new THREE.Float32BufferAttribute(new Float32Array(3 * MAX_LINE_POINTS), 3));
   const material = dashed
     ? new THREE.LineDashedMaterial({ color: colour, dashSize: 0.08, gapSize: 0.06 })
     : new THREE.LineBasicMaterial({ color: colour });
   const line = new THREE.Line(geometry, material);
   line.frustumCulled = false;
-  line.place = (a, b) => {
+  line.place = (...points) => {
     const position = geometry.attributes.position;
-    position.setXYZ(0, ...a);
-    position.setXYZ(1, ...b);
+    points.forEach((point, i) => position.setXYZ(i, ...point));
+    geometry.setDrawRange(0, points.length);
     position.needsUpdate = true;
     if (dashed) line.computeLineDistances();
     line.visible = true;
   };
   return line;
+}
+
+// A payload that is not a bar: the polygon through its attachments, a fan of triangles
+// from their centroid, moved every message.
+function movingPlate(colour) {
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute("position", new THREE.Float32BufferAttribute(new Float32Array(9 * MAX_LINE_POINTS), 3));
+  const material = new THREE.MeshBasicMaterial({ color: colour, side: THREE.DoubleSide, transparent: true, opacity: 0.8 });
+  const plate = new THREE.Mesh(geometry, material);
+  plate.frustumCulled = false;
+  plate.place = (corners) => {
+    const centre = corners.reduce((sum, c) => sum.map((v, k) => v + c[k] / corners.length), [0, 0, 0]);
+    const position = geometry.attributes.position;
+    corners.forEach((corner, i) => {
+      const next = corners[(i + 1) % corners.length];
+      [centre, corner, next].forEach((point, k) => position.setXYZ(3 * i + k, ...point));
+    });
+    geometry.setDrawRange(0, 3 * corners.length);
+    position.needsUpdate = true;
+    plate.visible = true;
+    return centre;
+  };
+  return plate;
 }
 
 const known = (p) => Array.isArray(p) && p.every((v) => v !== null && v !== undefined);
@@ -130,22 +155,29 @@ function start() {
   let fitPoints = [];  // what must be in sight at zoom 1: the arena and its labels [m]
 
   const bar = new THREE.Mesh(new THREE.CylinderGeometry(0.04, 0.04, 1, 16), new THREE.MeshBasicMaterial({ color: COLOURS.bar }));
-  const drop = movingLine(COLOURS.box, true);  // from the bar's middle to the floor: its height
-  const uavs = [1, 2].map((n) => {
-    const body = new THREE.Mesh(new THREE.SphereGeometry(0.09, 20, 12), new THREE.MeshBasicMaterial({ color: COLOURS.uav }));
-    const tag = label(`UAV ${n}`, "#e6e9ec", 0.24);
-    body.add(tag);
-    tag.position.set(0, 0, 0.28);
-    return body;
-  });
-  const cables = [movingLine(COLOURS.cable), movingLine(COLOURS.cable)];
-  const reference = {
-    bar: movingLine(COLOURS.ref, true),
-    cables: [movingLine(COLOURS.ref, true), movingLine(COLOURS.ref, true)],
-    uavs: [1, 2].map(() => new THREE.Mesh(new THREE.SphereGeometry(0.13, 10, 6),
-      new THREE.MeshBasicMaterial({ color: COLOURS.ref, wireframe: true, transparent: true, opacity: 0.35 }))),
-  };
-  scene.add(bar, drop, ...uavs, ...cables, reference.bar, ...reference.cables, ...reference.uavs);
+  const plate = movingPlate(COLOURS.bar);  // a payload of three or more attachments
+  const drop = movingLine(COLOURS.box, true);  // from the payload's middle to the floor: its height
+  const uavs = [], cables = [];
+  const reference = { bar: movingLine(COLOURS.ref, true), cables: [], uavs: [] };
+  scene.add(bar, plate, drop, reference.bar);
+
+  // One sphere, cable and reference ghost per UAV the status lists (two until it says).
+  function ensureVehicles(count) {
+    while (uavs.length < count) {
+      const body = new THREE.Mesh(new THREE.SphereGeometry(0.09, 20, 12), new THREE.MeshBasicMaterial({ color: COLOURS.uav }));
+      const tag = label(`UAV ${uavs.length + 1}`, "#e6e9ec", 0.24);
+      body.add(tag);
+      tag.position.set(0, 0, 0.28);
+      const ghost = new THREE.Mesh(new THREE.SphereGeometry(0.13, 10, 6),
+        new THREE.MeshBasicMaterial({ color: COLOURS.ref, wireframe: true, transparent: true, opacity: 0.35 }));
+      const cable = movingLine(COLOURS.cable), referenceCable = movingLine(COLOURS.ref, true);
+      for (const object of [body, ghost, cable, referenceCable]) object.visible = false;
+      uavs.push(body); cables.push(cable);
+      reference.uavs.push(ghost); reference.cables.push(referenceCable);
+      scene.add(body, cable, ghost, referenceCable);
+    }
+  }
+  ensureVehicles(2);
   let arenaKey = "", arenaGroup = null, floorZ = 0;
   let visible = true, pending = false, renders = 0;
 
@@ -238,16 +270,22 @@ function start() {
 
   function place(t) {
     setArena(t.arena || { min: [-3, -3, 0], max: [3, 3, 3] });
+    ensureVehicles(t.uavs.length);
     const ends = t.bar.ends;
     const barKnown = known(ends) && ends.every(known);
-    bar.visible = drop.visible = barKnown;
-    if (barKnown) {
+    bar.visible = barKnown && ends.length === 2;
+    plate.visible = barKnown && ends.length > 2;
+    drop.visible = barKnown;
+    if (bar.visible) {
       const [a, b] = ends.map((e) => new THREE.Vector3(...e));
       const along = new THREE.Vector3().subVectors(b, a);
       bar.position.addVectors(a, b).multiplyScalar(0.5);
       bar.scale.set(1, along.length(), 1);
       bar.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), along.normalize());
       drop.place(bar.position.toArray(), [bar.position.x, bar.position.y, floorZ]);
+    } else if (plate.visible) {
+      const centre = plate.place(ends);
+      drop.place(centre, [centre[0], centre[1], floorZ]);
     }
     t.uavs.forEach((uav, i) => {
       const shown = known(uav.position);
@@ -258,7 +296,7 @@ function start() {
       uavs[i].material.color.set(uav.connected ? COLOURS.uav : COLOURS.cable);  // grey: link lost
     });
     const r = t.reference;
-    const referenceKnown = r && known(r.bar_ends[0]) && known(r.bar_ends[1]);
+    const referenceKnown = r && r.bar_ends.every(known);
     reference.bar.visible = Boolean(referenceKnown);
     reference.uavs.forEach((ghost, i) => {
       const shown = referenceKnown && known(r.uav_positions[i]);
@@ -268,7 +306,11 @@ function start() {
         reference.cables[i].place(r.uav_positions[i], r.bar_ends[i]);
       }
     });
-    if (referenceKnown) reference.bar.place(r.bar_ends[0], r.bar_ends[1]);
+    // The reference payload: the bar's axis, or the closed outline of the attachments.
+    if (referenceKnown) {
+      const outline = r.bar_ends.length > 2 ? [...r.bar_ends, r.bar_ends[0]] : r.bar_ends;
+      reference.bar.place(...outline);
+    }
     redrawForTelemetry();
   }
 

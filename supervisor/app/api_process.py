@@ -12,7 +12,6 @@ import socket
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
 
 from api.app import create_app
 from api.foxglove_gateway import FoxgloveGateway
@@ -21,6 +20,7 @@ from api.server import HttpServer, TlsFiles
 from supervisor.app.child_process import stop_event
 from supervisor.app.config import Config
 from supervisor.flight.setpoints import Arena
+from supervisor.flight.status import ProcessStatus
 from supervisor.ipc.channel import ChannelClosedError, WorldChannel
 from supervisor.ipc.client import FlightClient
 from supervisor.ipc.rendezvous import Rendezvous
@@ -58,7 +58,7 @@ class ProcessTable:
 
     def __init__(self, pipe: Connection) -> None:
         self._pipe = pipe
-        self.table: dict[str, dict[str, Any]] = {}
+        self.table: dict[str, ProcessStatus] = {}
         self.go = asyncio.Event()
 
     def receive(self) -> None:
@@ -72,7 +72,7 @@ class ProcessTable:
         except (EOFError, OSError):  # serve is gone: the lifeline stops this process
             asyncio.get_running_loop().remove_reader(self._pipe.fileno())
 
-    def current(self) -> dict[str, dict[str, Any]]:
+    def current(self) -> dict[str, ProcessStatus]:
         return dict(self.table)
 
 
@@ -160,8 +160,8 @@ async def _foxglove_gateway(
     host, port = config.foxglove.bind_host(config.api.host), config.foxglove.port
 
     def sdk_port() -> int | None:
-        view = (flight.latest or {}).get("live_view")
-        return int(view["sdk_port"]) if isinstance(view, dict) else None
+        view = flight.latest.live_view if flight.latest is not None else None
+        return view.sdk_port if view is not None else None
 
     gateway = FoxgloveGateway(sdk_port, api_policy(config, token))
     try:

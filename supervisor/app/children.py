@@ -20,7 +20,6 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.process import BaseProcess
-from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -87,15 +86,6 @@ class Child:
     @property
     def alive(self) -> bool:
         return self.process is not None and self.process.is_alive()
-
-    def view(self) -> dict[str, Any]:
-        pid = self.process.pid if self.process is not None else None
-        return {
-            "pid": pid,
-            "alive": self.alive,
-            "restarts": self.restarts,
-            "last_exit": self.last_exit,
-        }
 
     def _ended(self) -> None:
         assert self.process is not None

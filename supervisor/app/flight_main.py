@@ -1,4 +1,4 @@
-"""The flight process's entry point: connect mocap and both vehicles as configured (or to
+"""The flight process's entry point: connect mocap and every vehicle as configured (or to
 the embedded world's addresses), then run ``FlightProcess`` until SIGTERM or ``serve``
 going away (each of which lands first). A restarted flight process says why it was
 restarted (a notice) and flies nothing until the operator arms it again."""
@@ -123,8 +123,8 @@ def _live_view(config: Config, token: str) -> FoxgloveLiveView | None:
     if not config.foxglove.enabled:
         return None
     try:
-        arms_m = config.system.to_params().bar_arms_m
-        view = FoxgloveLiveView("127.0.0.1", 0, arms_m, view_keys(token))
+        attachments_m = config.system.to_params().payload.attachments_m
+        view = FoxgloveLiveView("127.0.0.1", 0, attachments_m, view_keys(token))
     except RuntimeError as error:
         log.warning("Foxglove view off: cannot serve on loopback (%s)", error)
         return None

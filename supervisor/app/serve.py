@@ -43,6 +43,7 @@ from supervisor.app.config import TOKEN_ENV, Config, ConfigError
 from supervisor.app.flight_main import FlightStart
 from supervisor.app.relay_main import relay_addresses
 from supervisor.app.signing_keys import load_signing_keys, signing_keys_path
+from supervisor.flight.status import ProcessStatus
 from supervisor.ipc.rendezvous import Rendezvous, listen_unix, write_discovery
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
 
@@ -137,6 +138,14 @@ def _start_world(
     return process, parent, addresses
 
 
+def _process_status(child: Child) -> ProcessStatus:
+    """One child as the status shows it."""
+    pid = child.process.pid if child.process is not None else None
+    return ProcessStatus(
+        pid=pid, alive=child.alive, restarts=child.restarts, last_exit=child.last_exit
+    )
+
+
 class Service:
     """``serve``'s processes and what they share."""
 
@@ -162,10 +171,10 @@ class Service:
     def port(self) -> int:
         return int(self.http_socket.getsockname()[1])
 
-    def process_table(self) -> dict[str, dict[str, Any]]:
+    def process_table(self) -> dict[str, ProcessStatus]:
         """Name → PID, alive and restarts, for the status (a child never started is left
         out)."""
-        return {name: child.view() for name, child in self.children.items()}
+        return {name: _process_status(child) for name, child in self.children.items()}
 
     def publish_table(self, *_: Any) -> None:
         if self._table_pipe is not None:

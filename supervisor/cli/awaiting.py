@@ -5,8 +5,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
-from supervisor.flight.outcomes import Goal, Outcome, Staleness, Status, judge
+from supervisor.flight.outcomes import Goal, Outcome, Staleness, judge
+
+if TYPE_CHECKING:  # parsed only once an answer comes (the client starts without pydantic)
+    from supervisor.flight.status import Status
 
 POLL_INTERVAL_S = 0.2
 

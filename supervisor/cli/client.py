@@ -19,7 +19,7 @@ import math
 import os
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from supervisor.app.config_files import TOKEN_ENV
 from supervisor.cli import awaiting
@@ -37,12 +37,15 @@ from supervisor.cli.rest_client import JsonClient, UnreachableError
 from supervisor.cli.usage import EXIT_REFUSED, EXIT_UNREACHABLE, UsageError
 from supervisor.flight import outcomes
 
+if TYPE_CHECKING:  # each command imports what it runs, when it runs it
+    from supervisor.flight.status import Status
+
 SIMPLE_REQUESTS = {
-    "arm": "arm both vehicles (PX4's refusal is printed)",
+    "arm": "arm every vehicle (PX4's refusal is printed)",
     "takeoff": "lift the bar to 1 m above its resting height and hover",
-    "land": "lower the bar, land both vehicles, disarm",
+    "land": "lower the payload, land every vehicle, disarm",
     "abort": "coordinated landing now, from any airborne mode (on the ground: disarm)",
-    "disarm": "disarm both vehicles on the ground",
+    "disarm": "disarm every vehicle on the ground",
 }
 URGENT_COMMANDS = ("abort", "kill")
 URGENT_HTTP_TIMEOUT_S = 0.3
@@ -51,6 +54,31 @@ HTTP_TIMEOUT_S = 10.0
 # metres takes under a minute, a setpoint travels and holds.
 WAIT_TIMEOUT_S = {"arm": 15.0, "takeoff": 60.0, "land": 120.0, "setpoint": 120.0, "mode": 10.0}
 CONTROLLERS = ("centralized", "decentralized")
+PROBLEMS_SHOWN = 3  # of a status that does not fit: the first few fields name the mismatch
+
+
+class MalformedStatusError(Exception):
+    """The service's status does not fit this client's schema (exit status 1)."""
+
+
+def _parse_status(body: Any) -> Status:
+    """``GET /api/status``'s answer as its model; raises ``MalformedStatusError`` naming the
+    fields that do not fit (missing, or a string where a number belongs)."""
+    from pydantic import ValidationError
+
+    from supervisor.flight.status import Status
+
+    try:
+        return Status.model_validate(body)
+    except ValidationError as error:
+        problems = error.errors(include_url=False)
+        shown = format_detail(problems[:PROBLEMS_SHOWN])
+        more = len(problems) - PROBLEMS_SHOWN
+        raise MalformedStatusError(
+            f"the service's status does not fit this client's ({shown}"
+            + (f"; {more} more" if more > 0 else "")
+            + "): is the service another version of uavbar-supervisor?"
+        ) from None
 
 
 def _token(args: argparse.Namespace) -> str | None:
@@ -169,14 +197,16 @@ def _goal(args: argparse.Namespace, body: Any) -> outcomes.Goal:
         return outcomes.landed
     if command == "mode":
         return outcomes.controller(args.controller)
-    return outcomes.setpoint_flown(body)
+    from supervisor.flight.operator_requests import SetpointFields
+
+    return outcomes.setpoint_flown(SetpointFields.model_validate(body))
 
 
 def _print_answer(args: argparse.Namespace, answer: Any) -> None:
     if args.json:
         print(json.dumps(answer))
     elif args.command == "status":
-        print(format_status(answer))
+        print(format_status(_parse_status(answer)))
     elif args.command in ("fault", "reset"):
         print(format_faults(answer))
     elif args.command == "setpoint" and "queued" in answer and isinstance(answer["queued"], list):
@@ -188,11 +218,11 @@ def _print_answer(args: argparse.Namespace, answer: Any) -> None:
 def _wait(client: JsonClient, args: argparse.Namespace, body: Any, sent_at_s: float) -> int:
     """Poll the status until the request's outcome is known; its exit status."""
 
-    def fetch() -> dict[str, Any]:
+    def fetch() -> Status:
         response = client.request("GET", "/api/status")
-        if response.status != 200 or not isinstance(response.body, dict):
+        if response.status != 200:
             raise UnreachableError(f"GET /api/status answered {response.status}")
-        return response.body
+        return _parse_status(response.body)
 
     timeout_s = args.timeout if args.timeout is not None else WAIT_TIMEOUT_S[args.command]
     outcome = awaiting.await_goal(_goal(args, body), fetch, sent_at_s, timeout_s)
@@ -242,13 +272,16 @@ def run_client(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return EXIT_REFUSED
-        if not waiting:
-            _print_answer(args, answer)
-            return 0
         try:
+            if not waiting:
+                _print_answer(args, answer)
+                return 0
             return _wait(client, args, body, sent_at_s)
         except UnreachableError as error:
             return _unreachable(address, f"while waiting: {error}")
+        except MalformedStatusError as error:
+            print(f"{args.command}: {error}", file=sys.stderr)
+            return EXIT_REFUSED
 
 
 def _add_client_options(parser: argparse.ArgumentParser) -> None:
@@ -326,7 +359,7 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
         if name in ("arm", "takeoff", "land"):
             _add_wait_options(parser, name)
         parsers.append(parser)
-    kill = command("kill", "force-disarm both vehicles at once: they fall")
+    kill = command("kill", "force-disarm every vehicle at once: they fall")
     kill.add_argument("--confirm", action="store_true", help="required: yes, kill")
     mode = command("mode", "switch the controller (bumpless in flight)")
     mode.add_argument("controller", choices=CONTROLLERS, help="the MPC to fly the bar")
@@ -391,7 +424,7 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
     fault.add_argument(
         "--offset-m", type=finite_float, nargs=3, metavar=("X", "Y", "Z"), help="metres"
     )
-    fault.add_argument("--vehicle", type=int, metavar="N", help="1 or 2")
+    fault.add_argument("--vehicle", type=int, metavar="N", help="1 … the number of UAVs")
     fault.add_argument("--fraction", type=finite_float, metavar="F", help="in [0, 1]")
     fault.add_argument(
         "--force-n",

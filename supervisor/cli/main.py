@@ -211,7 +211,11 @@ def _report(args: argparse.Namespace) -> int:
     for log in logs:
         if not len(log.t_s):
             raise UsageError(f"{log.path}: no tick logged (the flight never started): no report")
-    for path in write_report(logs, args.out):
+    try:
+        written = write_report(logs, args.out)
+    except ValueError as error:  # logs of two different formations
+        raise UsageError(str(error)) from error
+    for path in written:
         print(path)
     return 0
 
@@ -351,8 +355,8 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
     serve.set_defaults(handler=_serve)
     sitl = commands.add_parser(
         "sitl",
-        help="the simulated world alone, in real time: plant, two PX4s, a QTM server",
-        description="The simulated world alone, in real time: physics plant, two PX4s "
+        help="the simulated world alone, in real time: plant, a PX4 per UAV, a QTM server",
+        description="The simulated world alone, in real time: physics plant, a PX4 per UAV "
         "(MAVLink on UDP 14580+i to 14540+i), a QTM RT server on TCP 22223.",
     )
     sitl.set_defaults(handler=_sitl)

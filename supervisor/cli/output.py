@@ -4,8 +4,16 @@ operator reads, in metres, degrees and seconds."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+from supervisor.flight.modes import Mode
+
+if TYPE_CHECKING:  # the client parses the status only once it has one
+    from supervisor.flight.status import Status, WorldStatus
+
+# The modes in which an arm is the next thing an operator may want.
+WAITING_ON_THE_GROUND = frozenset({Mode.DISARMED, Mode.DISARMING, Mode.PX4_LANDING, Mode.KILLED})
 
 
 def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -25,87 +33,78 @@ def degrees(radians: Any) -> str:
     return f"{math.degrees(radians):+.1f}°"
 
 
-def _position(values: Any) -> str:
-    if not values or any(v is None for v in values):
+def _position(values: Sequence[float | None]) -> str:
+    if any(v is None for v in values):
         return "unknown"
-    return "(" + ", ".join(f"{v:+.3f}" for v in values) + ") m"
+    return "(" + ", ".join(f"{v:+.3f}" for v in values if v is not None) + ") m"
 
 
-def format_status(status: dict[str, Any]) -> str:
+def _milliseconds(value: float | None) -> str:
+    return f"{value or 0.0:.2f}"
+
+
+def format_status(status: Status) -> str:
     """A few lines an operator reads at a glance."""
-    bar = status.get("bar", {})
-    tick = status.get("tick", {})
-    mocap = status.get("mocap", {})
-    setpoints = status.get("setpoints", {})
-    reference = status.get("reference")
+    bar, mocap, setpoints, tick = status.bar, status.mocap, status.setpoints, status.tick
+    reference = status.reference
     lines = [
-        f"mode {status.get('mode')} ({status.get('phase', '-')}), controller "
-        f"{status.get('controller')}{'  [STALE]' if status.get('stale') else ''}",
-        f"bar  {_position(bar.get('position'))}, yaw "
-        + (degrees(bar["yaw"]) if bar.get("yaw") is not None else "unknown")
-        + (f", θ_l {degrees(reference['theta_l'])} (reference)" if reference else ""),
+        f"mode {status.mode.value} ({status.phase.value}), controller "
+        f"{status.controller}{'  [STALE]' if status.stale else ''}",
+        f"bar  {_position(bar.position)}, yaw "
+        + (degrees(bar.yaw) if bar.yaw is not None else "unknown")
+        + (f", θ_l {degrees(reference.theta_l)} (reference)" if reference else ""),
     ]
-    for i, uav in enumerate(status.get("uavs", []), start=1):
-        armed = status.get("armed", [False, False])[i - 1]
-        battery = uav.get("battery_v")
+    for i, (uav, armed) in enumerate(zip(status.uavs, status.armed, strict=True), start=1):
         lines.append(
-            f"uav{i} {_position(uav.get('position'))}, px4 {uav.get('px4_mode')}, "
-            f"{'armed' if armed else 'disarmed'}, link {'up' if uav.get('connected') else 'DOWN'}"
-            + (f", battery {battery:.1f} V" if isinstance(battery, int | float) else "")
+            f"uav{i} {_position(uav.position)}, px4 {uav.px4_mode}, "
+            f"{'armed' if armed else 'disarmed'}, link {'up' if uav.connected else 'DOWN'}"
+            + (f", battery {uav.battery_v:.1f} V" if uav.battery_v is not None else "")
         )
-    refused = ", ".join(f"{reason} {n}" for reason, n in (mocap.get("refused") or {}).items())
-    unreached = not mocap.get("connected") and mocap.get("server")
+    refused = ", ".join(f"{reason} {n}" for reason, n in mocap.refused.items())
+    unreached = not mocap.connected and mocap.server
     lines.append(
-        f"mocap {'healthy' if mocap.get('healthy') else 'NOT HEALTHY'} at "
-        f"{mocap.get('rate_hz') or 0:.0f} Hz{f' (refused: {refused})' if refused else ''}"
-        + (
-            f" (QTM at {mocap['server']}: {mocap.get('last_error') or 'no answer'})"
-            if unreached
-            else ""
-        )
-        + "; "
-        "setpoints: "
-        f"{'active' if setpoints.get('active') else 'none active'}, "
-        f"{len(setpoints.get('queued', []))} queued"
+        f"mocap {'healthy' if mocap.healthy else 'NOT HEALTHY'} at "
+        f"{mocap.rate_hz:.0f} Hz{f' (refused: {refused})' if refused else ''}"
+        + (f" (QTM at {mocap.server}: {mocap.last_error or 'no answer'})" if unreached else "")
+        + "; setpoints: "
+        f"{'active' if setpoints.active else 'none active'}, {len(setpoints.queued)} queued"
     )
     lines.append(
-        f"ticks {tick.get('count')}, missed {tick.get('missed_deadlines')}, compute p50/p99 "
-        f"{tick.get('compute_ms_p50') or 0:.2f}/{tick.get('compute_ms_p99') or 0:.2f} ms"
+        f"ticks {tick.count}, missed {tick.missed_deadlines}, compute p50/p99 "
+        f"{_milliseconds(tick.compute_ms_p50)}/{_milliseconds(tick.compute_ms_p99)} ms"
     )
-    waiting = ("disarmed", "disarming", "px4_landing", "killed")
-    if status.get("mode") in waiting and status.get("arm_blocked_by"):
-        lines.append(f"arm would be refused: {status['arm_blocked_by']}")
-    if status.get("log_stopped"):
-        lines.append(f"flight log: {status['log_stopped']}")
-    for name, process in (status.get("processes") or {}).items():
-        if process.get("last_exit"):
-            again = "started again" if process.get("alive") else "NOT RUNNING"
+    if status.mode in WAITING_ON_THE_GROUND and status.arm_blocked_by:
+        lines.append(f"arm would be refused: {status.arm_blocked_by}")
+    if status.log_stopped:
+        lines.append(f"flight log: {status.log_stopped}")
+    for name, process in status.processes.items():
+        if process.last_exit:
+            again = "started again" if process.alive else "NOT RUNNING"
             lines.append(
-                f"the {name} process died ({process['last_exit']}): {again}, "
-                f"{process.get('restarts', 0)} restarts"
+                f"the {name} process died ({process.last_exit}): {again}, "
+                f"{process.restarts} restarts"
             )
-    world = _world_line(status.get("world") or {})
+    world = _world_line(status.world)
     if world:
         lines.append(world)
     lines += [
-        f"notice ({notice['age_s']:.0f} s ago): {notice['message']}"
-        for notice in status.get("notices", [])[-3:]
+        f"notice ({notice.age_s:.0f} s ago): {notice.message}" for notice in status.notices[-3:]
     ]
     return "\n".join(lines)
 
 
-def _world_line(world: dict[str, Any]) -> str:
+def _world_line(world: WorldStatus) -> str:
     """The embedded simulated world's faults and stalls, when there is something to say."""
-    if not world.get("embedded"):
+    if not world.embedded:
         return ""
-    if not world.get("reachable", True):
+    if not world.reachable:
         return "simulated world: NOT REACHABLE"
-    parts = [_format_fault(fault) for fault in world.get("faults", [])]
-    stalls = world.get("stalls") or {}
-    if stalls.get("count"):
+    parts = [_fault_words(f.kind, f.params, f.remaining_s) for f in world.faults]
+    stalls = world.stalls
+    if stalls is not None and stalls.count:
         parts.append(
-            f"stalled {stalls['count']} times by this computer (worst {stalls['worst_ms']:.0f} "
-            f"ms, last {stalls['last_ms']:.0f} ms {stalls['last_age_s']:.0f} s ago)"
+            f"stalled {stalls.count} times by this computer (worst {stalls.worst_ms:.0f} "
+            f"ms, last {stalls.last_ms:.0f} ms {stalls.last_age_s or 0.0:.0f} s ago)"
         )
     return "simulated world: " + "; ".join(parts) if parts else ""
 
@@ -137,11 +136,15 @@ def format_setpoints(answer: dict[str, Any]) -> str:
     return table(header, rows)
 
 
+def _fault_words(kind: object, params: Mapping[str, object], remaining_s: float | None) -> str:
+    """A fault in effect: its kind, its parameters, how long it still lasts."""
+    words = " ".join(f"{k} {v}" for k, v in params.items())
+    left = "until cleared" if remaining_s is None else f"{remaining_s:.1f} s left"
+    return f"{kind}{' ' + words if words else ''} ({left})"
+
+
 def _format_fault(fault: dict[str, Any]) -> str:
-    params = " ".join(f"{k} {v}" for k, v in fault.get("params", {}).items())
-    remaining = fault.get("remaining_s")
-    left = "until cleared" if remaining is None else f"{remaining:.1f} s left"
-    return f"{fault.get('kind')}{' ' + params if params else ''} ({left})"
+    return _fault_words(fault.get("kind"), fault.get("params", {}), fault.get("remaining_s"))
 
 
 def format_faults(answer: dict[str, Any]) -> str:

@@ -195,7 +195,7 @@ class FlightCore:
         self._dt_s = 0.0
         self._low_since_s: float | None = None
         self.left_to_px4: int | None = None
-        """The vehicle (1 or 2) whose link was lost in this flight: it is left to its PX4's
+        """The vehicle (1 … N) whose link was lost in this flight: it is left to its PX4's
         failsafe for the rest of the flight, even if its link comes back."""
         self._set_down_end = np.zeros(3)  # the connected UAV's bar-end target (set_down)
         self._set_down_yaw = 0.0

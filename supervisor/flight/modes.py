@@ -95,7 +95,7 @@ TRANSITIONS: dict[tuple[Mode, Event], Mode] = {
     **{(mode, Event.BLIND): Mode.PX4_LANDING for mode in AIRBORNE},
     (Mode.PX4_LANDING, Event.ABORT): Mode.PX4_LANDING,
     (Mode.PX4_LANDING, Event.FAULT): Mode.PX4_LANDING,
-    (Mode.PX4_LANDING, Event.LANDED): Mode.DISARMED,  # both PX4s landed and disarmed
+    (Mode.PX4_LANDING, Event.LANDED): Mode.DISARMED,  # every PX4 landed and disarmed
     # faults detected by the safety monitors
     (Mode.ARMED, Event.FAULT): Mode.DISARMED,
     (Mode.DISARMED, Event.FAULT): Mode.DISARMED,

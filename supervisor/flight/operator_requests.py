@@ -98,6 +98,7 @@ class SetpointFields(_Message):
 
 
 OperatorEvent = Literal["arm", "disarm", "takeoff", "land", "abort", "kill"]
+ControllerName = Literal["centralized", "decentralized"]
 URGENT_EVENTS = frozenset({"abort", "kill"})
 
 
@@ -111,7 +112,7 @@ class ControllerRequest(_Message):
     """Which MPC flies the bar (bumpless in flight)."""
 
     kind: Literal["controller"] = "controller"
-    controller: Literal["centralized", "decentralized"]
+    controller: ControllerName
 
 
 class QueueRequest(_Message):

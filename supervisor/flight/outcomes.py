@@ -2,9 +2,10 @@
 /api/status``, ``supervisor/cli/awaiting.py``) and the REST API's ``?wait_s=`` (reading the
 flight process's telemetry) decide alike.
 
-A ``Goal`` reads one status answer and says whether the system is there (``REACHED``),
-can no longer get there (``FAILED``, with the reason: the newest notice since the request,
-such as an abort's or PX4's refusal, else the mode it ended in), or is on its way (None).
+A ``Goal`` reads one status (``supervisor.flight.status.Status``) and says whether the
+system is there (``REACHED``), can no longer get there (``FAILED``, with the reason: the
+newest notice since the request, such as an abort's or PX4's refusal, else the mode it
+ended in), or is on its way (None).
 Pure: ``judge`` and ``Staleness`` take the times as arguments.
 """
 
@@ -14,15 +15,22 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any
+from typing import TYPE_CHECKING
+
+from supervisor.flight.modes import Mode
+
+if TYPE_CHECKING:  # the terminal client imports this module, never pydantic at its start
+    from supervisor.flight.operator_requests import SetpointFields
+    from supervisor.flight.status import Status
 
 # Mocap or the flight process silent this long while waiting: say so rather than wait on.
 STALE_LIMIT_S = 3.0
 # The poll after which a setpoint never seen in the queue counts as flown (see _Setpoint).
 UNSEEN_SETPOINT_S = 1.0
-COMING_DOWN = frozenset({"landing", "abort", "px4_landing", "disarming", "disarmed", "killed"})
-
-Status = dict[str, Any]
+COMING_DOWN = frozenset(
+    {Mode.LANDING, Mode.ABORT, Mode.PX4_LANDING, Mode.DISARMING, Mode.DISARMED, Mode.KILLED}
+)
+AIRBORNE_UNDER_THE_MPC = frozenset({Mode.HOVER, Mode.TRACKING})
 
 
 class Verdict(Enum):
@@ -44,31 +52,22 @@ class Outcome:
 
 def notices_since(status: Status, elapsed_s: float) -> list[str]:
     """The notices made since the request (sent ``elapsed_s`` ago), oldest first."""
-    return [
-        str(notice.get("message"))
-        for notice in status.get("notices", [])
-        if isinstance(notice, dict) and float(notice.get("age_s", math.inf)) <= elapsed_s
-    ]
+    return [notice.message for notice in status.notices if notice.age_s <= elapsed_s]
 
 
 def _failed(status: Status, elapsed_s: float, what: str) -> Outcome:
     notices = notices_since(status, elapsed_s)
-    reason = notices[-1] if notices else f"the system is in mode {status.get('mode')}"
+    reason = notices[-1] if notices else f"the system is in mode {status.mode.value}"
     return Outcome(Verdict.FAILED, f"{what}: {reason}")
 
 
-def _vehicles_armed(status: Status) -> list[bool]:
-    return [bool(armed) for armed in status.get("armed", [])]
-
-
-Goal = Callable[[Status, float], Outcome | None]
+Goal = Callable[["Status", float], Outcome | None]
 
 
 def armed(status: Status, elapsed_s: float) -> Outcome | None:
-    """``arm``: armed, and both PX4s say so; a vehicle's notice (it refused, or disarmed by
-    itself) is a failure. (The REST answer already carries PX4's refusal to arm.)"""
-    flags = _vehicles_armed(status)
-    if status.get("mode") == "armed" and flags and all(flags):
+    """``arm``: armed, and every PX4 says so; a vehicle's notice (it refused, or disarmed
+    by itself) is a failure. (The REST answer already carries PX4's refusal to arm.)"""
+    if status.mode is Mode.ARMED and all(status.armed):
         return Outcome(Verdict.REACHED, "armed")
     if notices_since(status, elapsed_s):
         return _failed(status, elapsed_s, "not armed")
@@ -79,10 +78,9 @@ def hovering(status: Status, elapsed_s: float) -> Outcome | None:
     """``takeoff``: airborne and hovering under the MPC (tracking counts: the queue, filled
     while armed, took over right after the hover began); an abort, a landing, PX4's
     landing or the ground is a failure."""
-    mode = status.get("mode")
-    if mode in ("hover", "tracking"):
-        return Outcome(Verdict.REACHED, f"airborne, {mode}")
-    if mode in COMING_DOWN:
+    if status.mode in AIRBORNE_UNDER_THE_MPC:
+        return Outcome(Verdict.REACHED, f"airborne, {status.mode.value}")
+    if status.mode in COMING_DOWN:
         return _failed(status, elapsed_s, "take-off failed")
     return None
 
@@ -90,13 +88,12 @@ def hovering(status: Status, elapsed_s: float) -> Outcome | None:
 def landed(status: Status, elapsed_s: float) -> Outcome | None:
     """``land``: on the ground and disarmed (also after an abort or PX4's own landing, said
     in the message); killed is a failure (the motors were stopped in the air)."""
-    mode = status.get("mode")
-    if mode == "disarmed" and not any(_vehicles_armed(status)):
+    if status.mode is Mode.DISARMED and not any(status.armed):
         notices = notices_since(status, elapsed_s)
         return Outcome(
             Verdict.REACHED, "landed and disarmed" + (f" ({notices[-1]})" if notices else "")
         )
-    if mode == "killed":
+    if status.mode is Mode.KILLED:
         return _failed(status, elapsed_s, "not landed")
     return None
 
@@ -105,24 +102,23 @@ def controller(name: str) -> Goal:
     """``mode NAME``: the status shows ``NAME`` flying."""
 
     def switched(status: Status, elapsed_s: float) -> Outcome | None:
-        if status.get("controller") == name:
+        if status.controller == name:
             return Outcome(Verdict.REACHED, f"controller {name}")
         return None
 
     return switched
 
 
-def _same_setpoint(shown: Any, wanted: dict[str, Any]) -> bool:
-    if not isinstance(shown, dict):
-        return False
-    for key in ("bar_position", "bar_yaw", "theta_l", "hold_s"):
-        a, b = shown.get(key), wanted.get(key, 0.0)
-        pairs = zip(a, b, strict=False) if isinstance(a, list) and isinstance(b, list) else [(a, b)]
-        if not all(
-            isinstance(x, int | float) and math.isclose(x, y, abs_tol=1e-9) for x, y in pairs
-        ):
-            return False
-    return True
+def _same_setpoint(shown: SetpointFields, wanted: SetpointFields) -> bool:
+    """The same bar position, bar yaw, θ_l and hold (the UAV yaws are filled in when
+    shown)."""
+    pairs = [
+        *zip(shown.bar_position, wanted.bar_position, strict=True),
+        (shown.bar_yaw, wanted.bar_yaw),
+        (shown.theta_l, wanted.theta_l),
+        (shown.hold_s, wanted.hold_s),
+    ]
+    return all(math.isclose(a, b, abs_tol=1e-9) for a, b in pairs)
 
 
 @dataclass
@@ -131,26 +127,25 @@ class _Setpoint:
     seen in it, or never seen while nothing is queued for a second (reached and held
     between two polls); the system coming down first is a failure."""
 
-    wanted: dict[str, Any]
+    wanted: SetpointFields
     seen: bool = field(default=False)
 
     def __call__(self, status: Status, elapsed_s: float) -> Outcome | None:
-        mode = status.get("mode")
-        if mode in COMING_DOWN:
+        if status.mode in COMING_DOWN:
             return _failed(status, elapsed_s, "setpoint not flown")
-        setpoints = status.get("setpoints", {})
-        shown = [setpoints.get("active"), *setpoints.get("queued", [])]
+        active = status.setpoints.active
+        shown = [*([active] if active is not None else []), *status.setpoints.queued]
         if any(_same_setpoint(entry, self.wanted) for entry in shown):
             self.seen = True
             return None
-        idle = mode == "hover" and not any(shown)
+        idle = status.mode is Mode.HOVER and not shown
         if self.seen or (idle and elapsed_s > UNSEEN_SETPOINT_S):
             return Outcome(Verdict.REACHED, "setpoint reached and held")
         return None
 
 
-def setpoint_flown(wanted: dict[str, Any]) -> Goal:
-    """The goal of ``setpoint`` for the body that was queued (REST fields, radians)."""
+def setpoint_flown(wanted: SetpointFields) -> Goal:
+    """The goal of ``setpoint`` for the setpoint that was queued."""
     return _Setpoint(wanted)
 
 
@@ -172,8 +167,8 @@ def judge(
     if elapsed_s > timeout_s:
         return Outcome(
             Verdict.FAILED,
-            f"not there after {timeout_s:g} s (mode {status.get('mode')}, "
-            f"phase {status.get('phase')})",
+            f"not there after {timeout_s:g} s (mode {status.mode.value}, "
+            f"phase {status.phase.value})",
         )
     return None
 
@@ -185,7 +180,7 @@ class Staleness:
         self.since_s: float | None = None
 
     def stale_for_s(self, status: Status, now_s: float) -> float | None:
-        if not status.get("stale"):
+        if not status.stale:
             self.since_s = None
             return None
         self.since_s = now_s if self.since_s is None else self.since_s

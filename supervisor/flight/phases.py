@@ -10,7 +10,7 @@
   (decentralized) MPC sets its bar end down while the lost one is left to its PX4's
   failsafe landing; then ``descend``.
 * ``px4`` — blind: each PX4 lands on its own (AUTO.LAND); the supervisor sends nothing. A
-  flight process also starts here, until both vehicles are heard disarmed.
+  flight process also starts here, until every vehicle is heard disarmed.
 
 A landing or abort that starts while the UAVs still fly alone (``climb``) goes straight to
 ``descend``: the bar has not been lifted. A change outside ``PHASE_TRANSITIONS`` is a bug of

@@ -35,7 +35,7 @@ STATE: dict[Mode, str] = {
 
 _AFTER_LANDING = "wait until it has landed and disarmed itself, then arm and take off again"
 _AFTER_PX4 = (
-    "wait until both PX4s have landed and disarmed (the status shows both disarmed), "
+    "wait until every PX4 has landed and disarmed (the status shows each disarmed), "
     "then arm and take off again"
 )
 _UNTIL_DISARMED = (

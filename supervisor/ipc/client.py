@@ -14,9 +14,9 @@ import contextlib
 import itertools
 import time
 from pathlib import Path
-from typing import Any
 
 from supervisor.flight.operator_requests import Outcome, Reply, Request, is_urgent
+from supervisor.flight.status import FlightStatus
 from supervisor.ipc.channel import Channel, ChannelClosedError
 from supervisor.ipc.messages import HelloMessage, ReplyMessage, RequestMessage, TelemetryMessage
 
@@ -50,17 +50,17 @@ class TelemetrySubscription:
 
     def __init__(self, owner: FlightClient, depth: int) -> None:
         self._owner = owner
-        self.queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue(maxsize=depth)
+        self.queue: asyncio.Queue[FlightStatus | None] = asyncio.Queue(maxsize=depth)
         self.dropped = 0
 
-    def offer(self, message: dict[str, Any] | None) -> None:
+    def offer(self, message: FlightStatus | None) -> None:
         """Queue ``message`` (None: the end), dropping the oldest when full."""
         if self.queue.full():
             self.queue.get_nowait()
             self.dropped += 1
         self.queue.put_nowait(message)
 
-    async def next(self) -> dict[str, Any]:
+    async def next(self) -> FlightStatus:
         """The next message; raises ``SubscriptionEndedError`` once the client ends them."""
         message = await self.queue.get()
         if message is None:
@@ -83,7 +83,7 @@ class FlightClient:
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future[Reply]] = {}
         self._subscribers: set[TelemetrySubscription] = set()
-        self.latest: dict[str, Any] | None = None
+        self.latest: FlightStatus | None = None
         self.latest_at_s = -float("inf")
         self.connected = False
         if commands is not None and urgent is not None:

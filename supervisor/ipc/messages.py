@@ -3,16 +3,18 @@
 Each is a JSON object discriminated on ``type``: a ``hello`` (the first message of a
 connection to the flight process: its role and the API token), a ``request`` (an operator
 request with the ``id`` its reply repeats), a ``reply``, or ``telemetry`` (the status the
-flight process pushes at 25 Hz). JSON has no NaN: the serializer writes non-finite numbers as null.
+flight process pushes at 25 Hz, ``supervisor.flight.status.FlightStatus``). JSON has no NaN:
+the serializer writes non-finite numbers as null.
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
 from supervisor.flight.operator_requests import Reply, Request
+from supervisor.flight.status import FlightStatus
 
 
 class _Envelope(BaseModel):
@@ -47,7 +49,7 @@ class ReplyMessage(_Envelope):
 
 class TelemetryMessage(_Envelope):
     type: Literal["telemetry"] = "telemetry"
-    status: dict[str, Any]
+    status: FlightStatus
 
 
 ChannelMessage = HelloMessage | RequestMessage | ReplyMessage | TelemetryMessage

@@ -6,10 +6,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import logging
 from collections.abc import Callable
 from typing import Any
 
+from pydantic import ValidationError
+
 from supervisor.flight.operator_requests import Outcome, Reply
+from supervisor.flight.status import WorldStatus
 from supervisor.ipc.channel import ChannelClosedError, WorldChannel
 from supervisor.ipc.world_messages import (
     ListFaults,
@@ -17,6 +21,8 @@ from supervisor.ipc.world_messages import (
     WorldRequest,
     WorldRequestMessage,
 )
+
+log = logging.getLogger(__name__)
 
 WORLD_GONE = "the simulated world's process is not running"
 WATCH_PERIOD_S = 0.5
@@ -33,7 +39,8 @@ class WorldClient:
         self._ids = itertools.count(1)
         self._pending: dict[int, asyncio.Future[Reply]] = {}
         self.connected = channel is not None
-        self.watched: dict[str, Any] = {}
+        self.watched = WorldStatus(embedded=True)
+        """What ``keep_watch`` last saw (not ``reachable``: ``view`` says that)."""
 
     async def run(self) -> None:
         """Receive replies until the world process goes away."""
@@ -79,16 +86,32 @@ class WorldClient:
         while self.connected:
             reply = await self.request(ListFaults())
             if reply.ok:
-                self.watched = {
-                    "time_s": reply.data["world_time_s"],
-                    "faults": reply.data["faults"],
-                    "stalls": reply.data["stalls"],
-                }
+                self._watch(reply.data)
             await asyncio.sleep(period_s)
 
-    def view(self) -> dict[str, Any]:
+    def _watch(self, data: dict[str, Any]) -> None:
+        """Keep what a ``ListFaults`` answer says; one that does not fit the status is
+        logged and the last view kept (the status goes on without it)."""
+        try:
+            self.watched = WorldStatus(
+                embedded=True,
+                time_s=data["world_time_s"],
+                faults=data["faults"],
+                stalls=data["stalls"],
+            )
+        except (KeyError, ValidationError) as error:
+            log.warning("the simulated world's faults and stalls do not fit the status: %s", error)
+
+    def view(self) -> WorldStatus:
         """The world as the status shows it: reachable, and what ``keep_watch`` last saw."""
-        return {"embedded": True, "reachable": self.connected, **self.watched}
+        seen = self.watched
+        return WorldStatus(
+            embedded=True,
+            reachable=self.connected,
+            time_s=seen.time_s,
+            faults=seen.faults,
+            stalls=seen.stalls,
+        )
 
     async def close(self) -> None:
         if self._channel is not None:

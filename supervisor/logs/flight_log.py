@@ -12,8 +12,10 @@ reader skips a torn last line. Files are named by the flight's start time:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from datetime import UTC, datetime
 from pathlib import Path
@@ -22,16 +24,12 @@ from typing import IO, Any, Literal, Protocol
 import numpy as np
 import pydantic_core
 
-from controllers.formation_params import FormationParams
+from controllers.formation_params import BAR_TOLERANCE_M, FormationParams, Vector3
 from geometry.arrays import FloatArray
 from geometry.formation import FormationLayout
 from supervisor.flight.tick_record import TickRecord
 from supervisor.logs.background_sync import BackgroundSync
 
-# The logs' states and inputs are the paper's two UAVs and bar: their readers, the figures
-# and the Foxglove scene name these bodies (issue 31 generalizes the controllers, not yet
-# the logs).
-LOG_LAYOUT = FormationLayout(2)
 FSYNC_INTERVAL_S = 1.0
 LogFormat = Literal["jsonl", "mcap"]
 SUFFIXES: dict[str, LogFormat] = {".jsonl": "jsonl", ".mcap": "mcap"}
@@ -46,9 +44,55 @@ def formation_header(params: FormationParams) -> dict[str, Any]:
     header: dict[str, Any] = {
         "attachments_m": [list(point) for point in params.payload.attachments_m]
     }
-    if params.payload.is_bar and params.n_vehicles == 2:
+    with contextlib.suppress(ValueError):  # not the paper's bar: it has no arms
         header["arms_m"] = list(params.bar_arms_m)
     return header
+
+
+def _real(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _point_m(value: Any) -> Vector3:
+    if not (isinstance(value, list) and len(value) == 3 and all(_real(v) for v in value)):
+        raise ValueError(f"the header's attachments_m holds {value!r}, not a point [x, y, z]")
+    return float(value[0]), float(value[1]), float(value[2])
+
+
+def logged_attachments_m(header: dict[str, Any]) -> tuple[Vector3, ...] | None:
+    """Each cable's attachment in the payload's frame [m] as ``header`` gives them (cable
+    1's first): its ``attachments_m``, or an older log's bar arms ``arms_m`` (d1, d2) as
+    (−d1, 0, 0), (d2, 0, 0); None when it gives neither. Raises ``ValueError`` when they
+    are not what ``formation_header`` writes, or not for 2 to 8 UAVs."""
+    if "attachments_m" in header:
+        points = header["attachments_m"]
+        if not isinstance(points, list):
+            raise ValueError(f"the header's attachments_m is {points!r}, not a list of points")
+        attachments = tuple(_point_m(point) for point in points)
+    elif "arms_m" in header:
+        arms = header["arms_m"]
+        if not (isinstance(arms, list) and len(arms) == 2 and all(_real(v) for v in arms)):
+            raise ValueError(f"the header's arms_m is {arms!r}, not the bar's arms [d1, d2]")
+        attachments = ((-float(arms[0]), 0.0, 0.0), (float(arms[1]), 0.0, 0.0))
+    else:
+        return None
+    FormationLayout(len(attachments))  # 2 to 8, or ValueError
+    return attachments
+
+
+def logged_layout(attachments_m: Sequence[Vector3] | None) -> FormationLayout:
+    """The state layout of a log whose header gives ``attachments_m``
+    (``logged_attachments_m``): one UAV per attachment; without any, the paper's two."""
+    return FormationLayout(len(attachments_m) if attachments_m else 2)
+
+
+def is_bar(attachments_m: Sequence[Vector3]) -> bool:
+    """Whether the attachments lie on one line through the payload's CoM, to
+    ``BAR_TOLERANCE_M``: ``PayloadParams.is_bar``'s test, on a log's attachments."""
+    points = np.array(attachments_m, dtype=float)
+    farthest = points[np.argmax(np.linalg.norm(points, axis=1))]
+    off_line_m = np.linalg.norm(np.cross(points, farthest), axis=1) / np.linalg.norm(farthest)
+    return bool(off_line_m.max() <= BAR_TOLERANCE_M)
 
 
 def new_log_path(folder: Path, started: datetime, extension: str = ".jsonl") -> Path:
@@ -161,14 +205,17 @@ class FlightLogWriter:
 
 @dataclass(frozen=True)
 class FlightLog:
-    """A log read back as arrays (ticks along axis 0)."""
+    """A log read back as arrays (ticks along axis 0), laid out as ``layout`` (the
+    formation its header names: ``logged_attachments_m``, ``logged_layout``)."""
 
     path: Path
     header: dict[str, Any]
+    layout: FormationLayout
+    attachments_m: tuple[Vector3, ...] | None  # None: an older log without (the paper's bar)
     t_s: FloatArray
-    state: FloatArray  # (T, LOG_LAYOUT.n_states)
-    state_ref: FloatArray  # (T, LOG_LAYOUT.n_states)
-    inputs: FloatArray  # (T, LOG_LAYOUT.n_inputs)
+    state: FloatArray  # (T, layout.n_states)
+    state_ref: FloatArray  # (T, layout.n_states)
+    inputs: FloatArray  # (T, layout.n_inputs)
     solve_ms: FloatArray
     compute_ms: FloatArray
     lateness_ms: FloatArray
@@ -196,6 +243,11 @@ class FlightLog:
             for k in turns
         )
 
+    @property
+    def payload_is_bar(self) -> bool:
+        """Whether the payload is a bar (``is_bar``); an older log's is the paper's."""
+        return self.attachments_m is None or is_bar(self.attachments_m)
+
 
 def _array(rows: list[Any], width: int | None = None) -> FloatArray:
     """Rows as floats; JSON nulls (non-finite values) come back as NaN."""
@@ -215,19 +267,39 @@ def read_flight_log(path: Path) -> FlightLog:
     return _read_jsonl(path)
 
 
+def _formation(
+    path: Path, header: dict[str, Any]
+) -> tuple[FormationLayout, tuple[Vector3, ...] | None]:
+    """The layout and the attachments ``header`` names; ``ValueError`` naming ``path``."""
+    try:
+        attachments_m = logged_attachments_m(header)
+    except ValueError as error:
+        raise ValueError(f"{path}: not a flight-log header ({error})") from error
+    return logged_layout(attachments_m), attachments_m
+
+
+def _widths(layout: FormationLayout) -> dict[str, int]:
+    """How many numbers each of a tick's vectors holds."""
+    return {"state": layout.n_states, "state_ref": layout.n_states, "inputs": layout.n_inputs}
+
+
 def _flight_log(
     path: Path,
     header: dict[str, Any],
     ticks: list[dict[str, Any]],
     notices: list[tuple[float, str]],
 ) -> FlightLog:
+    layout, attachments_m = _formation(path, header)
+    widths = _widths(layout)
     return FlightLog(
         path=path,
         header=header,
+        layout=layout,
+        attachments_m=attachments_m,
         t_s=_array([t["t_s"] for t in ticks]),
-        state=_array([t["state"] for t in ticks], _WIDTHS["state"]),
-        state_ref=_array([t["state_ref"] for t in ticks], _WIDTHS["state_ref"]),
-        inputs=_array([t["inputs"] for t in ticks], _WIDTHS["inputs"]),
+        state=_array([t["state"] for t in ticks], widths["state"]),
+        state_ref=_array([t["state_ref"] for t in ticks], widths["state_ref"]),
+        inputs=_array([t["inputs"] for t in ticks], widths["inputs"]),
         solve_ms=_array([t["solve_ms"] for t in ticks]),
         compute_ms=_array([t["compute_ms"] for t in ticks]),
         lateness_ms=_array([t["lateness_ms"] for t in ticks]),
@@ -249,23 +321,19 @@ def _read_mcap(path: Path) -> FlightLog:
     return _flight_log(path, recovered.header, ticks, recovered.notices)
 
 
-_WIDTHS = {
-    "state": LOG_LAYOUT.n_states,
-    "state_ref": LOG_LAYOUT.n_states,
-    "inputs": LOG_LAYOUT.n_inputs,
-}
 _NUMBERS = ("solve_ms", "compute_ms", "lateness_ms", "mocap_age_ms")
 _NAMES = ("mode", "controller", "plan_status")
 
 
 def _is_number(value: Any) -> bool:
     """A JSON number, or null (a non-finite value, as the writer writes it)."""
-    return value is None or (isinstance(value, int | float) and not isinstance(value, bool))
+    return value is None or _real(value)
 
 
-def _tick_problem(entry: dict[str, Any]) -> str | None:
-    """What keeps ``entry`` from being a tick the reader can take, or None."""
-    if not isinstance(entry.get("t_s"), int | float) or isinstance(entry["t_s"], bool):
+def _tick_problem(entry: dict[str, Any], widths: dict[str, int]) -> str | None:
+    """What keeps ``entry`` from being a tick the reader can take (its vectors ``widths``
+    long), or None."""
+    if not _real(entry.get("t_s")):
         return "no time t_s"
     for name in _NUMBERS:
         if not _is_number(entry.get(name, "")):
@@ -273,7 +341,7 @@ def _tick_problem(entry: dict[str, Any]) -> str | None:
     for name in _NAMES:
         if not isinstance(entry.get(name), str):
             return f"{name} is not a name"
-    for name, width in _WIDTHS.items():
+    for name, width in widths.items():
         values = entry.get(name)
         if not (isinstance(values, list) and len(values) == width):
             return f"{name} is not {width} numbers"
@@ -293,6 +361,7 @@ def _read_jsonl(path: Path) -> FlightLog:
         raise ValueError(f"{path}: empty file, not a flight log")
     lines = data.split(b"\n")
     header: dict[str, Any] | None = None
+    widths: dict[str, int] = {}
     ticks: list[dict[str, Any]] = []
     for number, line in enumerate(lines, start=1):
         if not line.strip():
@@ -307,8 +376,11 @@ def _read_jsonl(path: Path) -> FlightLog:
             raise ValueError(f"{path}:{number}: not a flight-log line (not a JSON object)")
         if entry.get("kind") == "header" and header is None:
             header = entry
+            widths = _widths(_formation(path, header)[0])
         elif entry.get("kind") == "tick":
-            problem = _tick_problem(entry)
+            if header is None:
+                raise ValueError(f"{path}:{number}: a tick before the flight-log header")
+            problem = _tick_problem(entry, widths)
             if problem is not None:
                 raise ValueError(f"{path}:{number}: not a tick line ({problem})")
             ticks.append(entry)

@@ -1,5 +1,5 @@
 """The live Foxglove view: a WebSocket server streaming the flight log's channels
-(``flight_messages``: the bar, cables, UAVs and reference in 3D, every figure as a plot) as
+(``flight_messages``: the payload, cables, UAVs and reference in 3D, every figure as a plot) as
 the ticks happen, every payload sealed (``view_seal``): only the API process's gateway
 (api/foxglove_gateway.py), which holds the API token, opens them for the clients it admits.
 Its subprotocol is ``foxglove.sdk.v1``, the SDK's name for Foxglove's
@@ -20,23 +20,27 @@ from __future__ import annotations
 import json
 import secrets
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import foxglove
 
+from controllers.formation_params import Vector3
+from geometry.formation import FormationLayout
 from supervisor.flight.tick_record import TickRecord
-from supervisor.logs.flight_messages import JSON_SCHEMAS, WELL_KNOWN
-from supervisor.logs.mcap_log import scene_style, tick_messages
+from supervisor.logs.flight_messages import SceneStyle, json_schemas, well_known
+from supervisor.logs.mcap_log import tick_messages
 from supervisor.logs.view_seal import STREAM_ID_BYTES, Sealer, ViewKeys
 
 
 class _SealedChannels:
-    """The flight log's channels (topics, encodings and schemas as in the MCAP log), each
-    taking sealed bytes: Foxglove's messages are encoded here, not by the SDK."""
+    """The flight log's channels for ``layout``'s formation (topics, encodings and schemas
+    as in the MCAP log), each taking sealed bytes: Foxglove's messages are encoded here, not
+    by the SDK."""
 
-    def __init__(self, context: foxglove.Context) -> None:
+    def __init__(self, context: foxglove.Context, layout: FormationLayout) -> None:
         self._channels: dict[str, foxglove.Channel] = {}
-        for topic, (name, schema) in JSON_SCHEMAS.items():
+        for topic, (name, schema) in json_schemas(layout).items():
             data = json.dumps(schema).encode()
             self._channels[topic] = foxglove.Channel(
                 topic,
@@ -44,7 +48,7 @@ class _SealedChannels:
                 message_encoding="json",
                 context=context,
             )
-        for topic, kind in WELL_KNOWN.items():
+        for topic, kind in well_known(layout).items():
             self._channels[topic] = foxglove.Channel(
                 topic, schema=kind.get_schema(), message_encoding="protobuf", context=context
             )
@@ -62,13 +66,17 @@ class _SealedChannels:
 
 class FoxgloveLiveView:
     """The WebSocket server on ``host:port`` (0: a free port, then ``port`` says which),
-    sealing with ``keys`` (``view_seal.view_keys`` of the API token).
-    Raises ``RuntimeError`` when the port cannot be bound."""
+    sealing with ``keys`` (``view_seal.view_keys`` of the API token), for the formation
+    whose cables hang from ``attachments_m`` (the payload's frame [m], cable 1's first:
+    ``PayloadParams.attachments_m``). Raises ``RuntimeError`` when the port cannot be bound,
+    ``ValueError`` for fewer than 2 or more than 8 attachments."""
 
-    def __init__(self, host: str, port: int, arms_m: tuple[float, float], keys: ViewKeys) -> None:
+    def __init__(
+        self, host: str, port: int, attachments_m: Sequence[Vector3], keys: ViewKeys
+    ) -> None:
+        self._style = SceneStyle(tuple(attachments_m))
         self._context = foxglove.Context()
-        self._channels = _SealedChannels(self._context)
-        self._style = scene_style({"arms_m": list(arms_m)})
+        self._channels = _SealedChannels(self._context, self._style.layout)
         self._sealer = Sealer(keys, secrets.token_bytes(STREAM_ID_BYTES))
         self._server = foxglove.start_server(
             name="uavbar-supervisor", host=host, port=port, context=self._context
@@ -86,7 +94,8 @@ class FoxgloveLiveView:
         if not self.subscribed:
             return
         log_time_ns = time.time_ns()
-        for topic, message in tick_messages(record, notices, log_time_ns, self._style):
+        messages = tick_messages(record, notices, log_time_ns, self._style.layout, self._style)
+        for topic, message in messages:
             payload = message if isinstance(message, bytes) else _encoded(message)
             self._channels.write(topic, log_time_ns, self._sealer.seal(payload))
 

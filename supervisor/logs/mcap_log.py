@@ -40,15 +40,18 @@ from mcap.records import Chunk, DataEnd, Footer, McapRecord, Message, Metadata
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
+from geometry.formation import FormationLayout
 from supervisor.flight.tick_record import TickRecord
 from supervisor.logs.background_sync import BackgroundSync
+from supervisor.logs.flight_log import logged_attachments_m, logged_layout
 from supervisor.logs.flight_messages import (
-    JSON_SCHEMAS,
+    NOTICES_TOPIC,
     PER_TICK_TOPICS,
-    WELL_KNOWN,
     SceneStyle,
     json_messages,
+    json_schemas,
     record_from_messages,
+    well_known,
     well_known_messages,
 )
 
@@ -72,15 +75,15 @@ def _json_schema_bytes(schema: dict[str, Any]) -> bytes:
 class _McapPackageSink:
     """The ``mcap`` package's writer; Foxglove's messages encoded by the SDK."""
 
-    def __init__(self, path: Path, metadata: dict[str, str]) -> None:
+    def __init__(self, path: Path, metadata: dict[str, str], layout: FormationLayout) -> None:
         self._file: IO[bytes] = path.open("wb")
         self._writer = Writer(self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.LZ4)
         self._writer.start(profile="", library="uavbar-supervisor (mcap)")
         self._channels: dict[str, int] = {}
-        for topic, (name, schema) in JSON_SCHEMAS.items():
+        for topic, (name, schema) in json_schemas(layout).items():
             schema_id = self._writer.register_schema(name, "jsonschema", _json_schema_bytes(schema))
             self._channels[topic] = self._writer.register_channel(topic, "json", schema_id)
-        for topic, kind in WELL_KNOWN.items():
+        for topic, kind in well_known(layout).items():
             fox = kind.get_schema()
             schema_id = self._writer.register_schema(fox.name, fox.encoding, fox.data)
             self._channels[topic] = self._writer.register_channel(topic, "protobuf", schema_id)
@@ -100,13 +103,13 @@ class _McapPackageSink:
 
 
 class FoxgloveChannels:
-    """Every channel of the flight log (``JSON_SCHEMAS``, ``WELL_KNOWN``) on a
-    ``foxglove.Context``: what is written to them reaches every sink of the context (an
-    MCAP file, a WebSocket server)."""
+    """Every channel of a flight log of ``layout``'s formation (``json_schemas``,
+    ``well_known``) on a ``foxglove.Context``: what is written to them reaches every sink of
+    the context (an MCAP file, a WebSocket server)."""
 
-    def __init__(self, context: foxglove.Context) -> None:
+    def __init__(self, context: foxglove.Context, layout: FormationLayout) -> None:
         self._channels: dict[str, Any] = {}
-        for topic, (name, schema) in JSON_SCHEMAS.items():
+        for topic, (name, schema) in json_schemas(layout).items():
             self._channels[topic] = foxglove.Channel(
                 topic,
                 schema=foxglove.Schema(
@@ -115,7 +118,7 @@ class FoxgloveChannels:
                 message_encoding="json",
                 context=context,
             )
-        for topic, kind in WELL_KNOWN.items():
+        for topic, kind in well_known(layout).items():
             channel_type = getattr(foxglove.channels, f"{kind.__name__}Channel")
             self._channels[topic] = channel_type(topic, context=context)
 
@@ -134,7 +137,7 @@ class FoxgloveChannels:
 class _FoxgloveSdkSink:
     """``foxglove-sdk``'s writer, on a context of its own (no other sink sees it)."""
 
-    def __init__(self, path: Path, metadata: dict[str, str]) -> None:
+    def __init__(self, path: Path, metadata: dict[str, str], layout: FormationLayout) -> None:
         self._context = foxglove.Context()
         options = MCAPWriteOptions(
             compression=MCAPCompression.Lz4, chunk_size=CHUNK_BYTES, compression_threads=0
@@ -142,7 +145,7 @@ class _FoxgloveSdkSink:
         self._writer = foxglove.open_mcap(
             path, allow_overwrite=True, context=self._context, writer_options=options
         )
-        self._channels = FoxgloveChannels(self._context)
+        self._channels = FoxgloveChannels(self._context, layout)
         try:
             self._writer.write_metadata(HEADER_METADATA, metadata)
             self._writer.flush()
@@ -162,31 +165,31 @@ class _FoxgloveSdkSink:
 
 
 def tick_messages(
-    record: TickRecord, notices: tuple[str, ...], log_time_ns: int, style: SceneStyle | None
+    record: TickRecord,
+    notices: tuple[str, ...],
+    log_time_ns: int,
+    layout: FormationLayout,
+    style: SceneStyle | None,
 ) -> Iterator[tuple[str, bytes | Any]]:
-    """Every message of one tick, by topic: our JSON (encoded) and, with a ``style`` to
-    draw with, Foxglove's (to be encoded by the sink)."""
-    for topic, payload in json_messages(record):
+    """Every message of one tick of ``layout``'s formation, by topic: our JSON (encoded)
+    and, with a ``style`` to draw with, Foxglove's (to be encoded by the sink)."""
+    for topic, payload in json_messages(record, layout):
         yield topic, pydantic_core.to_json(payload, inf_nan_mode="null")
     for text in notices:
         notice = {"t_s": record.t_s, "text": text}
-        yield "/uavbar/notices", pydantic_core.to_json(notice, inf_nan_mode="null")
+        yield NOTICES_TOPIC, pydantic_core.to_json(notice, inf_nan_mode="null")
     if style is not None:
         stamp = fg.Timestamp(log_time_ns // 1_000_000_000, log_time_ns % 1_000_000_000)
         yield from well_known_messages(record, stamp, style)
-
-
-def scene_style(header: dict[str, Any]) -> SceneStyle | None:
-    """How to draw the scene, from a header's ``arms_m`` (None without: no scene)."""
-    arms = header.get("arms_m")
-    return SceneStyle((float(arms[0]), float(arms[1]))) if arms else None
 
 
 class McapFlightLogWriter:
     """Appends tick records to an MCAP file (created or replaced); a context manager.
 
     ``header`` is kept as the metadata record ``uavbar.header`` (each value JSON); its
-    ``arms_m`` (d_1, d_2), when given, lets ``/scene`` draw the bar and the cables.
+    ``attachments_m`` (``flight_log.formation_header``) name the formation's UAVs, and let
+    ``/scene`` draw the payload and the cables (without: the paper's two UAVs, no scene).
+    Raises ``ValueError`` for a header whose attachments do not read.
     """
 
     def __init__(
@@ -201,14 +204,16 @@ class McapFlightLogWriter:
         self.path = path
         full_header = {"started": started.isoformat(), **header}
         metadata = {key: json.dumps(value) for key, value in full_header.items()}
+        attachments_m = logged_attachments_m(header)
+        self._layout = logged_layout(attachments_m)
+        self._style = SceneStyle(attachments_m) if attachments_m else None
         sink_type = _McapPackageSink if library == "mcap" else _FoxgloveSdkSink
-        self._sink: _Sink = sink_type(path, metadata)
+        self._sink: _Sink = sink_type(path, metadata, self._layout)
         self._sync = BackgroundSync(path)
         self._sync.request()
         self._start_ns = int(started.timestamp() * 1e9)
         self._first_t_s: float | None = None
         self._last_flush_s = 0.0
-        self._style = scene_style(header)
         self._closed = False
 
     def append(self, record: TickRecord, notices: tuple[str, ...] = ()) -> None:
@@ -216,13 +221,13 @@ class McapFlightLogWriter:
         if self._first_t_s is None:
             self._first_t_s = self._last_flush_s = record.t_s
         log_time_ns = self._start_ns + round((record.t_s - self._first_t_s) * 1e9)
-        for topic, payload in json_messages(record):
+        for topic, payload in json_messages(record, self._layout):
             self._sink.write(
                 topic, log_time_ns, pydantic_core.to_json(payload, inf_nan_mode="null")
             )
         for text in notices:
             notice = pydantic_core.to_json({"t_s": record.t_s, "text": text}, inf_nan_mode="null")
-            self._sink.write("/uavbar/notices", log_time_ns, notice)
+            self._sink.write(NOTICES_TOPIC, log_time_ns, notice)
         if self._style is not None:
             stamp = fg.Timestamp(log_time_ns // 1_000_000_000, log_time_ns % 1_000_000_000)
             for topic, message in well_known_messages(record, stamp, self._style):
@@ -360,6 +365,9 @@ def _mcap_records(path: Path, recovered: RecoveredMcap) -> Iterator[McapRecord]:
             offset += RECORD_PREFIX.size + length
 
 
+_JSON_TOPICS = frozenset((*PER_TICK_TOPICS, NOTICES_TOPIC))
+
+
 def _decoded_messages(path: Path, recovered: RecoveredMcap) -> Iterator[tuple[str, Any]]:
     """(topic, decoded JSON) of our own channels in file order (``_mcap_records``); the
     header into ``recovered``."""
@@ -374,11 +382,23 @@ def _decoded_messages(path: Path, recovered: RecoveredMcap) -> Iterator[tuple[st
                 raise ValueError(f"{path}: corrupt {HEADER_METADATA} ({error})") from error
         elif isinstance(record, Message):
             topic = topics.get(record.channel_id, "")
-            if topic in JSON_SCHEMAS:
+            if topic in _JSON_TOPICS:
                 try:
                     yield topic, json.loads(record.data)
                 except ValueError as error:
                     raise ValueError(f"{path}: corrupt {topic} message ({error})") from error
+
+
+def _header_layout(path: Path, header: dict[str, Any] | None) -> FormationLayout:
+    """The layout of the ticks ``header`` announces (``ValueError`` naming ``path`` for a
+    message before it, which our writers never write, or for attachments that do not
+    read)."""
+    if header is None:
+        raise ValueError(f"{path}: a message before its {HEADER_METADATA} metadata")
+    try:
+        return logged_layout(logged_attachments_m(header))
+    except ValueError as error:
+        raise ValueError(f"{path}: corrupt {HEADER_METADATA} ({error})") from error
 
 
 def read_mcap_records(path: Path) -> RecoveredMcap:
@@ -395,15 +415,18 @@ def read_mcap_records(path: Path) -> RecoveredMcap:
         raise ValueError(f"{path}: not an MCAP file")
     recovered = RecoveredMcap()
     pending: dict[str, list[Any]] = defaultdict(list)
+    layout: FormationLayout | None = None
     for topic, message in _decoded_messages(path, recovered):
+        if layout is None:
+            layout = _header_layout(path, recovered.header)
         try:
-            if topic == "/uavbar/notices":
+            if topic == NOTICES_TOPIC:
                 recovered.notices.append((float(message["t_s"]), str(message["text"])))
                 continue
             pending[topic].append(message)
             if all(pending[t] for t in PER_TICK_TOPICS):
                 tick = {t: pending[t].pop(0) for t in PER_TICK_TOPICS}
-                recovered.records.append(record_from_messages(tick))
+                recovered.records.append(record_from_messages(tick, layout))
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f"{path}: a {topic} message of another shape ({error!r})") from error
     if recovered.header is None:

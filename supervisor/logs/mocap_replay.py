@@ -65,7 +65,13 @@ def replay_estimates(
 ) -> list[Estimate]:
     """The estimate at each of ``log``'s ticks from ``recording``, taken as the flight
     process took it, starting from the log's ``mocap_recording`` state (``fusion``: a new
-    fusion of the flight's config)."""
+    fusion of the flight's config). Raises ``ValueError`` when ``names`` (the config's)
+    name another number of UAVs than the log's."""
+    if len(names.uavs) != log.layout.n_vehicles:
+        raise ValueError(
+            f"{log.path}: a flight of {log.layout.n_vehicles} UAVs, not the "
+            f"{len(names.uavs)} of this setup"
+        )
     receiver = FrameReceiver(recording.body_names, recording.component)
     try:
         start = log.header["mocap_recording"]

@@ -2,6 +2,9 @@
 
 ``write_report([log], out)`` writes ``positions.png``, ``orientations.png`` (Fig. 6),
 ``inputs.png`` (Fig. 7), ``errors.png`` (Fig. 8) and ``summary.md`` / ``summary.json``.
+The figures have a column (inputs), or a column or a row of panels (the others), for the
+payload and for each of the log's N UAVs (UAV 1 … UAV N); the payload is "bar" when it is
+one (the paper's, or any whose attachments lie on a line through its CoM), else "payload".
 Time is in seconds from each log's first tick (the flight's start: a service's log counts
 its ticks on the machine's clock, since it booted). With two logs (e.g. centralized and
 decentralized) both are drawn on the same axes of every panel, the first solid and the
@@ -19,6 +22,7 @@ import math
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,13 +34,79 @@ import numpy as np
 from matplotlib.patches import Patch
 
 from controllers.mpc import PlanStatus
+from geometry.formation import FormationLayout
 from geometry.state import P_B, PAYLOAD_YAW
-from supervisor.logs.flight_log import LOG_LAYOUT, FlightLog
+from supervisor.logs.flight_log import FlightLog
 
-UAVS = tuple((f"UAV {i}", LOG_LAYOUT.uav_slices(i)) for i in LOG_LAYOUT.vehicles)
-BODIES = (("bar", P_B.start), *((name, parts[0].start) for name, parts in UAVS))
 AXES = ("x", "y", "z")
 ANGLES = ("roll", "pitch", "yaw")
+# A bar's attitude is its pitch and yaw: it cannot roll about its own axis in the model
+# (its attachments depend on θ_b and ψ_b only), so its roll is not drawn.
+BAR_ANGLES = ("pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class Formation:
+    """What the figures draw: the bodies of the logs' formation (every log's the same)."""
+
+    layout: FormationLayout
+    payload_is_bar: bool
+
+    @property
+    def payload(self) -> str:
+        """The payload's name in the figures."""
+        return "bar" if self.payload_is_bar else "payload"
+
+    @property
+    def uavs(self) -> tuple[tuple[str, tuple[slice, slice, slice, slice]], ...]:
+        """("UAV i", its (p, v, Θ, ω) slices) for UAV 1 … UAV N."""
+        return tuple((f"UAV {i}", self.layout.uav_slices(i)) for i in self.layout.vehicles)
+
+    @property
+    def bodies(self) -> tuple[tuple[str, int], ...]:
+        """Each body's name and where its block starts in the state, the payload's first."""
+        return ((self.payload, P_B.start), *((name, parts[0].start) for name, parts in self.uavs))
+
+    @property
+    def orientation_panels(self) -> tuple[tuple[str, int, tuple[str, ...]], ...]:
+        """Each body's name, its block's start and the angles drawn of it."""
+        payload_angles = BAR_ANGLES if self.payload_is_bar else ANGLES
+        return (
+            (self.payload, P_B.start, payload_angles),
+            *((name, parts[0].start, ANGLES) for name, parts in self.uavs),
+        )
+
+    @property
+    def error_rows(self) -> tuple[tuple[str, int, tuple[str, ...], str], ...]:
+        """Fig. 8's rows: (name, the state index of its first component, its components,
+        unit); a panel per component, x/roll, y/pitch, z/yaw from the left."""
+        return (
+            (f"{self.payload} position error", P_B.start, AXES, "[m]"),
+            (f"{self.payload} yaw error", PAYLOAD_YAW, ("yaw",), "[°]"),
+            *(
+                row
+                for name, parts in self.uavs
+                for row in (
+                    (f"{name} position error", parts[0].start, AXES, "[m]"),
+                    (f"{name} attitude error", parts[2].start, ANGLES, "[°]"),
+                )
+            ),
+        )
+
+
+def formation(logs: list[FlightLog]) -> Formation:
+    """The formation every one of ``logs`` flew. Raises ``ValueError`` for logs of
+    different formations (their panels would not be the same)."""
+    kinds = {(log.layout, log.payload_is_bar) for log in logs}
+    if len(kinds) != 1:
+        raise ValueError(
+            "a report draws logs of one formation: these are of "
+            + " and ".join(
+                f"{log.layout.n_vehicles} UAVs and a {'bar' if log.payload_is_bar else 'payload'}"
+                for log in logs
+            )
+        )
+    return Formation(*kinds.pop())
 
 
 FALLBACK_STATUSES = frozenset(s.value for s in PlanStatus if s.is_fallback)
@@ -56,10 +126,11 @@ def _wrap(angles: np.ndarray) -> np.ndarray:
 
 
 def summarize(log: FlightLog) -> dict[str, Any]:
-    """Table III statistics and timing figures of one flight.
+    """Table III statistics and timing figures of one flight of ``vehicles`` UAVs.
 
     ``bar_x_error_*`` are the arithmetic mean and sample standard deviation of the bar
-    centre's x error (the paper's proxy); RMS figures cover position (3-D) and yaw.
+    centre's x error (the paper's proxy; of any other payload, its CoM's); RMS figures
+    cover position (3-D) and yaw.
     """
     error = log.state[:, P_B] - log.state_ref[:, P_B]
     yaw_error = _wrap(log.state[:, PAYLOAD_YAW] - log.state_ref[:, PAYLOAD_YAW])
@@ -76,6 +147,7 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         yaw_rms_deg = float(np.degrees(np.sqrt(np.nanmean(yaw_error**2))))
     return {
         "controller": log.controller,
+        "vehicles": log.layout.n_vehicles,
         "ticks": len(log.t_s),
         "duration_s": float(log.t_s[-1] - log.t_s[0]) if len(log.t_s) else 0.0,
         "bar_x_error_mean_m": float(np.mean(x_error[finite])) if finite.any() else math.nan,
@@ -100,6 +172,8 @@ FILTER_S = 0.5  # the inputs' moving window: the MPC's tick-to-tick chatter is ~
 # (the start and the end tell flight logs apart: flight-20261203-101500.mcap is 27).
 LABEL_CHARS = 36
 TIME_LABEL = "t since the flight's start [s]"
+COLUMN_WIDTH_IN = 4.3  # a column of panels, beyond the paper's two UAVs
+ERROR_ROW_HEIGHT_IN = 2.5  # a row of Fig. 8's panels (the paper's two UAVs: 15 in)
 
 
 def _style(index: int) -> str:
@@ -172,10 +246,20 @@ def _against_reference(
     ax.plot(t_s, reference, ":", color="k", lw=0.9, label="reference" if k == 0 else None)
 
 
-def _positions(logs: list[FlightLog]) -> Any:
-    """Fig. 6, positions: bar, UAV 1, UAV 2 (columns) × x, y, z (rows), reference dotted."""
-    fig, axes = plt.subplots(3, 3, figsize=(13, 8.5), sharex=True, layout="constrained")
-    for col, (body, offset) in enumerate(BODIES):
+def _width_in(columns: int) -> float:
+    """A figure's width for ``columns`` columns of panels [in]: the paper's 13 in for two
+    UAVs' three, wider for more."""
+    return max(13.0, COLUMN_WIDTH_IN * columns)
+
+
+def _positions(logs: list[FlightLog], drawn: Formation) -> Any:
+    """Fig. 6, positions: the payload, UAV 1 … UAV N (columns) × x, y, z (rows), reference
+    dotted."""
+    columns = len(drawn.bodies)
+    fig, axes = plt.subplots(
+        3, columns, figsize=(_width_in(columns), 8.5), sharex=True, layout="constrained"
+    )
+    for col, (body, offset) in enumerate(drawn.bodies):
         for row, axis in enumerate(AXES):
             ax = axes[row, col]
             for k, log in enumerate(logs):
@@ -191,14 +275,6 @@ def _positions(logs: list[FlightLog]) -> Any:
     return fig
 
 
-# The bar's attitude is its pitch and yaw: it cannot roll about its own axis in the model
-# (its attachments depend on θ_b and ψ_b only), so its roll is not drawn.
-ORIENTATION_PANELS = (
-    ("bar", P_B.start, ("pitch", "yaw")),
-    *((name, parts[0].start, ANGLES) for name, parts in UAVS),
-)
-
-
 def _no_panel(ax: Any, text: str) -> None:
     ax.axis("off")
     ax.text(
@@ -206,14 +282,17 @@ def _no_panel(ax: Any, text: str) -> None:
     )
 
 
-def _orientations(logs: list[FlightLog]) -> Any:
-    """Fig. 6, orientations, unwrapped (no ±180° stripes); the bar has no roll panel."""
-    fig, axes = plt.subplots(3, 3, figsize=(13, 8.5), sharex=True, layout="constrained")
-    for col, (body, offset, angles) in enumerate(ORIENTATION_PANELS):
+def _orientations(logs: list[FlightLog], drawn: Formation) -> Any:
+    """Fig. 6, orientations, unwrapped (no ±180° stripes); a bar has no roll panel."""
+    columns = len(drawn.orientation_panels)
+    fig, axes = plt.subplots(
+        3, columns, figsize=(_width_in(columns), 8.5), sharex=True, layout="constrained"
+    )
+    for col, (body, offset, angles) in enumerate(drawn.orientation_panels):
         rows = [ANGLES.index(angle) for angle in angles]
         for row in range(3):
             ax = axes[row, col]
-            if row not in rows:  # the bar's roll
+            if row not in rows:  # a bar's roll
                 _no_panel(ax, f"{body}: no roll\n(it cannot turn about its own axis)")
                 continue
             for k, log in enumerate(logs):
@@ -254,13 +333,16 @@ INPUT_ROWS = (
 )
 
 
-def _inputs(logs: list[FlightLog]) -> Any:
-    """Fig. 7: each UAV's thrust and torques, one panel each, as a 0.5 s moving mean with
-    the raw values' range over the same window shaded."""
-    fig, axes = plt.subplots(4, 2, figsize=(13, 9.5), sharex=True, layout="constrained")
+def _inputs(logs: list[FlightLog], drawn: Formation) -> Any:
+    """Fig. 7: each UAV's thrust and torques, one panel each (a column per UAV), as a 0.5 s
+    moving mean with the raw values' range over the same window shaded."""
+    columns = drawn.layout.n_vehicles
+    fig, axes = plt.subplots(
+        4, columns, figsize=(_width_in(columns), 9.5), sharex=True, layout="constrained"
+    )
     labels = _labels(logs)
-    for uav in range(LOG_LAYOUT.n_vehicles):
-        first = LOG_LAYOUT.thrust_index(uav + 1)
+    for uav in range(columns):
+        first = drawn.layout.thrust_index(uav + 1)
         for row, (name, index, unit) in enumerate(INPUT_ROWS):
             ax = axes[row, uav]
             for k, log in enumerate(logs):
@@ -279,30 +361,20 @@ def _inputs(logs: list[FlightLog]) -> Any:
     return fig
 
 
-# Fig. 8's rows: (name, the state index of its first component, its components, unit); a
-# panel per component, x/roll, y/pitch, z/yaw from the left.
-ERROR_ROWS = (
-    ("bar position error", P_B.start, AXES, "[m]"),
-    ("bar yaw error", PAYLOAD_YAW, ("yaw",), "[°]"),
-    *(
-        row
-        for name, parts in UAVS
-        for row in (
-            (f"{name} position error", parts[0].start, AXES, "[m]"),
-            (f"{name} attitude error", parts[2].start, ANGLES, "[°]"),
-        )
-    ),
-)
-
-
-def _errors(logs: list[FlightLog]) -> Any:
-    """Fig. 8: tracking errors of the bar and both UAVs, a panel per component with every
-    log on it (the same scale along a row), angles wrapped to ±180°."""
+def _errors(logs: list[FlightLog], drawn: Formation) -> Any:
+    """Fig. 8: tracking errors of the payload and every UAV, a panel per component with
+    every log on it (the same scale along a row), angles wrapped to ±180°."""
+    rows = drawn.error_rows
     fig, axes = plt.subplots(
-        len(ERROR_ROWS), 3, figsize=(13, 15), sharex=True, sharey="row", layout="constrained"
+        len(rows),
+        3,
+        figsize=(13, ERROR_ROW_HEIGHT_IN * len(rows)),
+        sharex=True,
+        sharey="row",
+        layout="constrained",
     )
     labels = _labels(logs)
-    for row, (name, offset, components, unit) in enumerate(ERROR_ROWS):
+    for row, (name, offset, components, unit) in enumerate(rows):
         for col in range(len(components), 3):
             axes[row, col].axis("off")
         for j, component in enumerate(components):
@@ -361,18 +433,22 @@ def _markdown(summaries: list[dict[str, Any]], labels: list[str]) -> str:
 
 
 def figures(logs: list[FlightLog]) -> dict[str, Any]:
-    """The four figures of one or two logs, by file stem (matplotlib Figures, open)."""
+    """The four figures of one or two logs, by file stem (matplotlib Figures, open).
+    Raises ``ValueError`` for logs of different formations (``formation``)."""
+    drawn = formation(logs)
     return {
-        "positions": _positions(logs),
-        "orientations": _orientations(logs),
-        "inputs": _inputs(logs),
-        "errors": _errors(logs),
+        "positions": _positions(logs, drawn),
+        "orientations": _orientations(logs, drawn),
+        "inputs": _inputs(logs, drawn),
+        "errors": _errors(logs, drawn),
     }
 
 
 def write_report(logs: list[FlightLog], out: Path) -> list[Path]:
     """Write the figures and the summary (a row per log, named by its file) for one or two
-    logs, each with at least one tick; returns the files written."""
+    logs of one formation, each with at least one tick; returns the files written. Raises
+    ``ValueError`` (before writing anything) for logs of different formations."""
+    formation(logs)
     out.mkdir(parents=True, exist_ok=True)
     files = []
     for stem, fig in figures(logs).items():

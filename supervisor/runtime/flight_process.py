@@ -20,14 +20,11 @@ import logging
 import math
 import socket
 import time
-from collections import deque
 from collections.abc import Callable, Coroutine, Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from mocap.client import MocapSource
 from mocap.qtm_protocol import MocapFrame
@@ -42,7 +39,8 @@ from supervisor.flight.operator_requests import (
     SetpointsQuery,
     handle_request,
 )
-from supervisor.flight.telemetry import MocapView, build_telemetry
+from supervisor.flight.status import FlightStatus
+from supervisor.flight.telemetry import MocapView, ShellView, build_telemetry
 from supervisor.ipc.channel import Channel, ChannelClosedError, ChannelServer
 from supervisor.ipc.messages import ReplyMessage, TelemetryMessage
 from supervisor.ipc.server import HELLO_TIMEOUT_S, Admission, admit, refusal, serve_requests
@@ -100,13 +98,6 @@ class FlightSettings:
     min_free_log_mb: float = 0.0  # arming is refused with less free in the log folder
 
 
-def _percentiles(values: deque[float]) -> tuple[float, float]:
-    if not values:
-        return math.nan, math.nan
-    array = np.fromiter(values, float)
-    return float(np.percentile(array, 50)), float(np.percentile(array, 99))
-
-
 class FlightProcess:
     """Everything that flies, on one event loop: the tick ``driver`` (its core built for
     ``settings``), and ``mocap`` and ``links``, already running. ``run`` returns when
@@ -139,7 +130,6 @@ class FlightProcess:
         self.stats = TimingStats()
         self.streaming = False
         self.last_tick: TickResult | None = None
-        self.latency_ms: deque[float] = deque(maxlen=3000)
         self.phase_lock = MocapPhaseLock(settings.dt_s) if settings.phase_lock else None
         self._stopping = asyncio.Event()
         self._on_ground = asyncio.Event()
@@ -320,7 +310,7 @@ class FlightProcess:
             if newest is not None and math.isfinite(newest.receive_time_s):
                 latency_ms = (self.clock() - newest.receive_time_s) * 1e3
                 wait_ms = (started - newest.receive_time_s) * 1e3
-                self.latency_ms.append(latency_ms)
+                self.stats.record_latency(latency_ms)
         if self.settings.forward_mocap:
             self._forward_mocap()
         compute_s = self.clock() - started
@@ -577,8 +567,8 @@ class FlightProcess:
         self.core.notices.append((now_s, Notice(NoticeKind.LOG, text)))
 
     # ---- telemetry ----------------------------------------------------------------------------
-    def telemetry(self) -> dict[str, Any]:
-        """The status message now."""
+    def telemetry(self) -> FlightStatus:
+        """The status now."""
         stats = self.mocap.stats()
         refused = stats.refused() | {
             reason: n for reason, n in self.driver.fusion.refused().items() if n
@@ -592,25 +582,24 @@ class FlightProcess:
             stats.server,
             stats.last_error,
         )
-        summary: dict[str, Any] = dict(self.stats.summary())
-        p50, p99 = _percentiles(self.latency_ms)
-        summary["latency_ms_p50"], summary["latency_ms_p99"] = p50, p99
-        message = build_telemetry(
+        live = self.driver.live
+        shell = ShellView(
+            streaming=self.streaming,
+            log_path=str(self._flight_log.path) if self._flight_log is not None else None,
+            log_stopped=self.log_stopped,
+            live_view_port=live.port if live is not None else None,
+        )
+        return build_telemetry(
             self.core,
             self.driver.estimate,
             self.last_tick,
             tuple(link.view() for link in self.links),
             mocap,
-            summary,
+            self.stats.summary(),
+            shell,
             self.clock(),
             self._log_problem,
         )
-        message["streaming"] = self.streaming
-        message["log"] = str(self._flight_log.path) if self._flight_log is not None else None
-        message["log_stopped"] = self.log_stopped
-        live = self.driver.live
-        message["live_view"] = {"sdk_port": live.port} if live is not None else None
-        return message
 
     async def _publish(self, channel: Channel) -> None:
         ticker = DeadlineTicker(TELEMETRY_PERIOD_S, clock=self.clock)

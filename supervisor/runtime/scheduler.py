@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from supervisor.flight.status import TickSummary
+
 
 @dataclass(frozen=True)
 class TickTiming:
@@ -178,6 +180,7 @@ class TimingStats:
         self.missed_deadlines = 0
         self._compute_ms: deque[float] = deque(maxlen=window)
         self._lateness_ms: deque[float] = deque(maxlen=window)
+        self._latency_ms: deque[float] = deque(maxlen=window)
 
     def record(self, timing: TickTiming, compute_s: float, period_s: float) -> None:
         """A tick missed its deadline when it was skipped, or started so late, or computed so
@@ -188,14 +191,29 @@ class TimingStats:
         self._compute_ms.append(compute_s * 1e3)
         self._lateness_ms.append(timing.lateness_s * 1e3)
 
-    def summary(self) -> dict[str, float | int]:
-        """count, missed_deadlines, compute_ms_p50/p99, lateness_ms_p99 (recent window)."""
-        compute = np.fromiter(self._compute_ms, float)
-        lateness = np.fromiter(self._lateness_ms, float)
-        return {
-            "count": self.count,
-            "missed_deadlines": self.missed_deadlines,
-            "compute_ms_p50": float(np.percentile(compute, 50)) if compute.size else math.nan,
-            "compute_ms_p99": float(np.percentile(compute, 99)) if compute.size else math.nan,
-            "lateness_ms_p99": float(np.percentile(lateness, 99)) if lateness.size else math.nan,
-        }
+    def record_latency(self, latency_ms: float) -> None:
+        """A tick's setpoints went out ``latency_ms`` after the mocap frame they answer
+        arrived."""
+        self._latency_ms.append(latency_ms)
+
+    def summary(self) -> TickSummary:
+        """The totals, and the percentiles of the recent window (None while it is empty)."""
+        compute_p50, compute_p99 = _percentiles(self._compute_ms)
+        latency_p50, latency_p99 = _percentiles(self._latency_ms)
+        return TickSummary(
+            count=self.count,
+            missed_deadlines=self.missed_deadlines,
+            compute_ms_p50=compute_p50,
+            compute_ms_p99=compute_p99,
+            lateness_ms_p99=_percentiles(self._lateness_ms)[1],
+            latency_ms_p50=latency_p50,
+            latency_ms_p99=latency_p99,
+        )
+
+
+def _percentiles(values: deque[float]) -> tuple[float | None, float | None]:
+    """The median and the 99th percentile of ``values`` (None, None: there are none)."""
+    if not values:
+        return None, None
+    array = np.fromiter(values, float)
+    return float(np.percentile(array, 50)), float(np.percentile(array, 99))

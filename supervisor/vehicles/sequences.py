@@ -1,4 +1,4 @@
-"""The sequences the flight process runs over both vehicles: arming the PX4 way, disarming
+"""The sequences the flight process runs over every vehicle: arming the PX4 way, disarming
 after a landing, killing, and checking or setting the parameters a flight relies on.
 
 PX4 enters offboard only after setpoints have streamed for more than a second at more than

@@ -27,7 +27,8 @@ from supervisor.app.assembly import arena_from_config, flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.core import FlightCore
 from supervisor.flight.operator_requests import Reply, Request, handle_request
-from supervisor.flight.telemetry import MocapView, build_telemetry
+from supervisor.flight.status import TickSummary
+from supervisor.flight.telemetry import MocapView, ShellView, build_telemetry
 from supervisor.ipc.channel import Channel
 from supervisor.ipc.client import FlightClient
 from supervisor.ipc.messages import TelemetryMessage
@@ -36,6 +37,19 @@ from supervisor.vehicles.types import VehicleView
 from tests.conftest import CONFIGS, resting_estimate
 
 TOKEN = "test-token-123"
+
+
+def ticks(count: int) -> TickSummary:
+    """``count`` ticks run, none timed (the fixture publishes, it does not tick)."""
+    return TickSummary(
+        count=count,
+        missed_deadlines=0,
+        compute_ms_p50=None,
+        compute_ms_p99=None,
+        lateness_ms_p99=None,
+        latency_ms_p50=None,
+        latency_ms_p99=None,
+    )
 
 
 @dataclass
@@ -69,9 +83,10 @@ async def serve_api(
     async def publish() -> None:
         vehicle = VehicleView(connected=True, armed=False, px4_mode="POSCTL")
         mocap = MocapView(connected=True, rate_hz=100.0, frames=0, dropped=0)
+        shell = ShellView(streaming=False)
         for count in itertools.count(1):  # numbered, so that a skipped message shows
             message = build_telemetry(
-                core, None, None, (vehicle, vehicle), mocap, {"count": count}, time.monotonic()
+                core, None, None, (vehicle, vehicle), mocap, ticks(count), shell, time.monotonic()
             )
             flight_side[0].send(TelemetryMessage(status=message))
             await asyncio.sleep(0.04)

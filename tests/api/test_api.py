@@ -12,6 +12,7 @@ import websockets
 
 from supervisor.flight.modes import Mode
 from supervisor.flight.setpoints import Setpoint, SetpointError
+from supervisor.flight.status import Status, WorldStatus
 from tests.api.conftest import TOKEN, ApiUnderTest
 
 MUTATING = [
@@ -47,19 +48,34 @@ async def test_delete_needs_the_token_too(api: ApiUnderTest) -> None:
     assert len(api.core.queue.queued) == 1
 
 
-async def test_status_has_the_documented_shape(api: ApiUnderTest) -> None:
+async def test_the_status_is_its_model_exactly(api: ApiUnderTest) -> None:
+    """What ``GET /api/status`` answers parses as ``Status`` and is nothing but it: every
+    key the model has, none it does not, the dashboard's names and nesting."""
     response = await api.http.get("/api/status")
     assert response.status_code == 200
-    status = response.json()
-    assert status["mode"] == "disarmed" and status["controller"] == "centralized"
-    assert status["armed"] == [False, False]
-    assert set(status["bar"]) >= {"position", "yaw"}
-    assert len(status["uavs"]) == 2
-    for uav in status["uavs"]:
-        assert set(uav) >= {"position", "yaw", "connected", "px4_mode"}
-    assert set(status["mocap"]) >= {"healthy", "rate_hz"}
-    assert set(status["setpoints"]) >= {"active", "queued"}
-    assert set(status["tick"]) >= {"count"}
+    status = Status.model_validate_json(response.content)
+    assert response.json() == status.model_dump(mode="json")
+    assert status.mode is Mode.DISARMED and status.controller == "centralized"
+    assert status.armed == [False, False] and len(status.uavs) == 2
+    assert not status.stale and status.world == WorldStatus(embedded=False)
+    assert status.processes == {}
+    body = response.json()  # the JSON the dashboard reads (api/static/app.js)
+    assert {"position", "ends", "yaw", "velocity", "error_m"} <= set(body["bar"])
+    assert {"position", "yaw", "attitude", "connected", "px4_mode"} <= set(body["uavs"][0])
+    assert {"active", "queued"} <= set(body["setpoints"]) and "count" in body["tick"]
+
+
+async def test_the_openapi_document_gives_the_status_its_schema(api: ApiUnderTest) -> None:
+    schema = (await api.http.get("/openapi.json")).json()
+    answer = schema["paths"]["/api/status"]["get"]["responses"]["200"]["content"]
+    assert answer["application/json"]["schema"] == {"$ref": "#/components/schemas/Status"}
+    status = schema["components"]["schemas"]["Status"]
+    assert status["additionalProperties"] is False
+    assert set(status["required"]) >= set(Status.model_fields) - {"processes"}
+    armed = status["properties"]["armed"]
+    assert (armed["minItems"], armed["maxItems"]) == (2, 8)
+    tick = schema["components"]["schemas"]["TickSummary"]["properties"]
+    assert "[ms]" in tick["compute_ms_p50"]["description"]
 
 
 async def test_a_refused_transition_is_409_with_the_reason(api: ApiUnderTest) -> None:
@@ -218,9 +234,9 @@ async def test_telemetry_websocket_passes_on_every_message_of_the_flight_process
     url = api.url.replace("http", "ws") + "/api/telemetry"
     async with websockets.connect(url) as ws:
         await ws.recv()
-        messages = [json.loads(await ws.recv()) for _ in range(10)]
-    assert all(m["mode"] == "disarmed" for m in messages)
-    counts = [m["tick"]["count"] for m in messages]
+        messages = [Status.model_validate_json(await ws.recv()) for _ in range(10)]
+    assert all(m.mode is Mode.DISARMED for m in messages)
+    counts = [m.tick.count for m in messages]
     assert counts == list(range(counts[0], counts[0] + 10)), counts
 
 

@@ -34,6 +34,7 @@ from supervisor.ipc.client import FlightClient
 from supervisor.ipc.world_client import WorldClient, serve_world_requests
 from tests.api.conftest import TOKEN, ApiUnderTest
 from tests.conftest import CONFIGS
+from tests.status_examples import a_status
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 MUTATING = [
@@ -278,13 +279,13 @@ async def test_the_worlds_stalls_and_faults_are_watched_for_the_status(sim_api: 
     for _ in range(200):  # until a view from after the stall (a busy machine has others)
         await asyncio.sleep(0.05)
         view = sim_api.client.view()
-        if view.get("stalls", {}).get("worst_ms", 0.0) >= 100.0 and view.get("faults"):
+        if view.stalls is not None and view.stalls.worst_ms >= 100.0 and view.faults:
             break
     watch.cancel()
-    assert view["embedded"] and view["reachable"]
-    assert view["stalls"]["count"] >= 1 and view["stalls"]["worst_ms"] >= 100.0, view
-    assert [fault["kind"] for fault in view["faults"]] == ["mocap_freeze"]
-    shown = format_status({"mode": "hover", "world": view})
+    assert view.embedded and view.reachable and view.stalls is not None
+    assert view.stalls.count >= 1 and view.stalls.worst_ms >= 100.0, view
+    assert [fault.kind for fault in view.faults] == ["mocap_freeze"]
+    shown = format_status(a_status(mode="hover", world=view.model_dump()))
     assert "simulated world: mocap_freeze (" in shown
     assert re.search(r"stalled \d+ times by this computer \(worst \d+ ms", shown), shown
 

@@ -4,7 +4,12 @@ would in its own process)."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import http.server
 import json
+import threading
+from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -13,6 +18,7 @@ from supervisor.cli.main import main
 from supervisor.cli.output import format_status
 from supervisor.flight.modes import Mode
 from tests.api.conftest import TOKEN, ApiUnderTest, serve_api
+from tests.status_examples import a_status, status_json
 
 
 async def cli(api: ApiUnderTest, *args: str, token: str | None = TOKEN) -> int:
@@ -81,13 +87,82 @@ async def test_an_unreachable_service_exits_3(capsys: pytest.CaptureFixture[str]
 
 def test_status_shows_the_latest_safety_notices() -> None:
     notices = [{"age_s": 70.0 - k, "message": f"swing: {k}"} for k in range(5)]
-    lines = format_status({"mode": "hover", "notices": notices}).splitlines()
+    lines = format_status(a_status(mode="hover", notices=notices)).splitlines()
     assert lines[-3:] == [
         "notice (68 s ago): swing: 2",
         "notice (67 s ago): swing: 3",
         "notice (66 s ago): swing: 4",
     ]
-    assert not [line for line in format_status({"mode": "hover"}).splitlines() if "notice" in line]
+    quiet = format_status(a_status(mode="hover")).splitlines()
+    assert not [line for line in quiet if "notice" in line]
+
+
+@contextlib.contextmanager
+def service_answering(status: object) -> Iterator[str]:
+    """A service whose ``GET /api/status`` answers ``status`` (JSON) and whose requests are
+    all accepted; its URL."""
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def _answer(self, body: object) -> None:
+            payload = json.dumps(body).encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(payload)))
+            self.end_headers()
+            self.wfile.write(payload)
+
+        def do_GET(self) -> None:
+            self._answer(status)
+
+        def do_POST(self) -> None:
+            self._answer({"accepted": True, "mode": "armed"})
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    with http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler) as server:
+        thread = threading.Thread(target=server.serve_forever, daemon=True)
+        thread.start()
+        try:
+            yield f"http://127.0.0.1:{server.server_address[1]}"
+        finally:
+            server.shutdown()
+            thread.join()
+
+
+def without(key: str, body: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in body.items() if k != key}
+
+
+@pytest.mark.parametrize(
+    ("answer", "words"),
+    [
+        (without("mode", status_json()), "mode: Field required"),
+        (status_json(mode_for_s="12.5"), "mode_for_s: Input should be a valid number"),
+        (
+            status_json(bar=status_json()["bar"] | {"position": ["0", 0.0, 0.02]}),
+            "bar.position.0: Input should be a valid number",
+        ),
+        ([1, 2, 3], "Input should be a valid dictionary"),
+    ],
+)
+@pytest.mark.parametrize("command", [["status"], ["arm", "--wait", "--timeout", "5"]])
+def test_a_status_that_does_not_fit_is_said_in_one_line_not_a_traceback(
+    answer: object, words: str, command: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    with service_answering(answer) as url:
+        assert main([*command, "--url", url, "--token", TOKEN]) == 1
+    said = capsys.readouterr().err
+    assert words in said and "does not fit this client's" in said, said
+    assert len(said.strip().splitlines()) == 1 and "Traceback" not in said
+
+
+def test_the_status_of_a_service_that_fits_is_printed(capsys: pytest.CaptureFixture[str]) -> None:
+    with service_answering(status_json(mode="armed", armed=[True, True])) as url:
+        assert main(["status", "--url", url]) == 0
+        assert main(["arm", "--wait", "--url", url, "--token", TOKEN]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("mode armed (ground), controller centralized") and "arm: armed" in out
 
 
 async def test_status_over_https_trusts_the_certificate_it_is_given(

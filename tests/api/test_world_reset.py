@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import socket
 import time
-from typing import Any
 
 import numpy as np
 import pytest
@@ -17,11 +16,13 @@ from geometry.state import payload_position
 from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
 from supervisor.flight.estimation import Estimate
-from supervisor.flight.telemetry import MocapView, build_telemetry
+from supervisor.flight.status import FlightStatus
+from supervisor.flight.telemetry import MocapView, ShellView, build_telemetry
 from supervisor.ipc.channel import Channel
 from supervisor.ipc.client import FlightClient
 from supervisor.ipc.messages import TelemetryMessage
 from supervisor.vehicles.types import VehicleView
+from tests.api.conftest import ticks
 from tests.conftest import CONFIGS, resting_estimate
 
 CONFIG = load_config(CONFIGS / "sim.toml")
@@ -30,10 +31,11 @@ VEHICLE = VehicleView(connected=True, armed=False, px4_mode="POSCTL")
 MOCAP = MocapView(connected=True, rate_hz=100.0, frames=0, dropped=0)
 
 
-def telemetry_of(estimate: Estimate) -> dict[str, Any]:
+def telemetry_of(estimate: Estimate) -> FlightStatus:
     core = flight_core_from_config(CONFIG, clock=time.perf_counter)
     core.tick(0.0, estimate)
-    return build_telemetry(core, estimate, None, (VEHICLE, VEHICLE), MOCAP, {}, 0.0)
+    shell = ShellView(streaming=False)
+    return build_telemetry(core, estimate, None, (VEHICLE, VEHICLE), MOCAP, ticks(0), shell, 0.0)
 
 
 def positions_of(x: np.ndarray) -> dict[str, list[float]]:
@@ -48,17 +50,17 @@ def test_tracked_only_with_fresh_mocap_and_every_body_at_its_place() -> None:
     resting = resting_estimate(PARAMS)
     at_rest = positions_of(resting.x)
     status = telemetry_of(resting)
-    assert tracked_at(status, at_rest) and status["arm_blocked_by"] is None
+    assert tracked_at(status, at_rest) and status.arm_blocked_by is None
     moved = resting.x.copy()
     moved[PARAMS.layout.uav_slices(2)[0]][1] += (
         0.6  # pushed aside, farther than a landing leaves it
     )
     status = telemetry_of(Estimate(moved, 0.005, ()))
     assert not tracked_at(status, at_rest)
-    assert "UAV 2 stands 0.60 m from its bar end" in status["arm_blocked_by"]
+    assert "UAV 2 stands 0.60 m from its bar end" in str(status.arm_blocked_by)
     stale = telemetry_of(Estimate(resting.x, 0.5, ("bar",)))
     assert not tracked_at(stale, at_rest)
-    assert stale["arm_blocked_by"].startswith("no fresh motion capture of all bodies")
+    assert str(stale.arm_blocked_by).startswith("no fresh motion capture of all bodies")
 
 
 async def test_the_reset_answers_once_the_telemetry_tracks_the_resting_pose(

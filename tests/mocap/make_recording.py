@@ -15,9 +15,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from benchmarks.service import running_service
+from benchmarks.service import in_mode, running_service
 from mocap.recorder import record_stream
 from mocap.recording import write_recording
+from supervisor.flight.modes import Mode
 from supervisor.logs.flight_log import read_flight_log
 from tests.test_faults_e2e import fault, qtm_address
 from tests.test_service import TOKEN, flight_logs
@@ -39,7 +40,7 @@ async def make() -> None:
             await asyncio.sleep(SILENCE_AT_S)
             await fault(http, kind="mocap_silent", duration_s=SILENCE_S)
             recorded = await recording
-            await service.wait_for(http, lambda s: s["mode"] == "disarmed", 60.0, "landed")
+            await service.wait_for(http, in_mode(Mode.DISARMED), 60.0, "landed")
         [path] = flight_logs(Path(folder))
         log = read_flight_log(path)
     handed = log.modes.index("px4_landing")

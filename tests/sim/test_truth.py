@@ -81,3 +81,7 @@ def test_three_uavs_and_a_plate_are_counted_like_the_bar() -> None:
     assert truth.slack_events == 0 and truth.max_tilt_deg < 0.1
     assert set(truth.descent_by_body_mps) == {"payload", "uav1", "uav2", "uav3"}
     assert truth.describe().startswith("truth: payload hanging 0.4 s")
+    figures = world_truth([truth.describe()])
+    assert figures["payload_hanging_s"] == pytest.approx(0.4, abs=0.05)
+    for name, descent in truth.descent_by_body_mps.items():
+        assert figures[f"max_descent_{name}_mps"] == pytest.approx(descent, abs=0.005)

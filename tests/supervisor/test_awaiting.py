@@ -6,16 +6,15 @@ from typing import Any
 
 from supervisor.cli.awaiting import await_goal
 from supervisor.flight import outcomes
+from supervisor.flight.operator_requests import SetpointFields
 from supervisor.flight.outcomes import Verdict
+from supervisor.flight.status import Status
+from tests.status_examples import a_status, status_json
 
 
-def status(mode: str, *notices: tuple[float, str], **extra: Any) -> dict[str, Any]:
-    return {
-        "mode": mode,
-        "armed": [mode != "disarmed"] * 2,
-        "notices": [{"age_s": age_s, "message": text} for age_s, text in notices],
-        **extra,
-    }
+def status(mode: str, *notices: tuple[float, str], **extra: Any) -> Status:
+    said = [{"age_s": age_s, "message": text} for age_s, text in notices]
+    return a_status(**{"mode": mode, "armed": [mode != "disarmed"] * 2, "notices": said, **extra})
 
 
 def test_takeoff_is_reached_in_hover_and_fails_with_the_abort_s_notice() -> None:
@@ -33,7 +32,7 @@ def test_takeoff_is_reached_in_hover_and_fails_with_the_abort_s_notice() -> None
 
 def test_land_is_reached_disarmed_on_the_ground_and_fails_killed() -> None:
     assert outcomes.landed(status("landing"), 2.0) is None
-    armed_still = {**status("disarmed"), "armed": [False, True]}
+    armed_still = status("disarmed", armed=[False, True])
     assert outcomes.landed(armed_still, 2.0) is None  # PX4 has not said so yet
     landed = outcomes.landed(status("disarmed"), 9.0)
     assert landed is not None and landed.reached
@@ -47,9 +46,18 @@ def test_arm_fails_on_a_vehicle_s_notice() -> None:
     assert refused is not None and "arming refused: no GPS" in refused.message
 
 
+def test_an_arm_waits_for_every_one_of_n_vehicles() -> None:
+    """Three vehicles: armed once all three PX4s say so."""
+    uavs = status_json()["uavs"]
+    three = [*uavs, uavs[0]]
+    assert outcomes.armed(status("armed", armed=[True, True, False], uavs=three), 0.5) is None
+    reached = outcomes.armed(status("armed", armed=[True] * 3, uavs=three), 0.5)
+    assert reached is not None and reached.reached
+
+
 def test_a_setpoint_is_flown_once_it_has_left_the_queue() -> None:
-    wanted = {"bar_position": [0.3, 0.0, 1.1], "hold_s": 1.0}
-    shown = {**wanted, "bar_yaw": 0.0, "theta_l": 0.0, "uav_yaw": [0.0, 0.0]}
+    wanted = SetpointFields(bar_position=[0.3, 0.0, 1.1], hold_s=1.0)
+    shown = {**wanted.model_dump(), "uav_yaw": [0.0, 0.0]}
     goal = outcomes.setpoint_flown(wanted)
     other = {**shown, "bar_position": [0.0, 0.0, 1.0]}
     assert goal(status("tracking", setpoints={"active": other, "queued": [shown]}), 0.2) is None

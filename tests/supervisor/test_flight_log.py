@@ -12,12 +12,14 @@ import pytest
 
 from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from controllers.formation_params import FormationParams
+from geometry.formation import FormationLayout
 from supervisor.cli.main import main
 from supervisor.flight.tick_record import TickRecord
-from supervisor.logs.flight_log import LOG_LAYOUT, FlightLogWriter, read_flight_log
+from supervisor.logs.flight_log import FlightLogWriter, read_flight_log
 from supervisor.logs.report import summarize
 
 START = datetime(2026, 11, 23, 3, 15, 0, tzinfo=UTC)
+BAR = FormationLayout(2)  # a header without attachments: the paper's two UAVs and bar
 
 
 def write_synthetic_flight(
@@ -52,8 +54,8 @@ def test_round_trip_and_statistics(tmp_path: Path, lab_params: FormationParams) 
     path = write_synthetic_flight(tmp_path, lab_params, "centralized", 0.05)
     assert path.name == "flight-20261123-031500.jsonl"
     log = read_flight_log(path)
-    assert log.state.shape == (500, LOG_LAYOUT.n_states)
-    assert log.inputs.shape == (500, LOG_LAYOUT.n_inputs)
+    assert log.state.shape == (500, BAR.n_states)
+    assert log.inputs.shape == (500, BAR.n_inputs)
     summary = summarize(log)
     x_error = 0.01 + 0.05 * np.sin(2 * np.pi * 0.02 * np.arange(500))
     assert summary["bar_x_error_mean_m"] == pytest.approx(x_error.mean(), abs=1e-12)
@@ -79,7 +81,7 @@ def test_second_flight_in_the_same_second_gets_its_own_file(
 
 def test_non_finite_values_are_logged_as_missing(tmp_path: Path) -> None:
     with FlightLogWriter(tmp_path, {}) as log:
-        nan36 = [math.nan] * LOG_LAYOUT.n_states
+        nan36 = [math.nan] * BAR.n_states
         log.append(
             TickRecord(
                 0.0,
@@ -87,7 +89,7 @@ def test_non_finite_values_are_logged_as_missing(tmp_path: Path) -> None:
                 "centralized",
                 nan36,
                 nan36,
-                [math.inf] * LOG_LAYOUT.n_inputs,
+                [math.inf] * BAR.n_inputs,
                 "shifted_bad_state",
                 0,
                 0,
@@ -139,9 +141,9 @@ def test_a_log_can_be_written_to_a_named_file(tmp_path: Path) -> None:
                     0.0,
                     "hover",
                     "centralized",
-                    [0.0] * LOG_LAYOUT.n_states,
-                    [0.0] * LOG_LAYOUT.n_states,
-                    [0.0] * LOG_LAYOUT.n_inputs,
+                    [0.0] * BAR.n_states,
+                    [0.0] * BAR.n_states,
+                    [0.0] * BAR.n_inputs,
                     "optimal",
                     1.0,
                     1.0,

@@ -28,7 +28,8 @@ from api.foxglove_gateway import TRY_AGAIN_LATER, FoxgloveGateway, opened
 from api.guard import HttpPolicy
 from benchmarks.service import all_connected, running_service
 from controllers.formation_params import FormationParams
-from supervisor.logs.flight_messages import JSON_SCHEMAS, WELL_KNOWN, json_messages
+from geometry.formation import FormationLayout
+from supervisor.logs.flight_messages import json_messages, json_schemas, well_known
 from supervisor.logs.foxglove_live import FoxgloveLiveView
 from supervisor.logs.view_seal import (
     SEAL_OVERHEAD_BYTES,
@@ -43,6 +44,8 @@ from tests.test_service import TOKEN
 SUBPROTOCOL = websockets.Subprotocol("foxglove.sdk.v1")
 OLD_NAME = websockets.Subprotocol("foxglove.websocket.v1")
 KEYS = view_keys(TOKEN)
+BAR = FormationLayout(2)  # the lab's: the paper's two UAVs and bar
+JSON_SCHEMAS, WELL_KNOWN = json_schemas(BAR), well_known(BAR)
 POLICY = HttpPolicy(token=TOKEN)
 
 
@@ -145,7 +148,7 @@ def test_the_gateway_opens_message_data_and_passes_every_other_frame() -> None:
 async def test_the_views_own_port_advertises_the_channels_and_sends_each_tick_sealed(
     lab_params: FormationParams,
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.payload.attachments_m, KEYS)
     records = flight_records(lab_params, 200)
     try:
         async with websockets.connect(
@@ -177,7 +180,7 @@ async def test_a_plain_client_on_the_views_own_port_reads_nothing(
 ) -> None:
     """A local program that finds the flight process's port (``live_view.sdk_port`` in
     ``/api/status``) and subscribes to every channel gets only ciphertext."""
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.payload.attachments_m, KEYS)
     records = flight_records(lab_params, 100)
     topics = [*JSON_SCHEMAS, *WELL_KNOWN]
     try:
@@ -193,7 +196,7 @@ async def test_a_plain_client_on_the_views_own_port_reads_nothing(
     plaintexts = [
         pydantic_core.to_json(payload, inf_nan_mode="null")
         for record in records
-        for _, payload in json_messages(record)
+        for _, payload in json_messages(record, BAR)
     ]
     for _, _, payload in received:
         with pytest.raises(ValueError):
@@ -209,16 +212,16 @@ async def test_a_plain_client_on_the_views_own_port_reads_nothing(
 
 
 def test_a_taken_port_is_refused_with_an_error(lab_params: FormationParams) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.payload.attachments_m, KEYS)
     try:
         with pytest.raises(RuntimeError, match="in use"):
-            FoxgloveLiveView("127.0.0.1", view.port, lab_params.bar_arms_m, KEYS)
+            FoxgloveLiveView("127.0.0.1", view.port, lab_params.payload.attachments_m, KEYS)
     finally:
         view.close()
 
 
 async def test_the_old_protocol_name_alone_is_refused(lab_params: FormationParams) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.payload.attachments_m, KEYS)
     try:
         with pytest.raises(websockets.InvalidStatus, match="400"):
             async with websockets.connect(f"ws://127.0.0.1:{view.port}", subprotocols=[OLD_NAME]):
@@ -235,7 +238,7 @@ async def test_the_old_protocol_name_alone_is_refused(lab_params: FormationParam
 async def test_the_gateway_gives_either_name_the_view(
     lab_params: FormationParams, subprotocol: websockets.Subprotocol
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.payload.attachments_m, KEYS)
     gateway = FoxgloveGateway(lambda: view.port, POLICY)
     await gateway.start("127.0.0.1", 0)
     records = flight_records(lab_params, 50)
@@ -273,7 +276,7 @@ async def test_the_gateway_gives_either_name_the_view(
 async def test_the_gateway_refuses_a_client_without_the_token_at_the_handshake(
     lab_params: FormationParams, url_tail: str, headers: dict[str, str]
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, KEYS)
+    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.payload.attachments_m, KEYS)
     looked_up: list[int] = []
 
     def upstream_port() -> int:
@@ -323,7 +326,9 @@ async def test_the_gateway_takes_the_token_in_the_url_or_a_bearer_header(token: 
 async def test_the_gateway_passes_on_nothing_sealed_with_another_token(
     lab_params: FormationParams,
 ) -> None:
-    view = FoxgloveLiveView("127.0.0.1", 0, lab_params.bar_arms_m, view_keys("another serve"))
+    view = FoxgloveLiveView(
+        "127.0.0.1", 0, lab_params.payload.attachments_m, view_keys("another serve")
+    )
     gateway = FoxgloveGateway(lambda: view.port, POLICY)
     await gateway.start("127.0.0.1", 0)
     try:

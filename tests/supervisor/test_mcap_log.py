@@ -24,7 +24,7 @@ from controllers.formation_params import FormationParams
 from supervisor.cli.main import main
 from supervisor.flight.tick_record import TickRecord
 from supervisor.logs.flight_log import open_flight_log, read_flight_log
-from supervisor.logs.flight_messages import JSON_SCHEMAS, WELL_KNOWN
+from supervisor.logs.flight_messages import json_schemas, well_known
 from supervisor.logs.mcap_log import McapFlightLogWriter, McapLibrary, read_mcap_records
 from supervisor.logs.report import figures
 
@@ -33,8 +33,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def flight_records(params: FormationParams, ticks: int, seed: int = 0) -> list[TickRecord]:
-    """Ticks of a bar swinging around its reference, a NaN-state tick among them."""
-    ref = formation_equilibrium(params, FormationReference((0.2, -0.1, 1.0), 0.3, (0.0, 0.0))).x
+    """Ticks of a payload swinging around its reference, a NaN-state tick among them."""
+    reference = FormationReference((0.2, -0.1, 1.0), 0.3, (0.0,) * params.n_vehicles)
+    ref = formation_equilibrium(params, reference).x
     rng = np.random.default_rng(seed)
     records = []
     for k in range(ticks):
@@ -103,14 +104,16 @@ def test_the_mcap_reader_lists_the_channels_and_their_schemas(
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
         channels = {c.topic: c for c in summary.channels.values()}
-        assert set(channels) == set(JSON_SCHEMAS) | set(WELL_KNOWN)
-        for topic, (name, schema) in JSON_SCHEMAS.items():
+        assert set(channels) == set(json_schemas(lab_params.layout)) | set(
+            well_known(lab_params.layout)
+        )
+        for topic, (name, schema) in json_schemas(lab_params.layout).items():
             channel = channels[topic]
             assert channel.message_encoding == "json"
             assert summary.schemas[channel.schema_id].name == name
             assert summary.schemas[channel.schema_id].encoding == "jsonschema"
             assert json.loads(summary.schemas[channel.schema_id].data) == schema
-        for topic, kind in WELL_KNOWN.items():
+        for topic, kind in well_known(lab_params.layout).items():
             written = summary.schemas[channels[topic].schema_id]
             assert (written.name, written.encoding) == (kind.get_schema().name, "protobuf")
         counts = summary.statistics.channel_message_counts

@@ -15,12 +15,14 @@ from supervisor.flight.operator_requests import (
     SetpointFields,
     is_urgent,
 )
+from supervisor.flight.status import FlightStatus
 from supervisor.ipc.messages import (
     CHANNEL_MESSAGE,
     ReplyMessage,
     RequestMessage,
     TelemetryMessage,
 )
+from tests.status_examples import flight_status_json, status_json
 
 
 def test_a_request_survives_the_channel_as_its_type() -> None:
@@ -35,9 +37,18 @@ def test_a_request_survives_the_channel_as_its_type() -> None:
 def test_replies_and_telemetry_carry_nan_as_null() -> None:
     reply = ReplyMessage(id=1, reply=Reply(outcome=Outcome.OK, data={"x": math.nan}))
     assert '"x":null' in reply.model_dump_json()
-    status = TelemetryMessage(status={"bar": {"yaw": math.inf}})
-    decoded = CHANNEL_MESSAGE.validate_json(status.model_dump_json())
-    assert isinstance(decoded, TelemetryMessage) and decoded.status == {"bar": {"yaw": None}}
+    bar = status_json()["bar"] | {"yaw": math.inf}
+    status = TelemetryMessage(status=FlightStatus.model_validate(flight_status_json(bar=bar)))
+    text = status.model_dump_json()
+    assert '"yaw":null' in text
+    decoded = CHANNEL_MESSAGE.validate_json(text)
+    assert isinstance(decoded, TelemetryMessage) and decoded.status.bar.yaw is None
+
+
+def test_telemetry_that_is_not_a_status_is_refused_at_the_parse() -> None:
+    telemetry = {"type": "telemetry", "status": {"bar": {"yaw": 0.0}}}
+    with pytest.raises(pydantic.ValidationError, match=r"status\.mode"):
+        CHANNEL_MESSAGE.validate_python(telemetry)
 
 
 @pytest.mark.parametrize(

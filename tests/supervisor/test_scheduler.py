@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-import math
 import threading
 import time
 
@@ -61,16 +60,19 @@ def test_timing_statistics() -> None:
         stats.record(TickTiming(k, k * period, k * period + 0.0002, 0), 0.001, period)
     stats.record(TickTiming(100, 2.0, 2.0 + 0.015, 0), 0.006, period)  # ends after the next
     stats.record(TickTiming(103, 2.06, 2.06, 2), 0.001, period)  # two periods skipped
+    stats.record_latency(4.0)
     summary = stats.summary()
-    assert summary["count"] == 102
-    assert summary["missed_deadlines"] == 3
-    assert summary["compute_ms_p50"] == pytest.approx(1.0)
-    assert 0.2 <= summary["lateness_ms_p99"] <= 15.0
+    assert summary.count == 102
+    assert summary.missed_deadlines == 3
+    assert summary.compute_ms_p50 == pytest.approx(1.0)
+    assert summary.lateness_ms_p99 is not None and 0.2 <= summary.lateness_ms_p99 <= 15.0
+    assert summary.latency_ms_p50 == summary.latency_ms_p99 == 4.0
 
 
-def test_empty_statistics_are_nan_not_errors() -> None:
+def test_empty_statistics_are_unknown_not_errors() -> None:
     summary = TimingStats().summary()
-    assert summary["count"] == 0 and math.isnan(summary["compute_ms_p50"])
+    assert summary.count == 0 and summary.compute_ms_p50 is None
+    assert summary.latency_ms_p99 is None
 
 
 def test_period_must_be_positive() -> None:

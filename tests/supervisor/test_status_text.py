@@ -3,28 +3,18 @@
 from __future__ import annotations
 
 import math
-from typing import Any
 
 from supervisor.cli.output import format_status
+from tests.status_examples import a_status, status_json
 
-
-def a_status(**changes: Any) -> dict[str, Any]:
-    status: dict[str, Any] = {
-        "mode": "disarmed",
-        "phase": "ground",
-        "controller": "centralized",
-        "armed": [False, False],
-        "arm_blocked_by": None,
-        "bar": {"position": [0.0, 0.0, 0.02], "yaw": 0.0},
-        "uavs": [{"position": [0.7, 0.0, 0.05], "px4_mode": "POSCTL", "connected": True}] * 2,
-        "reference": None,
-        "mocap": {"healthy": True, "connected": True, "rate_hz": 100.0, "server": "h:22223"},
-        "setpoints": {"active": None, "queued": []},
-        "tick": {"count": 10, "missed_deadlines": 0},
-        "notices": [],
-        "log_stopped": None,
-    }
-    return status | changes
+REFERENCE = {
+    "bar_position": [0.0, 0.0, 1.0],
+    "bar_yaw": 0.0,
+    "uav_yaw": [0.0, 0.0],
+    "theta_l": math.radians(30.0),
+    "uav_positions": [[-0.9, 0.0, 2.0], [0.9, 0.0, 2.0]],
+    "bar_ends": [[-0.705, 0.0, 1.0], [0.765, 0.0, 1.0]],
+}
 
 
 def test_the_text_says_what_blocks_arming_and_the_cable_angle() -> None:
@@ -32,15 +22,15 @@ def test_the_text_says_what_blocks_arming_and_the_cable_angle() -> None:
     assert "arm would be refused" not in quiet and "θ_l" not in quiet
     blocked = a_status(arm_blocked_by="UAV 1 is not heard (no heartbeat): check its link")
     assert "arm would be refused: UAV 1 is not heard" in format_status(blocked)
-    reference = {"theta_l": math.radians(30.0), "bar_position": [0.0, 0.0, 1.0]}
     hovering = format_status(
-        a_status(mode="hover", arm_blocked_by="in flight", reference=reference)
+        a_status(mode="hover", phase="hover", arm_blocked_by="in flight", reference=REFERENCE)
     )
     assert "θ_l +30.0°" in hovering and "arm would be refused" not in hovering
 
 
 def test_an_unreachable_qtm_is_named_with_why_and_a_stopped_log_said() -> None:
-    mocap = {"healthy": False, "connected": False, "rate_hz": 0.0, "server": "10.0.0.5:22223"}
+    mocap = status_json()["mocap"] | {"healthy": False, "connected": False, "rate_hz": 0.0}
+    mocap["server"] = "10.0.0.5:22223"
     mocap["last_error"] = "ConnectionRefusedError: [Errno 111] Connection refused"
     text = format_status(a_status(mocap=mocap, log_stopped="log disk full: no longer recording"))
     assert "QTM at 10.0.0.5:22223: ConnectionRefusedError" in text
@@ -55,3 +45,15 @@ def test_a_process_that_died_is_said_with_how() -> None:
     text = format_status(a_status(processes=processes))
     assert "the relay process died (killed by SIGKILL): started again, 1 restarts" in text
     assert "api process" not in text
+
+
+def test_every_vehicle_of_n_has_its_line_and_unknowns_are_said() -> None:
+    """Three UAVs, the third not heard; no estimate (positions unknown) and no tick yet."""
+    uavs = status_json()["uavs"]
+    lost = uavs[0] | {"connected": False, "px4_mode": "unknown", "battery_v": None}
+    lost["position"] = [None, None, None]
+    tick = status_json()["tick"] | {"count": 0, "compute_ms_p50": None, "compute_ms_p99": None}
+    text = format_status(a_status(uavs=[*uavs, lost], armed=[False] * 3, tick=tick))
+    assert "uav3 unknown, px4 unknown, disarmed, link DOWN" in text
+    assert "uav2 (+0.765, +0.000, +0.070) m, px4 POSCTL, disarmed, link up, battery 16.2 V" in text
+    assert "ticks 0, missed 0, compute p50/p99 0.00/0.00 ms" in text
