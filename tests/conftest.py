@@ -80,6 +80,7 @@ SECOND_LANE_MODULES = {
     "tests/test_dashboard.py",
     "tests/test_service.py",
     "tests/api/test_openapi_contract.py",
+    "tests/test_wheel.py",
     "tests/test_service_signing.py",
     "tests/test_formation_service.py",
 }

@@ -35,7 +35,7 @@ from matplotlib.patches import Patch
 
 from controllers.mpc import PlanStatus
 from geometry.formation import FormationLayout
-from geometry.state import P_B, PAYLOAD_YAW
+from geometry.state import P_B, PAYLOAD_YAW, TH_B
 from supervisor.logs.flight_log import FlightLog
 
 AXES = ("x", "y", "z")
@@ -125,12 +125,21 @@ def _wrap(angles: np.ndarray) -> np.ndarray:
     return np.remainder(angles + np.pi, 2 * np.pi) - np.pi
 
 
+def _tilt_rad(euler_zyx: np.ndarray) -> np.ndarray:
+    """The angle between a body's z axis and the vertical, per row of (φ, θ, ψ) [rad]."""
+    cos_tilt = np.cos(euler_zyx[:, 0]) * np.cos(euler_zyx[:, 1])  # R[2, 2] of Z-Y-X
+    tilt: np.ndarray = np.arccos(np.clip(cos_tilt, -1.0, 1.0))
+    return tilt
+
+
 def summarize(log: FlightLog) -> dict[str, Any]:
     """Table III statistics and timing figures of one flight of ``vehicles`` UAVs.
 
     ``bar_x_error_*`` are the arithmetic mean and sample standard deviation of the bar
     centre's x error (the paper's proxy; of any other payload, its CoM's); RMS figures
-    cover position (3-D) and yaw.
+    cover position (3-D) and yaw, under the bar's names and, for any setup, the payload's
+    (``payload_position_rmse_m``, ``payload_yaw_rmse_deg``); ``max_payload_tilt_deg`` is the
+    payload's largest tilt from level as estimated.
     """
     error = log.state[:, P_B] - log.state_ref[:, P_B]
     yaw_error = _wrap(log.state[:, PAYLOAD_YAW] - log.state_ref[:, PAYLOAD_YAW])
@@ -145,6 +154,8 @@ def summarize(log: FlightLog) -> dict[str, Any]:
     with _warnings_ignored():
         position_rms_m = float(np.sqrt(np.nanmean(np.sum(error**2, axis=1))))
         yaw_rms_deg = float(np.degrees(np.sqrt(np.nanmean(yaw_error**2))))
+        tilt_deg = np.degrees(_tilt_rad(log.state[:, TH_B]))
+        max_payload_tilt_deg = float(np.nanmax(tilt_deg)) if len(tilt_deg) else math.nan
     return {
         "controller": log.controller,
         "vehicles": log.layout.n_vehicles,
@@ -156,6 +167,9 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         else math.nan,
         "bar_position_rms_m": position_rms_m,
         "bar_yaw_rms_deg": yaw_rms_deg,
+        "payload_position_rmse_m": position_rms_m,
+        "payload_yaw_rmse_deg": yaw_rms_deg,
+        "max_payload_tilt_deg": max_payload_tilt_deg,
         "solve_ms": {
             "p50": pct(solve, 50),
             "p99": pct(solve, 99),

@@ -17,6 +17,8 @@ import websockets
 from mcap.reader import make_reader
 
 from controllers.formation_params import FormationParams
+from geometry.frames import rotation_from_euler_zyx
+from geometry.state import TH_B
 from mocap.recording import read_recording
 from supervisor.app.assembly import body_names_from_config, fusion_from_config
 from supervisor.app.config import CONFIG_DIR, load_config
@@ -202,6 +204,20 @@ def test_summarize_counts_the_uavs(tmp_path: Path, tri_params: FormationParams) 
     assert 0.0 < summary["bar_position_rms_m"] < 0.1  # the 2 cm wobble of flight_records
 
 
+def test_summarize_gives_the_payloads_figures_for_any_setup(
+    tmp_path: Path, tri_params: FormationParams
+) -> None:
+    log = logged(tmp_path / "f.jsonl", tri_params, 100)
+    log.state[40, TH_B] = (0.3, -0.4, 1.0)  # a roll and a pitch: tilted 28.4 deg
+    summary = summarize(log)
+    assert summary["payload_position_rmse_m"] == summary["bar_position_rms_m"]
+    assert summary["payload_yaw_rmse_deg"] == summary["bar_yaw_rms_deg"]
+    normals = [rotation_from_euler_zyx(*x[TH_B])[:, 2] for x in log.state]
+    tilts = [math.degrees(math.acos(float(n[2]))) for n in normals if np.all(np.isfinite(n))]
+    assert summary["max_payload_tilt_deg"] == pytest.approx(max(tilts), abs=1e-9)
+    assert summary["max_payload_tilt_deg"] == pytest.approx(28.4, abs=0.1)
+
+
 def test_the_mocap_check_refuses_a_setup_of_another_number_of_uavs(
     tmp_path: Path, tri_params: FormationParams
 ) -> None:
@@ -237,16 +253,24 @@ async def test_the_live_view_advertises_the_channels_of_its_formation(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("setup", ["sim_tri", "sim_quad"])
-def test_a_simulated_flight_of_n_uavs_gives_its_log_report_and_table(
-    tmp_path: Path, setup: str, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    "setup, controller", [("sim_tri", "centralized"), ("sim_quad", "decentralized")]
+)
+def test_a_square_flown_by_n_uavs_gives_its_log_report_and_table(
+    tmp_path: Path, setup: str, controller: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    """The ``square`` scenario (take-off, four setpoints with a 90° yaw and a 30° cone,
+    landing) on a plate and a frame: completed, no cable slack, the payload's figures in
+    the JSON; its log reads back, reports and exports for N UAVs."""
     path = tmp_path / "flight.mcap"
-    command = ["simulate", "--scenario", "takeoff-land", "--config", setup, "--json"]
-    assert main([*command, "--log", str(path)]) == 0
+    command = ["simulate", "--scenario", "square", "--config", setup, "--json"]
+    assert main([*command, "--controller", controller, "--log", str(path)]) == 0
     summary = json.loads(capsys.readouterr().out)
     n = load_config(CONFIG_DIR / f"{setup}.toml").system.to_params().n_vehicles
-    assert summary["vehicles"] == n and math.isfinite(summary["bar_position_rms_m"])
+    assert summary["completed"] and summary["messages"] == [], summary["messages"]
+    assert summary["vehicles"] == n and summary["slack_events"] == 0
+    assert summary["payload_position_rmse_m"] < 0.1  # measured 0.046-0.059
+    assert summary["max_payload_tilt_deg"] < 5.0  # measured 0.8-1.3
     log = read_flight_log(path)
     assert log.state.shape[1] == 12 + 12 * n and log.inputs.shape[1] == 4 * n
     assert main(["report", str(path), "--out", str(tmp_path / "report")]) == 0

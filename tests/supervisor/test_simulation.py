@@ -360,6 +360,9 @@ def test_simulate_prints_the_documented_json(
         "bar_x_error_std_m",
         "bar_position_rms_m",
         "bar_yaw_rms_deg",
+        "payload_position_rmse_m",
+        "payload_yaw_rmse_deg",
+        "max_payload_tilt_deg",
         "slack_events",
         "max_tilt_deg",
         "min_tension_n",
@@ -368,6 +371,8 @@ def test_simulate_prints_the_documented_json(
     assert set(summary["solve_ms"]) >= {"p50", "p99", "max"}
     assert summary["controller"] == "centralized"
     assert summary["sim_time_s"] > 1.0
+    assert summary["payload_position_rmse_m"] == summary["bar_position_rms_m"]
+    assert 0.0 <= summary["max_payload_tilt_deg"] < 45.0
     assert math.isclose(
         summary["realtime_factor"], summary["sim_time_s"] / summary["wall_time_s"], rel_tol=1e-9
     )
