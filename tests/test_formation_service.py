@@ -23,7 +23,6 @@ from supervisor.flight.phases import Phase
 from supervisor.logs.flight_log import FlightLog, read_flight_log
 from tests.test_dashboard import (
     CHROMIUM,
-    DRAWN_WITHIN_PX,
     IMAGES,
     PAGE_ERRORS,
     browser,
@@ -55,6 +54,14 @@ def cable_slack_m(x: np.ndarray, params: FormationParams, i: int) -> float:
     return params.cable_lengths_m[i - 1] - float(
         np.linalg.norm(params.layout.uav_position(x, i) - end)
     )
+
+
+def inside(point: tuple[float, float], polygon: list[list[float]]) -> bool:
+    """Whether ``point`` lies inside the convex ``polygon`` (corners in order, either way)."""
+    sides = []
+    for (ax, ay), (bx, by) in zip(polygon, [*polygon[1:], polygon[0]], strict=True):
+        sides.append((bx - ax) * (point[1] - ay) - (by - ay) * (point[0] - ax))
+    return all(side > 0 for side in sides) or all(side < 0 for side in sides)
 
 
 async def assert_three_vehicles_shown(page: Page) -> None:
@@ -104,11 +111,13 @@ async def test_three_uavs_and_a_plate_land_abort_and_lose_a_link_in_a_row(
 
         await service.take_off(http)
         await page.wait_for_timeout(500)  # a few messages drawn since
-        position = (await service.status(http)).bar.position
+        corners = (await service.status(http)).bar.ends
         drawn = await colour_pixels(page, "#view3d", PLATE_ORANGE)
-        projected = await page.evaluate("p => window.uavbarView3d.project(p)", position)
+        projected = [await page.evaluate("p => window.uavbarView3d.project(p)", c) for c in corners]
         assert drawn["count"] > 100, drawn
-        assert math.dist((drawn["x"], drawn["y"]), projected) < DRAWN_WITHIN_PX, drawn
+        # The orange pixels' centre lies inside the plate's corners as the view's camera
+        # puts them (UAVs and cables in front of the plate shift it, never out of it).
+        assert inside((drawn["x"], drawn["y"]), projected), (drawn, projected)
         response = await http.post("/api/setpoints", json=SETPOINTS)
         assert response.status_code == 200 and response.json()["queued"] == 2, response.text
         for index, setpoint in enumerate(SETPOINTS):

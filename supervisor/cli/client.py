@@ -2,8 +2,8 @@
 against a running service's REST API; fault and reset for the embedded simulated world
 (docs/faults.md).
 
-It imports the standard library only (``supervisor.cli.rest_client``), so that it starts
-at once. The service is
+It starts on the standard library (``supervisor.cli.rest_client``), so that it answers at
+once; a command that reads the status loads its pydantic model then. The service is
 found as ``supervisor.cli.address`` says; the token comes from ``--token`` or the
 environment variable ``UAVBAR_TOKEN``. Abort and kill give the API 0.3 s, then go straight
 to the flight process (``supervisor.cli.direct``). Angles are degrees here and radians in
