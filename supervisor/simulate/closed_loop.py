@@ -73,6 +73,10 @@ class SimulationResult:
         return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
 
 
+# Modes a scenario never asks for but an abort step: a flight that enters one has failed.
+UNPLANNED_ENDS = frozenset({Mode.ABORT, Mode.PX4_LANDING, Mode.KILLED})
+
+
 class ScenarioScript:
     """Plays a scenario's steps as an operator would, one tick at a time."""
 
@@ -101,6 +105,9 @@ class ScenarioScript:
                 (s.timeout_s or STEP_TIMEOUT_S) + s.hold_s
                 for s in self.steps[first : self.index + 1]
             )
+            return
+        if core.modes.mode in UNPLANNED_ENDS and step.action != "abort":
+            self._fail(f"step {self.index + 1}: the flight ended in {core.modes.mode.value}")
             return
         if self._finished(step, core, now_s):
             self.index += 1

@@ -213,8 +213,9 @@ def test_short_slack_episodes_repeated_abort_a_flight_in_closed_loop(
     sim_config: Config, tmp_path: Path
 ) -> None:
     """Slack episodes far shorter than the 0.5 s one episode may last, every 2 s: the
-    slack monitor adds them up and aborts within its 10 s window; with the window off
-    (``safety.slack_in_window_s`` = the window itself) the same flight is never aborted."""
+    slack monitor adds them up and aborts within its 10 s window, and the flight is not
+    completed; with the window off (``safety.slack_in_window_s`` = the window itself) the
+    same flight is never aborted."""
     path = tmp_path / "pushes.toml"
     path.write_text(pushes_down_on_uav1(6))
     params = sim_config.system.to_params()
@@ -225,10 +226,11 @@ def test_short_slack_episodes_repeated_abort_a_flight_in_closed_loop(
         assert result.log_path is not None
         episodes = slack_episodes_s(read_flight_log(result.log_path), params)
         assert len(episodes) >= 6 and max(episodes) < 0.2, episodes
-        outcomes[name] = result.messages
-    [abort] = outcomes["window"]
+        outcomes[name] = (result.completed, result.messages)
+    completed, (abort, failure) = outcomes["window"]
     assert abort.startswith("abort: cables slack 0.5") and "within the last 10 s" in abort
-    assert outcomes["no window"] == []
+    assert not completed and failure == "step 1: the flight ended in abort", failure
+    assert outcomes["no window"] == (True, [])
 
 
 # The paper's controllers: beyond-the-paper settings the shipped setup turns on, off.
