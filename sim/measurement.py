@@ -190,13 +190,18 @@ class MocapModel:
         # lands in slot k despite rounding.
         return math.floor((time_s - self._params.start_time_s) * self._params.rate_hz + 1e-6)
 
+    def due(self, time_s: float) -> bool:
+        """Whether a frame is due at ``time_s``: ``capture`` then takes one (callers skip
+        building the plant's truth when it would not)."""
+        return self._slot(time_s) >= self._next_slot
+
     def capture(self, truth: PlantTruth) -> MocapFrame | None:
         """Capture a frame of ``truth`` if one is due at ``truth.time_s`` (at most one per
         call; slots missed since the last capture are skipped, not made up). The frame is
         queued for delivery and also returned; None when no frame was due."""
-        slot = self._slot(truth.time_s)
-        if slot < self._next_slot:
+        if not self.due(truth.time_s):
             return None
+        slot = self._slot(truth.time_s)
         self._next_slot = slot + 1
         p = self._params
         n = len(p.bodies)

@@ -27,6 +27,7 @@ UAVs are numbered 1 to N as in the paper; the bodies are named "uav1" … "uavN"
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -70,12 +71,12 @@ class PlantLayout:
         if not MIN_VEHICLES <= self.n_uavs <= MAX_VEHICLES:
             raise ValueError(f"the plant flies {MIN_VEHICLES} to {MAX_VEHICLES} UAVs")
 
-    @property
+    @functools.cached_property
     def uav_names(self) -> tuple[str, ...]:
         """("uav1", …, "uavN")."""
         return tuple(f"uav{i}" for i in range(1, self.n_uavs + 1))
 
-    @property
+    @functools.cached_property
     def body_names(self) -> tuple[str, ...]:
         """Every body in the state's order: the UAVs, then the payload."""
         return (*self.uav_names, self.payload_name)
@@ -92,9 +93,10 @@ class PlantLayout:
 
     def body_index(self, name: str) -> int:
         """The index of body ``name`` (ValueError if the plant has no such body)."""
-        if name not in self.body_names:
-            raise ValueError(f"unknown body {name!r}; bodies are {self.body_names}")
-        return self.body_names.index(name)
+        try:
+            return self.body_names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown body {name!r}; bodies are {self.body_names}") from None
 
     def uav_index(self, uav: int) -> int:
         """The index (0 … N − 1) of UAV ``uav`` (1 … N)."""
@@ -577,7 +579,8 @@ class Plant:
             self._steps += chunk
             n_steps -= chunk
         self._diag_fresh = False
-        if not np.all(np.isfinite(self._x)):
+        # One sum instead of a test per entry: NaN or ±inf anywhere makes it non-finite.
+        if not math.isfinite(float(self._x.sum())):
             raise FloatingPointError(f"plant state is not finite at t = {self.time_s:.3f} s")
 
     def _load_chunk(self, n_steps: int) -> int:
@@ -656,13 +659,13 @@ class Plant:
         """Hold thrust [N] and body torque FLU [N m] on UAV ``uav`` (1 … N) after
         saturation: thrust to [0, thrust_max], each torque axis to ±torque_max."""
         i = self._layout.uav_index(uav)
-        torque = np.asarray(torque_nm, dtype=float).reshape(3)
-        if not (math.isfinite(thrust_n) and np.all(np.isfinite(torque))):
+        torque = [float(v) for v in np.asarray(torque_nm, dtype=float).reshape(3)]
+        if not all(math.isfinite(v) for v in (thrust_n, *torque)):
             raise ValueError(f"non-finite command for UAV {uav}: {thrust_n}, {torque}")
         params = self._params.uavs[i]
-        limit = np.array(params.torque_max_nm, dtype=float)
         self._cmd[4 * i] = min(max(float(thrust_n), 0.0), params.thrust_max_n)
-        self._cmd[4 * i + 1 : 4 * i + 4] = np.clip(torque, -limit, limit)
+        for axis, (value, limit) in enumerate(zip(torque, params.torque_max_nm, strict=True)):
+            self._cmd[4 * i + 1 + axis] = min(max(value, -limit), limit)
 
     def commanded(self, uav: int) -> tuple[float, FloatArray]:
         """The saturated command held on UAV ``uav``: (thrust [N], torque [N m] (3,))."""

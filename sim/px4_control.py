@@ -31,37 +31,49 @@ class RateGains:
 
 @dataclass
 class RateController:
-    """Body-rate PID → body torque [N m], saturated per axis."""
+    """Body-rate PID → body torque [N m], saturated per axis. Per-axis floats, not
+    3-vectors: the world runs it for every UAV every ~2 ms, where numpy's per-call cost
+    was most of a simulated PX4's time."""
 
     inertia_kgm2: tuple[float, float, float]
     torque_max_nm: float
     gains: RateGains = field(default_factory=RateGains)
-    _integral: FloatArray = field(default_factory=lambda: np.zeros(3))
-    _last_rates: FloatArray | None = None
+    _integral: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    _last_rates: tuple[float, float, float] | None = None
 
     def reset(self) -> None:
-        self._integral = np.zeros(3)
+        self._integral = [0.0, 0.0, 0.0]
         self._last_rates = None
 
     def torque(self, rates_sp: FloatArray, rates: FloatArray, dt: float) -> FloatArray:
         """The torque that drives the body rates ``rates`` toward ``rates_sp`` [rad/s]."""
         g = self.gains
-        error = rates_sp - rates
-        if dt > 0.0:
-            limit = g.integral_limit_radps
-            self._integral = np.clip(self._integral + error * dt, -limit, limit)
-        derivative = (
-            (rates - self._last_rates) / dt
-            if self._last_rates is not None and dt > 0.0
-            else np.zeros(3)
+        limit = g.integral_limit_radps
+        w = (float(rates[0]), float(rates[1]), float(rates[2]))
+        w_sp = (float(rates_sp[0]), float(rates_sp[1]), float(rates_sp[2]))
+        last = self._last_rates if dt > 0.0 else None
+        self._last_rates = w
+        J = self.inertia_kgm2
+        accel = [0.0, 0.0, 0.0]
+        for axis in range(3):
+            error = w_sp[axis] - w[axis]
+            if dt > 0.0:
+                self._integral[axis] = min(max(self._integral[axis] + error * dt, -limit), limit)
+            derivative = 0.0 if last is None else (w[axis] - last[axis]) / dt
+            accel[axis] = (
+                g.kp[axis] * error + g.ki[axis] * self._integral[axis] - g.kd[axis] * derivative
+            )
+        # J·α + ω × (J ω)
+        Jw = (J[0] * w[0], J[1] * w[1], J[2] * w[2])
+        gyroscopic = (
+            w[1] * Jw[2] - w[2] * Jw[1],
+            w[2] * Jw[0] - w[0] * Jw[2],
+            w[0] * Jw[1] - w[1] * Jw[0],
         )
-        self._last_rates = rates.copy()
-        J = np.asarray(self.inertia_kgm2)
-        accel = np.asarray(g.kp) * error + np.asarray(g.ki) * self._integral
-        accel -= np.asarray(g.kd) * derivative
-        torque = J * accel + np.cross(rates, J * rates)
-        result: FloatArray = np.clip(torque, -self.torque_max_nm, self.torque_max_nm)
-        return result
+        bound = self.torque_max_nm
+        return np.array(
+            [min(max(J[i] * accel[i] + gyroscopic[i], -bound), bound) for i in range(3)]
+        )
 
 
 @dataclass(frozen=True)

@@ -45,15 +45,15 @@ class TruthStats:
         """Account for the plant's state now; ``airborne`` is the flight mode's view."""
         cables = plant.cables()
         self.min_tension_n = min(self.min_tension_n, *cables.tension_n)
+        bodies = {name: plant.body(name) for name in self.bodies}
         if airborne:
-            for name in self.bodies:
-                body = plant.body(name)
+            for name, body in bodies.items():
                 if body.position_m[2] > DESCENT_FLOOR_M:
                     descent = max(self.descent_by_body_mps[name], -float(body.velocity_mps[2]))
                     self.descent_by_body_mps[name] = descent
                     self.max_descent_mps = max(self.max_descent_mps, descent)
         payload = self.bodies[0]
-        hanging = plant.body(payload).position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
+        hanging = bodies[payload].position_m[2] > self.bar_rest_z_m + HANGING_CLEARANCE_M
         if not airborne or not hanging:
             self._slack = cables.slack
             self._last_hanging_s = None
@@ -67,7 +67,7 @@ class TruthStats:
         )
         self._slack = cables.slack
         for name in self.bodies[1:]:
-            z_axis_z = float(plant.body(name).rotation[2, 2])
+            z_axis_z = float(bodies[name].rotation[2, 2])
             tilt = math.degrees(math.acos(max(-1.0, min(1.0, z_axis_z))))
             self.max_tilt_deg = max(self.max_tilt_deg, tilt)
 

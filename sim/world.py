@@ -221,7 +221,8 @@ class SimulatedWorld:
         while plant.time_s < until_s - 0.5 * step:
             stop = min(until_s, max(self.mocap.next_capture_time_s, plant.time_s + step))
             plant.advance(stop - plant.time_s)
-            self.mocap.capture(plant.truth())
+            if self.mocap.due(plant.time_s):
+                self.mocap.capture(plant.truth())
             self.truth.update(plant, airborne=True)
             for vehicle in self.vehicles:
                 vehicle.step(plant.time_s)

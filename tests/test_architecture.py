@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -219,3 +221,16 @@ def test_the_rules_cover_every_package() -> None:
     assert {
         p.name for p in ROOT.iterdir() if (p / "__init__.py").exists() and p.name != "tests"
     } == set(PACKAGES)
+
+
+@pytest.mark.parametrize("entry", ["supervisor.app.flight_main", "supervisor.app.relay_main"])
+def test_the_flight_and_relay_processes_never_load_the_simulator(entry: str) -> None:
+    """They fly whatever answers on the configured addresses; importing the simulator (its
+    compiled kernels) cost each start of theirs a second."""
+    program = (
+        f"import sys, {entry}; print(sorted(m for m in sys.modules if m.split('.')[0] == 'sim'))"
+    )
+    loaded = subprocess.run(
+        [sys.executable, "-c", program], cwd=ROOT, capture_output=True, text=True, check=True
+    )
+    assert loaded.stdout.strip() == "[]"

@@ -38,13 +38,13 @@ from sim.world import (
     VehicleFactory,
     WorldRefusedError,
 )
-from supervisor.app.assembly import (
+from supervisor.app.child_process import stop_event
+from supervisor.app.config import Config
+from supervisor.app.sim_assembly import (
     mocap_params_from_config,
     plant_params_from_config,
     px4_params_from_config,
 )
-from supervisor.app.child_process import stop_event
-from supervisor.app.config import Config
 from supervisor.flight.operator_requests import Outcome, Reply
 from supervisor.ipc.channel import ChannelClosedError, ChannelServer, WorldChannel
 from supervisor.ipc.world_client import serve_world_requests

@@ -215,5 +215,5 @@ def _percentiles(values: deque[float]) -> tuple[float | None, float | None]:
     """The median and the 99th percentile of ``values`` (None, None: there are none)."""
     if not values:
         return None, None
-    array = np.fromiter(values, float)
-    return float(np.percentile(array, 50)), float(np.percentile(array, 99))
+    median, p99 = np.percentile(np.fromiter(values, float), (50, 99))
+    return float(median), float(p99)

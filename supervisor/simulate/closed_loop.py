@@ -30,11 +30,13 @@ from supervisor.app.assembly import (
     body_names_from_config,
     flight_core_from_config,
     fusion_from_config,
+)
+from supervisor.app.config import Config
+from supervisor.app.sim_assembly import (
     mocap_params_from_config,
     plant_params_from_config,
     qtm_names_of_plant_bodies,
 )
-from supervisor.app.config import Config
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import Event, Mode
@@ -232,7 +234,8 @@ class ClosedLoop:
             next_capture = self.mocap.next_capture_time_s
             stop = min(until_s, max(next_capture, self.plant.time_s + self.plant.step_s))
             self.plant.advance(stop - self.plant.time_s)
-            self.mocap.capture(self.plant.truth())
+            if self.mocap.due(self.plant.time_s):
+                self.mocap.capture(self.plant.truth())
         self.now_s = until_s
 
     def apply(self, result: TickResult) -> None:

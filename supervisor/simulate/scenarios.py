@@ -37,7 +37,6 @@ from pydantic import (
 from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
 from sim.loads import BODIES, ExternalLoad
 from sim.plant import layout_of
-from supervisor.app.assembly import plant_params_from_config
 from supervisor.app.config import (
     Config,
     ConfigError,
@@ -48,6 +47,7 @@ from supervisor.app.config import (
     Vec3,
 )
 from supervisor.app.config_files import SCENARIO_DIR, shipped_scenarios
+from supervisor.app.sim_assembly import plant_params_from_config
 from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 
 

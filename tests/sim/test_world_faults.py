@@ -27,8 +27,8 @@ from sim.faults import (
 from sim.px4 import BOOT_MODE, FORCE_MAGIC, MainMode
 from sim.px4_endpoint import Px4Endpoint
 from sim.world import SimulatedWorld, WorldRefusedError
-from supervisor.app.assembly import mocap_params_from_config, plant_params_from_config
 from supervisor.app.config import load_config
+from supervisor.app.sim_assembly import mocap_params_from_config, plant_params_from_config
 from supervisor.app.world_process import build_world
 from tests.conftest import CONFIGS
 from tests.sim.test_px4_endpoint import Bench, Resting, of_type

@@ -21,8 +21,8 @@ from mocap.qtm_protocol import BodyPose
 from px4_mavlink.codec import MavlinkCodec, mavlink
 from sim.faults import FaultError, LinkLost, MocapBodyLost, MocapJump, Push, Px4Reboot
 from sim.world import SimulatedWorld
-from supervisor.app.assembly import mocap_params_from_config, plant_params_from_config
 from supervisor.app.config import load_config
+from supervisor.app.sim_assembly import mocap_params_from_config, plant_params_from_config
 from supervisor.app.world_process import handle_world_request
 from supervisor.flight.operator_requests import Outcome
 from supervisor.ipc.world_messages import FaultSpec, ResetWorld, StartFault
