@@ -53,8 +53,15 @@ def can_raise_priority() -> bool:
     return bool(match and int(match.group(1), 16) >> CAP_SYS_NICE & 1)
 
 
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def single_threaded_blas() -> None:
-    """Limit every BLAS/OpenMP pool loaded in this process to one thread, for good."""
+    """Limit every BLAS/OpenMP pool of this process to one thread, for good: those loaded
+    now, and through the environment those loaded later (scipy brings an OpenBLAS of its
+    own on first use, whose idle threads spun a second core in the flight process)."""
+    for variable in BLAS_THREAD_VARIABLES:
+        os.environ[variable] = "1"
     threadpool_limits(limits=1)
 
 

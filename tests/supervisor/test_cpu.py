@@ -41,3 +41,23 @@ def test_root_can_and_an_unprivileged_user_cannot() -> None:
         check=True,
     )
     assert unprivileged.stdout.strip() == "False", unprivileged
+
+
+def test_blas_loaded_after_the_limit_runs_on_one_thread_too() -> None:
+    """scipy brings an OpenBLAS of its own on first use: limited only when it was already
+    loaded, its idle threads spun a second core in the flight process."""
+    program = (
+        "from supervisor.runtime.cpu import single_threaded_blas; single_threaded_blas(); "
+        "import scipy.linalg; from threadpoolctl import threadpool_info; "
+        "print(sorted({pool['num_threads'] for pool in threadpool_info()}))"
+    )
+    environment = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    pools = subprocess.run(
+        [sys.executable, "-c", program],
+        cwd=ROOT,
+        env=environment,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert pools.stdout.strip() == "[1]"
