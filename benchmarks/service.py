@@ -22,6 +22,7 @@ from supervisor.flight.modes import Mode
 from supervisor.flight.status import Status
 
 START_TIMEOUT_S = 120.0
+CLIENT_KEEPALIVE_S = 2.0
 BRIEF = {"mode", "phase", "bar", "setpoints", "faults", "notices"}  # of a status, timed out
 CHILDREN = ("world", "relay", "flight", "api")  # serve's processes, uavbar-NAME
 
@@ -81,8 +82,12 @@ class RunningService:
     output: list[str]
 
     def client(self, **options: Any) -> httpx.AsyncClient:
-        """An HTTP client with the token set."""
+        """An HTTP client with the token set. It lets go of a connection idle for
+        ``CLIENT_KEEPALIVE_S``, well before the server's keep-alive timeout (uvicorn's 5 s,
+        httpx's own default too): reused just as the server closed it, a request was
+        answered "Server disconnected without sending a response"."""
         headers = {"Authorization": f"Bearer {self.token}"}
+        options.setdefault("limits", httpx.Limits(keepalive_expiry=CLIENT_KEEPALIVE_S))
         return httpx.AsyncClient(base_url=self.url, headers=headers, timeout=10.0, **options)
 
     def child_pid(self, name: str) -> int:
