@@ -26,7 +26,11 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_equilibria import (
+    FormationReference,
+    agent_equilibrium,
+    formation_equilibrium,
+)
 from controllers.formation_model import FormationModel
 from controllers.formation_params import FormationParams
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, agent_state, measured_yaws
@@ -94,15 +98,15 @@ def centralized_run(
 def decentralized_run(
     params: FormationParams, settings: MpcSettings, backend: str, seq: Sequence
 ) -> tuple[np.ndarray, np.ndarray]:
-    """UAV 1's agent alone: its full tick from the formation's state to its u*."""
+    """UAV 1's agent alone: its full tick from the formation's state to its u*, as on a
+    computer of its own (its own part of the equilibria, not the formation's)."""
     agent = DecentralizedMpc(params, settings, backend, clock=time.perf_counter).agents[0]
 
     def tick(k: int) -> np.ndarray:
         state, reference = seq[k]
-        eq = formation_equilibrium(params, reference)
-        lin = formation_equilibrium(
-            params, reference.with_yaws(*measured_yaws(state, params.layout))
-        )
+        eq = agent_equilibrium(params, reference, 1)
+        turned = reference.with_yaws(*measured_yaws(state, params.layout))
+        lin = agent_equilibrium(params, turned, 1)
         result = agent.solve(agent_state(state, params, 1), eq, agent.linearize(lin))
         if isinstance(result, str):
             return np.full(4, np.nan)

@@ -125,15 +125,52 @@ class FormationEquilibrium:
     def agent_state(self, i: int) -> FloatArray:
         """The decentralized agent ``i``'s x_i ∈ R^18 at this equilibrium: UAV i, and its
         attachment e_i with that point's velocity v_b + ω_b × (e_i − p_b)."""
-        x_i = np.zeros(AGENT_STATES)
-        x_i[UAV_BLOCK] = self.x[self.layout.uav_block(i)]
-        x_i[P_P] = self.attachments_m[i - 1]
-        x_i[V_P] = self.x[V_B] + cross3(self.x[W_B], self.attachments_m[i - 1] - self.x[P_B])
-        return x_i
+        x = self.x
+        return _agent_state(
+            x[self.layout.uav_block(i)], self.attachments_m[i - 1], x[P_B], x[V_B], x[W_B]
+        )
 
     def agent_input(self, i: int) -> FloatArray:
         """The decentralized agent ``i``'s u_i = (F_i, τ_i) at this equilibrium."""
         return self.u[self.layout.uav_input_slice(i)].copy()
+
+    def agent(self, i: int) -> AgentEquilibrium:
+        """What agent ``i`` needs of this equilibrium (``agent_equilibrium`` alone)."""
+        return AgentEquilibrium(
+            i,
+            self.agent_state(i),
+            self.agent_input(i),
+            self.payload_force_n[i - 1],
+            self.payload_mass_share_kg[i - 1],
+        )
+
+
+@dataclass(frozen=True)
+class AgentEquilibrium:
+    """Decentralized agent ``i``'s part of a formation equilibrium: its x_i (18,) and
+    u_i (4,), the horizontal pull of the rest of the payload on its attachment [N] (3,)
+    and its cable's vertical load V_i / g [kg]. ``agent_equilibrium`` gives it without
+    the other vehicles, so that an agent's tick does not grow with N."""
+
+    i: int
+    x: FloatArray
+    u: FloatArray
+    payload_force_n: FloatArray
+    payload_mass_share_kg: float
+
+
+def _agent_state(
+    uav_block: FloatArray,
+    attachment_m: FloatArray,
+    payload_position_m: FloatArray,
+    payload_velocity_mps: FloatArray,
+    payload_rates_radps: FloatArray,
+) -> FloatArray:
+    x_i = np.zeros(AGENT_STATES)
+    x_i[UAV_BLOCK] = uav_block
+    x_i[P_P] = attachment_m
+    x_i[V_P] = payload_velocity_mps + cross3(payload_rates_radps, attachment_m - payload_position_m)
+    return x_i
 
 
 @dataclass(frozen=True)
@@ -247,6 +284,87 @@ def formation_equilibrium(
     return replace(cached, x=cached.x.copy(), u=cached.u.copy())
 
 
+@dataclass(frozen=True)
+class _Vehicle:
+    """UAV i's part of an equilibrium: its 12 states (p, v, Θ, ω), its thrust and cable."""
+
+    block: tuple[float, ...]
+    thrust_n: float
+    tension_n: float
+    cable_angle_rad: float
+    tilt_rad: float
+    attachment_m: tuple[float, float, float]
+    payload_force_n: tuple[float, float, float]
+
+
+def _vehicle(
+    params: FormationParams,
+    reference: FormationReference,
+    loads: _CableLoads,
+    k: int,
+    limits: FormationLimits | None,
+) -> _Vehicle:
+    """UAV ``k + 1``'s part of the equilibrium for ``reference``: alone, since each
+    cable's loads are known (``_cable_loads``)."""
+    g = params.gravity_mps2
+    psi_b, psi_b_rate = reference.payload_yaw_rad, reference.payload_yaw_rate_radps
+    cos_b, sin_b = math.cos(psi_b), math.sin(psi_b)
+    bx, by, bz = reference.payload_position_m
+    vx, vy, vz = reference.velocity_mps
+    ax, ay, az = params.payload.attachments_m[k]
+    cable, uav = params.cable_lengths_m[k], params.uavs[k]
+    rho_x, rho_y = cos_b * ax - sin_b * ay, sin_b * ax + cos_b * ay  # R(ψ_b) a_i, level
+    reach = math.hypot(rho_x, rho_y)
+    out_x, out_y = (rho_x / reach, rho_y / reach) if reach > BAR_TOLERANCE_M else (0.0, 0.0)
+    vertical, tan_angle = float(loads.vertical_n[k]), float(loads.tan_angle[k])
+    angle = math.atan(tan_angle)
+    sin_a, cos_a = math.sin(angle), math.cos(angle)
+    tension = vertical / cos_a
+    n_x, n_y, n_z = sin_a * out_x, sin_a * out_y, cos_a
+    end = (bx + rho_x, by + rho_y, bz + az)
+    thrust_vector = (tension * n_x, tension * n_y, uav.mass_kg * g + tension * n_z)
+    thrust = math.hypot(*thrust_vector)
+    tilt = math.atan2(math.hypot(thrust_vector[0], thrust_vector[1]), thrust_vector[2])
+    if limits is not None:
+        _check_limits(limits, k + 1, thrust, tilt)
+    yaw = reference.uav_yaw_rad[k]
+    yaw_rate = reference.uav_yaw_rates_radps[k]
+    roll, pitch = tilt_to_euler(thrust_vector, yaw)
+    px, py = end[0] + cable * n_x, end[1] + cable * n_y
+    # The formation turning about the payload's CoM at ψ̇_b, and the cable swinging
+    # outward at θ̇_i = cos²θ_i d(tan θ_i)/d(cone) · cone rate: l θ̇_i ∂n_i/∂θ_i.
+    swing = (
+        cable * cos_a**2 * float(loads.tan_angle_per_cone_rad[k]) * reference.cone_angle_rate_radps
+    )
+    # A turn about the vertical at ψ̇, in the body frame: ψ̇ Rᵀ e_z, with R of (2).
+    cos_pitch = math.cos(pitch)
+    block = (
+        px,
+        py,
+        end[2] + cable * n_z,
+        vx - psi_b_rate * (py - by) + swing * cos_a * out_x,
+        vy + psi_b_rate * (px - bx) + swing * cos_a * out_y,
+        vz - swing * sin_a,
+        roll,
+        pitch,
+        yaw,
+        -yaw_rate * math.sin(pitch),
+        yaw_rate * math.sin(roll) * cos_pitch,
+        yaw_rate * math.cos(roll) * cos_pitch,
+    )
+    return _Vehicle(block, thrust, tension, angle, tilt, end, (-tension * n_x, -tension * n_y, 0.0))
+
+
+def _payload_motion(reference: FormationReference) -> tuple[FloatArray, ...]:
+    """The payload's p_b, v_b, Θ_b and ω_b at the equilibrium for ``reference``."""
+    return (
+        np.array(reference.payload_position_m, dtype=float),
+        np.array(reference.velocity_mps, dtype=float),
+        np.array((0.0, 0.0, reference.payload_yaw_rad)),
+        np.array((0.0, 0.0, reference.payload_yaw_rate_radps)),
+    )
+
+
 @lru_cache(maxsize=8)
 def _cached_equilibrium(
     params: FormationParams,
@@ -255,83 +373,68 @@ def _cached_equilibrium(
 ) -> FormationEquilibrium:
     layout = params.layout
     loads = _cable_loads(params, reference.cone_angle_rad)
-    verticals, tans = loads.vertical_n.tolist(), loads.tan_angle.tolist()
-    tan_rates = loads.tan_angle_per_cone_rad.tolist()
-    g = params.gravity_mps2
-    psi_b, psi_b_rate = reference.payload_yaw_rad, reference.payload_yaw_rate_radps
-    cos_b, sin_b = math.cos(psi_b), math.sin(psi_b)
-    bx, by, bz = reference.payload_position_m
-    vx, vy, vz = reference.velocity_mps
-    uav_rates = reference.uav_yaw_rates_radps
-
+    vehicles = [_vehicle(params, reference, loads, k, limits) for k in range(params.n_vehicles)]
     x = np.zeros(layout.n_states)
     u = np.zeros(layout.n_inputs)
-    x[P_B] = (bx, by, bz)
-    x[V_B] = (vx, vy, vz)
-    x[TH_B] = (0.0, 0.0, psi_b)
-    x[W_B] = (0.0, 0.0, psi_b_rate)
-    tensions, thrusts, angles, tilts, ends, forces = [], [], [], [], [], []
-    for k, ((ax, ay, az), cable, uav) in enumerate(
-        zip(params.payload.attachments_m, params.cable_lengths_m, params.uavs, strict=True)
-    ):
-        i = k + 1
-        rho_x, rho_y = cos_b * ax - sin_b * ay, sin_b * ax + cos_b * ay  # R(ψ_b) a_i, level
-        reach = math.hypot(rho_x, rho_y)
-        out_x, out_y = (rho_x / reach, rho_y / reach) if reach > BAR_TOLERANCE_M else (0.0, 0.0)
-        vertical, tan_angle = verticals[k], tans[k]
-        angle = math.atan(tan_angle)
-        sin_a, cos_a = math.sin(angle), math.cos(angle)
-        tension = vertical / cos_a
-        n_x, n_y, n_z = sin_a * out_x, sin_a * out_y, cos_a
-        end = (bx + rho_x, by + rho_y, bz + az)
-        thrust_vector = (tension * n_x, tension * n_y, uav.mass_kg * g + tension * n_z)
-        thrust = math.hypot(*thrust_vector)
-        tilt = math.atan2(math.hypot(thrust_vector[0], thrust_vector[1]), thrust_vector[2])
-        if limits is not None:
-            _check_limits(limits, i, thrust, tilt)
-        yaw = reference.uav_yaw_rad[k]
-        roll, pitch = tilt_to_euler(thrust_vector, yaw)
-
-        p_i, v_i, th_i, w_i = layout.uav_slices(i)
-        px, py = end[0] + cable * n_x, end[1] + cable * n_y
-        x[p_i] = (px, py, end[2] + cable * n_z)
-        # The formation turning about the payload's CoM at ψ̇_b, and the cable swinging
-        # outward at θ̇_i = cos²θ_i d(tan θ_i)/d(cone) · cone rate: l θ̇_i ∂n_i/∂θ_i.
-        swing = cable * cos_a**2 * tan_rates[k] * reference.cone_angle_rate_radps
-        x[v_i] = (
-            vx - psi_b_rate * (py - by) + swing * cos_a * out_x,
-            vy + psi_b_rate * (px - bx) + swing * cos_a * out_y,
-            vz - swing * sin_a,
-        )
-        x[th_i] = (roll, pitch, yaw)
-        # A turn about the vertical at ψ̇, in the body frame: ψ̇ Rᵀ e_z, with R of (2).
-        cos_pitch = math.cos(pitch)
-        x[w_i] = (
-            -uav_rates[k] * math.sin(pitch),
-            uav_rates[k] * math.sin(roll) * cos_pitch,
-            uav_rates[k] * math.cos(roll) * cos_pitch,
-        )
-        u[layout.thrust_index(i)] = thrust
-
-        tensions.append(tension)
-        thrusts.append(thrust)
-        angles.append(angle)
-        tilts.append(tilt)
-        ends.append(np.array(end))
-        forces.append(np.array((-tension * n_x, -tension * n_y, 0.0)))
+    x[P_B], x[V_B], x[TH_B], x[W_B] = _payload_motion(reference)
+    for i, vehicle in enumerate(vehicles, start=1):
+        x[layout.uav_block(i)] = vehicle.block
+        u[layout.thrust_index(i)] = vehicle.thrust_n
+    ends = tuple(np.array(v.attachment_m) for v in vehicles)
+    forces = tuple(np.array(v.payload_force_n) for v in vehicles)
     for array in (*ends, *forces):
         array.setflags(write=False)
+    g = params.gravity_mps2
     return FormationEquilibrium(
         x=x,
         u=u,
-        tensions_n=tuple(tensions),
-        thrusts_n=tuple(thrusts),
-        cable_angles_rad=tuple(angles),
-        tilts_rad=tuple(tilts),
-        attachments_m=tuple(ends),
-        payload_force_n=tuple(forces),
-        payload_mass_share_kg=tuple(v / g for v in verticals),
+        tensions_n=tuple(v.tension_n for v in vehicles),
+        thrusts_n=tuple(v.thrust_n for v in vehicles),
+        cable_angles_rad=tuple(v.cable_angle_rad for v in vehicles),
+        tilts_rad=tuple(v.tilt_rad for v in vehicles),
+        attachments_m=ends,
+        payload_force_n=forces,
+        payload_mass_share_kg=tuple(float(v) / g for v in loads.vertical_n),
     )
+
+
+def agent_equilibrium(
+    params: FormationParams,
+    reference: FormationReference,
+    i: int,
+    limits: FormationLimits | None = None,
+) -> AgentEquilibrium:
+    """Agent ``i``'s part of ``formation_equilibrium(params, reference, limits)``, the
+    same numbers without computing the other vehicles' (an agent's tick at any N); raises
+    ``EquilibriumError`` as that does for this UAV and for the payload."""
+    _check_reference(reference, params.n_vehicles)
+    if not 1 <= i <= params.n_vehicles:
+        raise EquilibriumError(f"UAVs are numbered 1 to {params.n_vehicles}, got {i}")
+    return _cached_agent_equilibrium(params, reference, i, limits)
+
+
+@lru_cache(maxsize=8)
+def _cached_agent_equilibrium(
+    params: FormationParams,
+    reference: FormationReference,
+    i: int,
+    limits: FormationLimits | None,
+) -> AgentEquilibrium:
+    loads = _cable_loads(params, reference.cone_angle_rad)
+    vehicle = _vehicle(params, reference, loads, i - 1, limits)
+    p_b, v_b, _, w_b = _payload_motion(reference)
+    u_i = np.zeros(4)
+    u_i[0] = vehicle.thrust_n
+    agent = AgentEquilibrium(
+        i,
+        _agent_state(np.array(vehicle.block), np.array(vehicle.attachment_m), p_b, v_b, w_b),
+        u_i,
+        np.array(vehicle.payload_force_n),
+        float(loads.vertical_n[i - 1]) / params.gravity_mps2,
+    )
+    for array in (agent.x, agent.u, agent.payload_force_n):
+        array.setflags(write=False)
+    return agent
 
 
 def hanging_mass_shares_kg(params: FormationParams) -> tuple[float, ...]:

@@ -34,7 +34,7 @@ import numpy as np
 
 from controllers.codegen import NumericFunction
 from controllers.formation_equilibria import (
-    FormationEquilibrium,
+    AgentEquilibrium,
     FormationReference,
     formation_equilibrium,
     hanging_mass_shares_kg,
@@ -514,29 +514,25 @@ class _Agent:
         self.mpc = LinearMpc(AGENT_STATES, AGENT_INPUTS, settings, a_pattern, b_pattern, backend)
         self.u_lb, self.u_ub = _input_bounds(settings, 1)
 
-    def external_force(self, lin: FormationEquilibrium) -> FloatArray:
+    def external_force(self, lin: AgentEquilibrium) -> FloatArray:
         """f_ext [N] that makes ``lin`` a fixed point of this agent's model: the pull of the
         rest of the payload, and the difference between the vertical load the cable carries
         at ``lin`` and the model's weight (zero for a bar, and at a cone angle of 0)."""
-        i = self.i
-        force = lin.payload_force_n[i - 1].copy()
-        force[2] = (self.payload_mass_kg - lin.payload_mass_share_kg[i - 1]) * (
-            self.params.gravity_mps2
-        )
+        force = lin.payload_force_n.copy()
+        force[2] = (self.payload_mass_kg - lin.payload_mass_share_kg) * self.params.gravity_mps2
         return force
 
-    def linearize(self, lin: FormationEquilibrium) -> tuple[FloatArray, FloatArray]:
-        """(A, B) of the discrete 18-state model at the equilibrium ``lin``."""
-        i = self.i
-        A_c, B_c = self._jacobians(lin.agent_state(i), lin.agent_input(i), self.external_force(lin))
+    def linearize(self, lin: AgentEquilibrium) -> tuple[FloatArray, FloatArray]:
+        """(A, B) of the discrete 18-state model at this agent's equilibrium ``lin``."""
+        A_c, B_c = self._jacobians(lin.x, lin.u, self.external_force(lin))
         return discretize(A_c, B_c, self.settings.dt_s)
 
     def solve(
-        self, x_i: FloatArray, eq: FormationEquilibrium, model: tuple[FloatArray, FloatArray]
+        self, x_i: FloatArray, eq: AgentEquilibrium, model: tuple[FloatArray, FloatArray]
     ) -> tuple[FloatArray, FloatArray, int] | str:
         """(u_pred, x_pred, iterations) in absolute terms, or the failure text."""
         i = self.i
-        x_eq, u_eq = eq.agent_state(i), eq.agent_input(i)
+        x_eq, u_eq = eq.x, eq.u
         A, B = model
         dx0 = wrap_angles(x_i - x_eq, AGENT_YAW_INDICES)
         solution = self.mpc.backend.solve(
@@ -579,7 +575,7 @@ class DecentralizedMpc:
 
     def _linearize(self, turned: FormationReference) -> Models:
         lin = formation_equilibrium(self.params, turned)
-        return tuple(agent.linearize(lin) for agent in self.agents)
+        return tuple(agent.linearize(lin.agent(agent.i)) for agent in self.agents)
 
     def prepare(self, state: FloatArray, reference: FormationReference) -> None:
         """Linearize every agent for the next tick at ``state``'s yaws one step ahead and
@@ -612,7 +608,7 @@ class DecentralizedMpc:
         try:
             models = self._preparation.models(state, reference)
             results = [
-                agent.solve(agent_state(state, self.params, agent.i), eq, model)
+                agent.solve(agent_state(state, self.params, agent.i), eq.agent(agent.i), model)
                 for agent, model in zip(self.agents, models, strict=True)
             ]
         except Exception as error:

@@ -15,6 +15,7 @@ from controllers.equilibria import EquilibriumError
 from controllers.formation_equilibria import (
     FormationLimits,
     FormationReference,
+    agent_equilibrium,
     formation_equilibrium,
     hanging_mass_shares_kg,
 )
@@ -395,3 +396,42 @@ def test_symmetry_and_the_bar_s_arms() -> None:
     for other in (plate_params(3), three_cable_bar()):
         with pytest.raises(ValueError, match="arms d1 and d2"):
             _ = other.bar_arms_m
+
+
+@pytest.mark.parametrize("params", GEOMETRIES.values(), ids=GEOMETRIES.keys())
+def test_an_agents_own_equilibrium_is_its_part_of_the_formations(params: FormationParams) -> None:
+    """Bit for bit, moving and turning: an agent on a computer of its own flies what the
+    formation's controller would give it."""
+    n = params.n_vehicles
+    moving = dataclasses.replace(
+        reference_for(params, 0.8, math.radians(30)),
+        velocity_mps=(0.4, -0.2, 0.1),
+        payload_yaw_rate_radps=0.3,
+        uav_yaw_rates_radps=tuple(0.1 * k for k in range(n)),
+        cone_angle_rate_radps=0.05,
+    )
+    formation = formation_equilibrium(params, moving)
+    for i in range(1, n + 1):
+        mine, theirs = agent_equilibrium(params, moving, i), formation.agent(i)
+        assert mine.i == theirs.i == i
+        for a, b in ((mine.x, theirs.x), (mine.u, theirs.u)):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(mine.payload_force_n, theirs.payload_force_n)
+        assert mine.payload_mass_share_kg == theirs.payload_mass_share_kg
+
+
+def test_an_agents_equilibrium_is_refused_as_the_formations_is() -> None:
+    params = irregular_params(4)
+    reference = reference_for(params, 0.3, math.radians(40))
+    eq = formation_equilibrium(params, reference)
+    heaviest = int(np.argmax(eq.thrusts_n)) + 1
+    ceiling = (sorted(eq.thrusts_n)[-2] + max(eq.thrusts_n)) / 2
+    limits = FormationLimits(0.0, ceiling, math.radians(80))
+    with pytest.raises(EquilibriumError, match=f"UAV {heaviest} would need"):
+        agent_equilibrium(params, reference, heaviest, limits)
+    others = [i for i in range(1, 5) if i != heaviest]
+    assert all(agent_equilibrium(params, reference, i, limits).i == i for i in others)
+    with pytest.raises(EquilibriumError, match="numbered 1 to 4, got 5"):
+        agent_equilibrium(params, reference, 5)
+    with pytest.raises(EquilibriumError, match="cone angle"):
+        agent_equilibrium(params, reference_for(params, 0.0, math.pi / 2), 1)

@@ -277,7 +277,7 @@ def test_each_agent_linearizes_at_a_fixed_point_of_its_own_model() -> None:
         model = PayloadModel(
             params.uavs[i - 1], agent.payload_mass_kg, params.cable_lengths_m[i - 1]
         )
-        force = agent.external_force(eq)
+        force = agent.external_force(eq.agent(i))
         assert abs(force[2]) > 1e-3  # the correction is not trivially zero here
         xdot = model.dynamics(eq.agent_state(i), eq.agent_input(i), force)
         assert float(np.abs(np.asarray(xdot)).max()) < 1e-9
