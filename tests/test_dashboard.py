@@ -678,6 +678,13 @@ async def test_the_controls_bar_and_plots_in_sight_and_armed_disarmed_aborted_di
         await assert_the_operator_sees_it(page, MEDIUM, arena)
         await page.screenshot(path=str(IMAGES / "dashboard-1280-aborted.png"))
 
+        # A page opened again says it too: the flight process remembers how it ended.
+        await page.reload()
+        connection = page.get_by_test_id("connection")
+        await expect(connection).to_have_text(re.compile("connected|live again"), timeout=20_000)
+        await expect(last_flight).to_have_attribute("data-ended", "abort", timeout=10_000)
+        await expect(last_flight).to_contain_text("asked for with ABORT")
+
         # The line stays until the next arm, which the Reset makes possible at once.
         await reset.click()
         await expect(reason).to_contain_text("world reset:")

@@ -45,8 +45,8 @@ const MODE_CAUSES = new Set(["abort", "land_other", "blind", "process"]);  // no
 // How a flight can end other than by a landing: said, once disarmed, until the next arm.
 const ENDINGS = { abort: "an abort", px4_landing: "PX4's own landing", killed: "a kill" };
 // Notice kinds that end a flight in "abort" (the flight process keeps the last 20 notices,
-// with their ages): a page opened after such a flight finds it there. An operator's ABORT
-// leaves no notice, so only a page that saw the abort can say so after a reload.
+// with their ages): a page opened after such a flight finds why there. How it ended is the
+// status's ``last_flight`` (an operator's ABORT leaves no notice).
 const ABORT_NOTICES = new Set(["abort", "land_other"]);
 // An abort's coordinated landing is over well within this [s]: a notice this much older
 // than the disarm belongs to an earlier flight.
@@ -473,7 +473,8 @@ function tickLamp(tick) {
 // Remembered from the telemetry as it comes: a danger mode seen with a vehicle armed is how
 // the flight ended (its causes are those of the mode); the next arm forgets it. Not the
 // px4_landing a flight process starts in, its vehicles disarmed: no flight ended there. A
-// page opened while disarmed looks for an abort's notice from just before the disarm.
+// page opened while disarmed takes the flight process's ``last_flight``, and why from an
+// abort's notices just before the disarm (without one, it was asked for).
 function trackLastFlight(t) {
   const firstMessage = !lastFlight.checked;
   lastFlight.checked = true;
@@ -489,9 +490,11 @@ function trackLastFlight(t) {
   } else if (firstMessage && t.mode === "disarmed" && t.mode_for_s !== undefined) {
     const before = (t.notices || []).filter((notice) => ABORT_NOTICES.has(noticeKind(notice.message))
       && notice.age_s >= t.mode_for_s && notice.age_s - t.mode_for_s <= ABORT_LANDING_MAX_S);
-    if (before.length) {
-      lastFlight.mode = "abort";
-      lastFlight.why = before.map((notice) => notice.message).join("; ");
+    const ended = t.last_flight ? t.last_flight.ended_in : (before.length ? "abort" : null);
+    if (ENDINGS[ended]) {
+      lastFlight.mode = ended;
+      const causes = ended === "abort" ? before.map((notice) => notice.message) : [];
+      lastFlight.why = causes.join("; ") || ASKED_BY[ended] || "";
     }
   }
 }

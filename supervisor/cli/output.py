@@ -75,6 +75,9 @@ def format_status(status: Status) -> str:
     )
     if status.mode in WAITING_ON_THE_GROUND and status.arm_blocked_by:
         lines.append(f"arm would be refused: {status.arm_blocked_by}")
+    ending = status.last_flight
+    if ending is not None:
+        lines.append(f"last flight ended in {ending.ended_in.value} {ending.age_s:.0f} s ago")
     if status.log_stopped:
         lines.append(f"flight log: {status.log_stopped}")
     for name, process in status.processes.items():

@@ -112,12 +112,29 @@ class Transition:
     reason: str = ""
 
 
+FLIGHT_ENDINGS = frozenset({Mode.ABORT, Mode.PX4_LANDING, Mode.KILLED})
+"""The modes a flight can end in other than its landing."""
+
+
+@dataclass(frozen=True)
+class FlightEnding:
+    """How the last flight since an arm ended: ``LANDING`` (the operator's landing), or
+    the last of ``FLIGHT_ENDINGS`` it passed through; ``at_s`` when it was disarmed."""
+
+    mode: Mode
+    at_s: float
+
+
 class FlightModes:
     """The current mode and its history of changes (time as an argument)."""
 
     def __init__(self, mode: Mode = Mode.DISARMED) -> None:
         self.mode = mode
         self.changed_at_s = 0.0
+        self.last_flight: FlightEnding | None = None
+        """How the last flight flown from these modes ended (None: none yet, or armed
+        since); a flight that was under way when they were made is not theirs."""
+        self._ending: Mode | None = None  # how the flight under way is ending
 
     def handle(self, event: Event, now_s: float) -> Transition:
         """Apply ``event``; ``kill`` goes to KILLED from anywhere, a fault outside the table
@@ -132,6 +149,15 @@ class FlightModes:
             reason = f"'{event.value}' is not allowed in mode '{self.mode.value}'"
             return Transition(False, self.mode, reason)
         if target is not self.mode:
+            self._follow_the_flight(target, now_s)
             self.mode = target
             self.changed_at_s = now_s
         return Transition(True, self.mode)
+
+    def _follow_the_flight(self, target: Mode, now_s: float) -> None:
+        if target is Mode.ARMED:
+            self._ending, self.last_flight = None, None
+        elif target in FLIGHT_ENDINGS or (target is Mode.LANDING and self._ending is None):
+            self._ending = target
+        elif target is Mode.DISARMED and self._ending is not None:
+            self.last_flight, self._ending = FlightEnding(self._ending, now_s), None

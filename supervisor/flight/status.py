@@ -160,6 +160,16 @@ class RecentNotice(_StatusPart):
     message: Annotated[str, Field(description='"kind: text" (abort, swing, vehicle, ...)')]
 
 
+class LastFlight(_StatusPart):
+    """How the last flight since the last arm ended, kept until the next arm."""
+
+    ended_in: Annotated[
+        Mode,
+        Field(description="landing, or abort, px4_landing or killed (the last it went through)"),
+    ]
+    age_s: Annotated[Real, Field(description="how long ago it was disarmed [s]")]
+
+
 class TickSummary(_StatusPart):
     """The control loop's timing: totals since start, percentiles of the recent ticks."""
 
@@ -213,6 +223,10 @@ class FlightStatus(_StatusPart):
     plan: PlanSummary
     faults: Annotated[list[str], Field(description="what the safety monitors saw last tick")]
     notices: Annotated[list[RecentNotice], Field(description="recent notices, oldest first")]
+    last_flight: Annotated[
+        LastFlight | None,
+        Field(description="how the last flight ended (null: none since start, or armed since)"),
+    ] = None
     tick: TickSummary
     streaming: Annotated[StrictBool, Field(description="setpoints stream to the vehicles")]
     log: Annotated[str | None, Field(description="the flight log being written (its path)")]

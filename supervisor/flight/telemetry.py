@@ -20,11 +20,13 @@ from geometry.state import payload_points, payload_position, payload_velocity, p
 from supervisor.flight.arming import arm_blockers
 from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
+from supervisor.flight.modes import FlightEnding
 from supervisor.flight.operator_requests import ControllerName, SetpointFields
 from supervisor.flight.status import (
     ArenaBox,
     BarStatus,
     FlightStatus,
+    LastFlight,
     LiveViewPort,
     MocapStatus,
     PlanSummary,
@@ -182,9 +184,16 @@ def build_telemetry(
         notices=[
             RecentNotice(age_s=now_s - t_s, message=str(notice)) for t_s, notice in core.notices
         ],
+        last_flight=_last_flight(core.modes.last_flight, now_s),
         tick=tick,
         streaming=shell.streaming,
         log=shell.log_path,
         log_stopped=shell.log_stopped,
         live_view=LiveViewPort(sdk_port=live_view) if live_view is not None else None,
     )
+
+
+def _last_flight(ending: FlightEnding | None, now_s: float) -> LastFlight | None:
+    if ending is None:
+        return None
+    return LastFlight(ended_in=ending.mode, age_s=now_s - ending.at_s)

@@ -6,7 +6,14 @@ import itertools
 
 import pytest
 
-from supervisor.flight.modes import OPERATOR_REQUESTS, TRANSITIONS, Event, FlightModes, Mode
+from supervisor.flight.modes import (
+    OPERATOR_REQUESTS,
+    TRANSITIONS,
+    Event,
+    FlightEnding,
+    FlightModes,
+    Mode,
+)
 
 
 def test_nominal_flight() -> None:
@@ -71,3 +78,38 @@ def test_blind_hands_every_airborne_mode_to_px4s_landing(mode: Mode) -> None:
     assert modes.mode is (Mode.PX4_LANDING if mode.airborne else mode)
     if mode.airborne:
         assert modes.handle(Event.LANDED, 4.0).accepted and modes.mode is Mode.DISARMED
+
+
+FLIGHTS = {
+    "landed": ([Event.LAND, Event.LANDED, Event.DISARMED], Mode.LANDING),
+    "aborted": ([Event.ABORT, Event.LANDED, Event.DISARMED], Mode.ABORT),
+    "landing, then aborted": ([Event.LAND, Event.ABORT, Event.LANDED, Event.DISARMED], Mode.ABORT),
+    "aborted, then blind": ([Event.ABORT, Event.BLIND, Event.LANDED], Mode.PX4_LANDING),
+    "killed": ([Event.KILL, Event.DISARM], Mode.KILLED),
+}
+
+
+@pytest.mark.parametrize("events, ending", FLIGHTS.values(), ids=FLIGHTS.keys())
+def test_how_the_last_flight_ended_is_kept_until_the_next_arm(
+    events: list[Event], ending: Mode
+) -> None:
+    modes = FlightModes()
+    for t_s, event in enumerate([Event.ARM, Event.TAKEOFF, Event.AIRBORNE]):
+        assert modes.handle(event, float(t_s)).accepted
+    assert modes.last_flight is None
+    for t_s, event in enumerate(events, start=10):
+        assert modes.handle(event, float(t_s)).accepted
+        assert (modes.last_flight is None) == (modes.mode is not Mode.DISARMED)
+    assert modes.last_flight == FlightEnding(ending, 9.0 + len(events))
+    modes.handle(Event.FAULT, 30.0)  # on the ground: stays disarmed, the record too
+    assert modes.last_flight == FlightEnding(ending, 9.0 + len(events))
+    assert modes.handle(Event.ARM, 31.0).accepted
+    assert modes.last_flight is None
+    assert modes.handle(Event.DISARM, 32.0).accepted
+    assert modes.last_flight is None  # armed and disarmed on the ground: no flight
+
+
+def test_a_flight_under_way_when_the_modes_were_made_is_not_theirs() -> None:
+    modes = FlightModes(Mode.PX4_LANDING)  # a restarted flight process waits for its vehicles
+    modes.handle(Event.LANDED, 1.0)
+    assert modes.mode is Mode.DISARMED and modes.last_flight is None

@@ -57,3 +57,9 @@ def test_every_vehicle_of_n_has_its_line_and_unknowns_are_said() -> None:
     assert "uav3 unknown, px4 unknown, disarmed, link DOWN" in text
     assert "uav2 (+0.765, +0.000, +0.070) m, px4 POSCTL, disarmed, link up, battery 16.2 V" in text
     assert "ticks 0, missed 0, compute p50/p99 0.00/0.00 ms" in text
+
+
+def test_how_the_last_flight_ended_is_said() -> None:
+    assert "last flight" not in format_status(a_status())
+    ended = {"ended_in": "abort", "age_s": 12.4}
+    assert "last flight ended in abort 12 s ago" in format_status(a_status(last_flight=ended))
