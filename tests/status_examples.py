@@ -56,6 +56,7 @@ STATUS_JSON: dict[str, Any] = {
     "plan": {"status": None, "solve_ms": None, "thrust_n": None},
     "faults": [],
     "notices": [],
+    "last_flight": None,
     "tick": {
         "count": 10,
         "missed_deadlines": 0,

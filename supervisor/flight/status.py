@@ -226,7 +226,7 @@ class FlightStatus(_StatusPart):
     last_flight: Annotated[
         LastFlight | None,
         Field(description="how the last flight ended (null: none since start, or armed since)"),
-    ] = None
+    ]
     tick: TickSummary
     streaming: Annotated[StrictBool, Field(description="setpoints stream to the vehicles")]
     log: Annotated[str | None, Field(description="the flight log being written (its path)")]
