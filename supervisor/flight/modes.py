@@ -132,8 +132,9 @@ class FlightModes:
         self.mode = mode
         self.changed_at_s = 0.0
         self.last_flight: FlightEnding | None = None
-        """How the last flight flown from these modes ended (None: none yet, or armed
-        since); a flight that was under way when they were made is not theirs."""
+        """How the last flight ended, as far as these modes saw it go (None: none seen, or
+        armed since): made in ``px4_landing`` (a flight process waiting for vehicles a
+        dead one left to PX4), they see that landing end nothing."""
         self._ending: Mode | None = None  # how the flight under way is ending
 
     def handle(self, event: Event, now_s: float) -> Transition:
