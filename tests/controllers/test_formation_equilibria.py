@@ -264,13 +264,20 @@ def test_an_equilibrium_beyond_the_limits_is_refused_naming_vehicle_and_bound(
 
 
 def test_the_vehicle_named_is_the_one_beyond_the_limit() -> None:
+    """The formation's equilibrium names it; that agent's own is refused alike, the others'
+    are given."""
     params = irregular_params(4)
     reference = reference_for(params, 0.3, math.radians(40))
     eq = formation_equilibrium(params, reference)
     heaviest = int(np.argmax(eq.thrusts_n)) + 1
     ceiling = (sorted(eq.thrusts_n)[-2] + max(eq.thrusts_n)) / 2
+    limits = FormationLimits(0.0, ceiling, math.radians(80))
     with pytest.raises(EquilibriumError, match=f"UAV {heaviest} would need"):
-        formation_equilibrium(params, reference, FormationLimits(0.0, ceiling, math.radians(80)))
+        formation_equilibrium(params, reference, limits)
+    with pytest.raises(EquilibriumError, match=f"UAV {heaviest} would need"):
+        agent_equilibrium(params, reference, heaviest, limits)
+    others = [i for i in range(1, 5) if i != heaviest]
+    assert all(agent_equilibrium(params, reference, i, limits).i == i for i in others)
 
 
 @pytest.mark.parametrize("cone", [-0.01, math.pi / 2, 2.0, math.nan])
@@ -420,17 +427,9 @@ def test_an_agents_own_equilibrium_is_its_part_of_the_formations(params: Formati
         assert mine.payload_mass_share_kg == theirs.payload_mass_share_kg
 
 
-def test_an_agents_equilibrium_is_refused_as_the_formations_is() -> None:
+def test_an_agents_equilibrium_is_refused_for_a_bad_number_or_reference() -> None:
     params = irregular_params(4)
     reference = reference_for(params, 0.3, math.radians(40))
-    eq = formation_equilibrium(params, reference)
-    heaviest = int(np.argmax(eq.thrusts_n)) + 1
-    ceiling = (sorted(eq.thrusts_n)[-2] + max(eq.thrusts_n)) / 2
-    limits = FormationLimits(0.0, ceiling, math.radians(80))
-    with pytest.raises(EquilibriumError, match=f"UAV {heaviest} would need"):
-        agent_equilibrium(params, reference, heaviest, limits)
-    others = [i for i in range(1, 5) if i != heaviest]
-    assert all(agent_equilibrium(params, reference, i, limits).i == i for i in others)
     with pytest.raises(EquilibriumError, match="numbered 1 to 4, got 5"):
         agent_equilibrium(params, reference, 5)
     with pytest.raises(EquilibriumError, match="cone angle"):
