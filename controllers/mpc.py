@@ -16,7 +16,9 @@ uses that model when its own measured yaws and its reference's θ_l lie within
 ``prepared_yaw_tolerance_rad`` of those (and the reference's velocity and turn rates
 within the same number, in m/s and rad/s) — A and B do not depend on where the formation
 is — so between a mocap frame and the input sent to the vehicles only the state-dependent
-part of the tick remains. Otherwise it linearizes anew.
+part of the tick remains. Otherwise it linearizes anew. A prepared model serves as long as
+it fits: ``prepare`` keeps it while the yaws one step ahead stay within the tolerance of
+those it was made at, so a hover linearizes about once, not fifty times a second.
 
 Both controllers serve any formation of ``FormationParams`` (N UAVs, one rigid payload):
 the centralized MPC plans the whole 12 + 12N-state, the decentralized one runs N agents.
@@ -312,14 +314,22 @@ class _ModelPreparation:
         self._prepared: _PreparedModel | None = None
         self.last_was_used = False
         """Whether the last ``models`` call gave the prepared models."""
+        self.last_kept = False
+        """Whether the last ``prepare`` kept the models prepared before (they still fit)."""
 
     def prepare(self, state: FloatArray, reference: FormationReference) -> None:
-        """Linearize at ``state``'s yaws one step ahead and prepare the back-ends; never
-        raises (the next step then linearizes itself, and reports what fails)."""
-        self._prepared = None
-        if self._settings.prepared_yaw_tolerance_rad == 0.0 or not _finite(state):
+        """Linearize at ``state``'s yaws one step ahead and prepare the back-ends, unless
+        the models prepared before fit those yaws; never raises (the next step then
+        linearizes itself, and reports what fails)."""
+        kept, self._prepared = self._prepared, None
+        self.last_kept = False
+        tolerance = self._settings.prepared_yaw_tolerance_rad
+        if tolerance == 0.0 or not _finite(state):
             return
         turned = reference.with_yaws(*yaws_ahead(state, self._layout, self._settings.dt_s))
+        if kept is not None and kept.fits(turned, tolerance):
+            self._prepared, self.last_kept = kept, True
+            return
         try:
             models = self._linearize(turned)
             for mpc, (A, B) in zip(self._mpcs, models, strict=True):
@@ -332,13 +342,15 @@ class _ModelPreparation:
 
     def models(self, state: FloatArray, reference: FormationReference) -> Models:
         """The models for a step at ``state``: the prepared ones when they fit its measured
-        yaws, else a new linearization. A preparation serves one step."""
-        prepared, self._prepared = self._prepared, None
+        yaws, else a new linearization (and the prepared ones are dropped: the back-ends
+        were prepared for them, and the yaws have left them)."""
+        prepared = self._prepared
         turned = reference.with_yaws(*measured_yaws(state, self._layout))
         tolerance = self._settings.prepared_yaw_tolerance_rad
         self.last_was_used = prepared is not None and prepared.fits(turned, tolerance)
         if prepared is not None and self.last_was_used:
             return prepared.models
+        self._prepared = None
         return self._linearize(turned)
 
 
@@ -394,6 +406,11 @@ class CentralizedMpc:
     def last_step_was_prepared(self) -> bool:
         """Whether the last ``step`` used the model of a ``prepare``."""
         return self._preparation.last_was_used
+
+    @property
+    def last_prepare_kept_models(self) -> bool:
+        """Whether the last ``prepare`` kept the models it had (no new linearization)."""
+        return self._preparation.last_kept
 
     def step(self, state: FloatArray, reference: FormationReference, now_s: float) -> Plan:
         """One tick: u* for ``state`` (12 + 12N,, paper order) tracking ``reference``."""
@@ -586,6 +603,11 @@ class DecentralizedMpc:
     def last_step_was_prepared(self) -> bool:
         """Whether the last ``step`` used the models of a ``prepare``."""
         return self._preparation.last_was_used
+
+    @property
+    def last_prepare_kept_models(self) -> bool:
+        """Whether the last ``prepare`` kept the models it had (no new linearization)."""
+        return self._preparation.last_kept
 
     def step(self, state: FloatArray, reference: FormationReference, now_s: float) -> Plan:
         """One tick for every agent; ``state`` is the formation's (each agent takes its

@@ -443,6 +443,40 @@ def test_a_prepared_model_is_used_when_the_yaws_stay_within_the_tolerance(
     np.testing.assert_allclose(again.u, exact.u, atol=1e-9)
 
 
+@pytest.mark.parametrize("controller", ["centralized", "decentralized"])
+def test_a_prepared_model_serves_while_the_yaws_stay_within_the_tolerance(
+    controller: str, lab_params: FormationParams
+) -> None:
+    options = settings(controller, prepared_yaw_tolerance_rad=0.01)
+    mpc_class = CentralizedMpc if controller == "centralized" else DecentralizedMpc
+    mpc = mpc_class(lab_params, options, clock=time.perf_counter)
+    fresh = mpc_class(lab_params, options, clock=time.perf_counter)
+    reference = FormationReference((0.0, 0.0, 1.0), 0.3, (0.3, 0.5), math.radians(20))
+    state = formation_equilibrium(lab_params, reference).x.copy()
+    mpc.prepare(state, reference)
+    assert not mpc.last_prepare_kept_models  # nothing to keep yet
+    yaws = list(LAYOUT.yaw_indices)
+    for tick in range(1, 4):  # a hover: the yaws wander 2 mrad a tick, 6 in all
+        state[yaws] += 0.002
+        plan = mpc.step(state, reference, 0.02 * tick)
+        assert mpc.last_step_was_prepared
+        exact = fresh.step(state, reference, 0.02 * tick)
+        assert np.max(np.abs(plan.u - exact.u) / actuator_range(2)) < 1e-3
+        mpc.prepare(state, reference)
+        assert mpc.last_prepare_kept_models
+    state[yaws] += 0.01  # beyond the tolerance of the kept model: linearized anew
+    mpc.prepare(state, reference)
+    assert not mpc.last_prepare_kept_models
+    mpc.step(state, reference, 0.1)
+    assert mpc.last_step_was_prepared
+    state[LAYOUT.uav_yaw_index(1)] += 0.03  # the step's yaws left it: a step of its own
+    again, exact = mpc.step(state, reference, 0.12), fresh.step(state, reference, 0.12)
+    assert not mpc.last_step_was_prepared
+    np.testing.assert_allclose(again.u, exact.u, atol=1e-9)
+    mpc.prepare(state, reference)  # and the dropped model is never kept
+    assert not mpc.last_prepare_kept_models
+
+
 def test_a_zero_tolerance_prepares_nothing(lab_params: FormationParams) -> None:
     mpc = CentralizedMpc(
         lab_params, settings("centralized", prepared_yaw_tolerance_rad=0.0), clock=time.perf_counter

@@ -9,7 +9,12 @@ import time
 
 import pytest
 
-from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
+from supervisor.runtime.scheduler import (
+    PERCENTILES_REFRESH_TICKS,
+    DeadlineTicker,
+    TickTiming,
+    TimingStats,
+)
 
 
 def busy(seconds: float) -> None:
@@ -67,6 +72,24 @@ def test_timing_statistics() -> None:
     assert summary.compute_ms_p50 == pytest.approx(1.0)
     assert summary.lateness_ms_p99 is not None and 0.2 <= summary.lateness_ms_p99 <= 15.0
     assert summary.latency_ms_p50 == summary.latency_ms_p99 == 4.0
+
+
+def test_the_percentiles_follow_the_ticks_without_a_sort_per_status_read() -> None:
+    stats, period = TimingStats(), 0.02
+    seen: list[float | None] = []
+    for k in range(600):
+        compute_s = 0.001 if k < 200 else 0.003
+        stats.record(TickTiming(k, k * period, k * period, 0), compute_s, period)
+        summary = stats.summary()
+        assert summary.count == k + 1  # the totals are always exact
+        seen.append(summary.compute_ms_p50)
+    assert seen[0] == pytest.approx(1.0)  # known from the first tick on
+    assert seen[199] == pytest.approx(1.0)
+    # the median is 3 ms once the window holds more of them (from tick 400 on), and the
+    # status says so at most one refresh later
+    first_3ms = next(k for k, p50 in enumerate(seen) if p50 == pytest.approx(3.0))
+    assert 400 <= first_3ms <= 400 + PERCENTILES_REFRESH_TICKS
+    assert seen[-1] == pytest.approx(3.0)
 
 
 def test_empty_statistics_are_unknown_not_errors() -> None:
