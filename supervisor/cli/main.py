@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 EXIT_INTERRUPTED = 130
 
 DESCRIPTION = """\
-Flight supervisor for two PX4 quadrotors carrying a bar under model predictive control:
+Flight supervisor for PX4 quadrotors carrying a payload under model predictive control:
 the service (serve), its terminal client, the fast simulator and the tools around them.
 
 Units: metres, degrees and seconds on the command line (named in each option: --yaw-deg,
