@@ -27,6 +27,7 @@ from supervisor.logs.flight_log import open_flight_log, read_flight_log
 from supervisor.logs.flight_messages import json_schemas, well_known
 from supervisor.logs.mcap_log import McapFlightLogWriter, McapLibrary, read_mcap_records
 from supervisor.logs.report import figures
+from tests.conftest import NEVER_LATE
 
 START = datetime(2026, 11, 23, 3, 15, 0, tzinfo=UTC)
 ROOT = Path(__file__).resolve().parents[2]
@@ -264,9 +265,7 @@ def test_csv_export_has_a_named_column_per_figure(
 
 @pytest.mark.slow
 def test_simulate_writes_an_mcap_log_with_the_same_flight_as_json_lines(tmp_path: Path) -> None:
-    # A solve is late by the wall clock; beside the suite one was (a fallback tick in one
-    # of the two flights, seen in CI), and the flights then differ. Here no solve is late.
-    never_late = ["--set", "mpc.late_after_s=60.0"]
+    never_late = ["--set", NEVER_LATE]
     for suffix in (".mcap", ".jsonl"):
         command = ["simulate", "--scenario", "takeoff-land", "--seed", "3", "--json", *never_late]
         assert main([*command, "--log", str(tmp_path / f"f{suffix}")]) == 0

@@ -19,7 +19,7 @@ from supervisor.logs.flight_log import FlightLog, read_flight_log
 from supervisor.logs.report import summarize
 from supervisor.simulate.closed_loop import run_scenario
 from supervisor.simulate.scenarios import load_scenario
-from tests.conftest import CONFIGS
+from tests.conftest import CONFIGS, NEVER_LATE
 from tests.supervisor.test_descent import MAX_DESCENT_MPS
 
 SHORT_SCENARIO = """
@@ -107,9 +107,7 @@ def test_flights_in_a_row_need_nobody_to_move_anything(
 
 
 def test_the_same_seed_flies_the_same_flight(short_scenario: Path) -> None:
-    # A solve is late by the wall clock (a fallback tick), which a loaded machine may make
-    # of any tick: here none is, so that only the seed decides the flight.
-    never_late = load_config(CONFIGS / "sim.toml", ["mpc.late_after_s=60.0"])
+    never_late = load_config(CONFIGS / "sim.toml", [NEVER_LATE])
     scenario = load_scenario(str(short_scenario))
     paths = []
     for run in range(2):
