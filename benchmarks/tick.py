@@ -224,10 +224,12 @@ async def run(
         return {**result, **world_truth(service.output)}
 
 
-TRUTH_LINE = re.compile(
-    r"truth: (\w+) hanging ([\d.]+) s, min cable tension (-?[\d.]+) N, slack events (\d+), "
+TRUTH_FIGURES = (
+    r"(\w+) hanging ([\d.]+) s, min cable tension (-?[\d.]+) N, slack events (\d+), "
     r"max UAV tilt ([\d.]+) deg, max descent ([\d.]+) m/s above [\d.]+ m \(([^)]*)\)"
 )
+TRUTH_LINE = re.compile("truth: " + TRUTH_FIGURES)
+FLIGHT_TRUTH_LINE = re.compile(r"truth of flight \d+: " + TRUTH_FIGURES)
 DESCENT_OF_A_BODY = re.compile(r"(\w+) ([\d.]+)")
 
 
@@ -236,9 +238,21 @@ def world_truth(output: list[str]) -> dict[str, float]:
     payload's hanging time (``bar_hanging_s``, or ``payload_hanging_s`` for another
     payload) and each body's fastest descent (``max_descent_uav1_mps``, ...)."""
     matches = [match for line in output if (match := TRUTH_LINE.search(line))]
-    if not matches:
-        return {}
-    payload, hanging, tension, slack, tilt, descent, by_body = matches[-1].groups()
+    return truth_figures(matches[-1]) if matches else {}
+
+
+def flight_truths(output: list[str]) -> list[dict[str, float]]:
+    """The same figures for each flight the world saw end, in order (an empty dict for a
+    flight in which the payload never hung)."""
+    flights = [line for line in output if "truth of flight " in line]
+    return [
+        truth_figures(match) if (match := FLIGHT_TRUTH_LINE.search(line)) else {}
+        for line in flights
+    ]
+
+
+def truth_figures(line: re.Match[str]) -> dict[str, float]:
+    payload, hanging, tension, slack, tilt, descent, by_body = line.groups()
     figures = {
         f"{payload}_hanging_s": float(hanging),
         "min_tension_hanging_n": float(tension),

@@ -71,16 +71,45 @@ class TruthStats:
             tilt = math.degrees(math.acos(max(-1.0, min(1.0, z_axis_z))))
             self.max_tilt_deg = max(self.max_tilt_deg, tilt)
 
-    def describe(self) -> str:
-        """One line for the world's log (``benchmarks.tick`` reads it back)."""
+    def describe(self, title: str = "truth") -> str:
+        """One line for the world's log (``benchmarks.tick`` reads it back), after
+        ``title``: the whole run's figures are the ``truth``, one flight's the ``truth of
+        flight K``."""
         payload = self.bodies[0]
         if self.hanging_s == 0.0:
-            return f"truth: the {payload} has not hung yet"
+            return f"{title}: the {payload} has not hung yet"
         return (
-            f"truth: {payload} hanging {self.hanging_s:.1f} s, min cable tension "
+            f"{title}: {payload} hanging {self.hanging_s:.1f} s, min cable tension "
             f"{self.min_tension_airborne_n:.2f} N, slack events {self.slack_events}, "
             f"max UAV tilt {self.max_tilt_deg:.1f} deg, "
             f"max descent {self.max_descent_mps:.2f} m/s above {DESCENT_FLOOR_M} m ("
             + ", ".join(f"{name} {v:.2f}" for name, v in self.descent_by_body_mps.items())
             + ")"
         )
+
+
+class FlightTruths:
+    """The truth of each flight on its own (a run's ``TruthStats`` keeps the worst of
+    all its flights): a flight starts when any UAV rises above ``DESCENT_FLOOR_M`` and
+    ends once every UAV is below it again. A test of one flight's fault response reads
+    that flight's figures, untouched by the flights before it."""
+
+    def __init__(self, payload_rest_z_m: float, bodies: tuple[str, ...] = BODIES) -> None:
+        self._payload_rest_z_m = payload_rest_z_m
+        self._bodies = bodies
+        self.flights_ended = 0
+        self.current: TruthStats | None = None
+
+    def update(self, plant: Plant) -> str | None:
+        """Account for the plant's state now; the line of the flight that just ended."""
+        up = any(plant.body(name).position_m[2] > DESCENT_FLOOR_M for name in self._bodies[1:])
+        if self.current is None and up:
+            self.current = TruthStats(self._payload_rest_z_m, self._bodies)
+        if self.current is None:
+            return None
+        self.current.update(plant, airborne=True)
+        if up:
+            return None
+        ended, self.current = self.current, None
+        self.flights_ended += 1
+        return ended.describe(f"truth of flight {self.flights_ended}")

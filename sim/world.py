@@ -39,7 +39,7 @@ from sim.plant import Plant
 from sim.plant_params import PlantParams
 from sim.qtm_server import QtmServer
 from sim.stalls import StallLog
-from sim.truth import TruthStats
+from sim.truth import FlightTruths, TruthStats
 
 log = logging.getLogger(__name__)
 
@@ -176,6 +176,8 @@ class SimulatedWorld:
         self.truth = TruthStats(payload_rest_z_m, bodies=self.plant_bodies)
         """Cable tension and slack while the payload hangs, the worst tilt (logged every
         ``TRUTH_REPORT_PERIOD_S`` and at close)."""
+        self.flight_truths = FlightTruths(payload_rest_z_m, bodies=self.plant_bodies)
+        """The same for each flight on its own (logged as each flight ends)."""
         self._truth_reported_s = 0.0
         self.stalls = StallLog()
         """Moments the world's own process did not run (``sim.stalls``)."""
@@ -224,6 +226,8 @@ class SimulatedWorld:
             if self.mocap.due(plant.time_s):
                 self.mocap.capture(plant.truth())
             self.truth.update(plant, airborne=True)
+            if (flight_ended := self.flight_truths.update(plant)) is not None:
+                log.info("%s", flight_ended)
             for vehicle in self.vehicles:
                 vehicle.step(plant.time_s)
         if plant.time_s - self._truth_reported_s >= TRUTH_REPORT_PERIOD_S:

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks.tick import world_truth
+from benchmarks.tick import flight_truths, world_truth
 from sim.plant import Plant
 from sim.plant_params import CableParams, PayloadBodyParams, PlantParams, UavBodyParams, diagonal
-from sim.truth import TruthStats
+from sim.truth import FlightTruths, TruthStats
 
 
 def hanging_plant() -> tuple[Plant, tuple[float, ...]]:
@@ -85,3 +85,27 @@ def test_three_uavs_and_a_plate_are_counted_like_the_bar() -> None:
     assert figures["payload_hanging_s"] == pytest.approx(0.4, abs=0.05)
     for name, descent in truth.descent_by_body_mps.items():
         assert figures[f"max_descent_{name}_mps"] == pytest.approx(descent, abs=0.005)
+
+
+def test_each_flight_has_its_own_truth_from_lift_off_to_touch_down() -> None:
+    """A flight starts when a UAV rises above the descent floor and ends when every UAV
+    is below it: its line carries its own figures, and the benchmark reads them back."""
+    truths = FlightTruths(payload_rest_z_m=0.02)
+    resting = Plant()
+    assert truths.update(resting) is None and truths.current is None
+    hanging, _ = hanging_plant()
+    for _ in range(3):
+        hanging.advance(0.1)
+        assert truths.update(hanging) is None
+    assert truths.current is not None and truths.current.hanging_s > 0.0
+    line = truths.update(resting)
+    assert line is not None and line.startswith("truth of flight 1: bar hanging")
+    assert truths.current is None and truths.flights_ended == 1
+    assert truths.update(resting) is None
+    truths.update(hanging)
+    second = truths.update(resting)
+    assert second is not None and second.startswith("truth of flight 2: ")
+    figures = flight_truths(["unrelated", f"sim.world INFO: {line}", f"INFO: {second}"])
+    assert len(figures) == 2
+    assert figures[0]["bar_hanging_s"] == pytest.approx(0.2, abs=0.05)
+    assert world_truth([line, second]) == {}  # neither is the whole run's line
