@@ -168,6 +168,7 @@ class LabParameters:
     offboard_loss_timeout_s: float
     hover_thrust: float  # MPC_THR_HOVER, normalized
     rate_gain_k: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    ulog: bool = False  # a ULog of each flight, from arm to disarm, in the working dir's log/
 
     def values(self) -> dict[str, float | int]:
         return {
@@ -191,7 +192,8 @@ class LabParameters:
             "MC_ROLLRATE_K": self.rate_gain_k[0],
             "MC_PITCHRATE_K": self.rate_gain_k[1],
             "MC_YAWRATE_K": self.rate_gain_k[2],
-            "SDLOG_MODE": -1,  # no ULog: saves a core's worth of writes on long runs
+            # Without a ULog: saves a core's worth of writes on long runs.
+            "SDLOG_MODE": 0 if self.ulog else -1,
         }
 
     def script(self) -> str:

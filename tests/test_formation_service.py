@@ -192,9 +192,10 @@ async def test_three_uavs_and_a_plate_land_abort_and_lose_a_link_in_a_row(
 @pytest.mark.px4_flight
 async def test_three_real_px4_sitl_instances_hover_the_plate(tmp_path: Path) -> None:
     """Three real PX4 v1.15.4 SITL processes, driven by our plant, lift the plate, hold it
-    within 5 cm of its reference for 5 s and set it down, every cable taut while it hangs."""
+    within 5 cm of its reference for 5 s and set it down, every cable taut while it hangs.
+    Each PX4 keeps its own log of the flight (``sim.px4_ulog``), to read when one fails."""
     require_px4()
-    overrides = ['sim.vehicles="px4_sitl"']
+    overrides = ['sim.vehicles="px4_sitl"', "sim.px4_ulog=true"]
     async with (
         running_service(TOKEN, tmp_path, overrides, setup=SETUP) as service,
         service.client() as http,
@@ -209,3 +210,6 @@ async def test_three_real_px4_sitl_instances_hover_the_plate(tmp_path: Path) -> 
     (log,) = (read_flight_log(path) for path in flight_logs(tmp_path))
     assert log.layout.n_vehicles == 3 and {"hover", "landing"} <= set(log.modes)
     assert slack_while_airborne(log, PARAMS) < 0.05
+    for uav in (1, 2, 3):
+        ulogs = list((tmp_path / "px4" / f"uav{uav}" / "log").glob("*/*.ulg"))
+        assert ulogs and all(ulog.stat().st_size > 100_000 for ulog in ulogs), (uav, ulogs)

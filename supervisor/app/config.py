@@ -416,6 +416,9 @@ class SimSection(_Section):
     # An extracted PX4 SITL install (bin/px4, etc/); the env var UAVBAR_PX4_DIR overrides;
     # unset: the cache, filled from the project's firmware archive on first use.
     px4_dir: str | None = None
+    # true: each real PX4 SITL writes a ULog of each flight, from arm to disarm, to
+    # log.folder/px4/uavN/log/ (for PX4's own view of a flight; off: the writes cost a core).
+    px4_ulog: bool = False
     seed: Annotated[int, Field(ge=0)] = 0
     step_s: PositiveFloat = 0.001
     motor_time_constant_s: NonNegativeFloat = 0.02

@@ -140,6 +140,7 @@ def _px4_sitl_vehicles(
                 params.uavs[k].inertia_kgm2,
                 RateGains().kp,
             ),
+            ulog=config.sim.px4_ulog,
         )
         return Px4SitlVehicle(
             plant.uav(uav),
