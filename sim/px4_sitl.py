@@ -29,6 +29,7 @@ from sim.px4_firmware import (
     SIMULATOR_PORT,
     Px4Process,
 )
+from sim.sensor_schedule import SensorSchedule
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,7 @@ class Px4SitlVehicle:
         self.process = process
         self.mixer = mixer
         self.sensors = sensors
-        self.sensor_period_s = 1.0 / sensor_rate_hz
+        self.sensor_schedule = SensorSchedule.at_rate(sensor_rate_hz)
         self.host = host
         self.codec = MavlinkCodec(SIMULATOR_SYSTEM_ID, 51)
         self.outputs = np.zeros(4)
@@ -62,7 +63,6 @@ class Px4SitlVehicle:
         self.actuator_messages = 0
         self._server: asyncio.Server | None = None
         self._writer: asyncio.StreamWriter | None = None
-        self._next_sensor_s = 0.0
         self._sent_at_s: list[float] = []
 
     @property
@@ -133,10 +133,8 @@ class Px4SitlVehicle:
         """Apply PX4's latest motor outputs; send the sensors when due."""
         thrust, torque = self.mixer.wrench(self.outputs) if self.armed else (0.0, np.zeros(3))
         self.airframe.command(thrust, torque)
-        if self._writer is None or now_s < self._next_sensor_s:
-            return
-        self._next_sensor_s = max(self._next_sensor_s + self.sensor_period_s, now_s)
-        self._send_sensors()
+        if self._writer is not None and self.sensor_schedule.take(now_s, time.monotonic()):
+            self._send_sensors()
 
     def _send_sensors(self) -> None:
         sample = self.sensors.sample(self.airframe.state())
