@@ -56,6 +56,7 @@ test-fast: lint
 
 # The closed-loop flights on real PX4 SITL (whole flight, killed flight process, three PX4s
 # under the plate): not yet robust, so not part of `make test` (issue 16). The plate's
-# flew 15 of 18 flights on 2026-12-06; the other three: one UAV unstable (issue 31).
+# flew 15 of 18 flights, the failures a burst of sensor samples after a stall of the world
+# that kicked PX4's rate loop; since that fix, 10 of 10 (docs/results.md, issue 31).
 test-px4-flight: $(BIN)/.installed
 	$(BIN)/pytest -m px4_flight
