@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from playwright.async_api import Browser, Page, expect
 
+from benchmarks.px4_ulog import ulog_figures
 from benchmarks.service import all_disarmed, in_mode, notices, running_service
 from benchmarks.tick import flight_truths, world_truth
 from controllers.formation_params import FormationParams
@@ -213,3 +214,7 @@ async def test_three_real_px4_sitl_instances_hover_the_plate(tmp_path: Path) -> 
     for uav in (1, 2, 3):
         ulogs = list((tmp_path / "px4" / f"uav{uav}" / "log").glob("*/*.ulg"))
         assert ulogs and all(ulog.stat().st_size > 100_000 for ulog in ulogs), (uav, ulogs)
+        # Its sensors came at their rate, not in bursts (sim/sensor_schedule.py): PX4 may
+        # read two samples at once when it was itself held off the CPU, not more often.
+        figures = ulog_figures(ulogs[-1])
+        assert figures["sensor_rate_hz"] > 200 and figures["gyro_gaps_under_1ms"] <= 3, figures
