@@ -12,6 +12,7 @@ the figures side by side.
 * ``combined``: the paper's sequence, the paper's controllers at the nominal 5 ms of
   latency against all three remedies at 45 ms (delay 0.045 s, rate filter 0.5, integral
   0.4).
+* ``move``: a 4 m straight move at 1 m/s and 1 m/s², and at 2 m/s and 2 m/s² (issue 33).
 * ``noise``: the move and hold of ``offset`` (nominal bar) with the UAVs' body rates
   unfiltered and filtered (``mpc.rate_filter_weight``, controllers/rate_filter.py).
 
@@ -28,11 +29,12 @@ Run: ``python -m benchmarks.robustness CASE [--json] [--seconds S]``.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import statistics
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -117,9 +119,14 @@ class Recorder:
 
 
 def fly(
-    scenario: Scenario, controller: str, overrides: Sequence[str], seed: int = 0
+    scenario: Scenario,
+    controller: str,
+    overrides: Sequence[str],
+    seed: int = 0,
+    observe: Callable[[TickResult], None] | None = None,
 ) -> tuple[Figures, Recorder]:
-    """Fly ``scenario`` on ``configs/sim.toml`` with ``overrides``; its figures."""
+    """Fly ``scenario`` on ``configs/sim.toml`` with ``overrides``; its figures (and each
+    tick to ``observe`` too)."""
     config = load_config(CONFIG, list(overrides))
     limits = config.mpc
     recorder = Recorder(
@@ -127,7 +134,13 @@ def fly(
         limits.torque_max_nm,
         config.system.to_params(),
     )
-    result = run_scenario(config, scenario, controller, seed=seed, observe=recorder)
+
+    def observed(result: TickResult) -> None:
+        recorder(result)
+        if observe is not None:
+            observe(result)
+
+    result = run_scenario(config, scenario, controller, seed=seed, observe=observed)
     errors = np.array(recorder.errors) if recorder.errors else np.zeros((1, 3))
     inputs = np.array(recorder.inputs) if recorder.inputs else np.zeros((2, 2, 4))
     torque_steps = np.abs(np.diff(inputs[:, :, 1:], axis=0)).ravel()
@@ -310,8 +323,74 @@ def push_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     return _flights(shortened(scenario, seconds), variants)
 
 
+# 4 m along the arena's diagonal: the bar's ends (±0.72 m along x) stay clear of its walls.
+MOVE_START_M = (-math.sqrt(2.0), -math.sqrt(2.0), 1.0)
+MOVE_END_M = (math.sqrt(2.0), math.sqrt(2.0), 1.0)
+
+
+class MoveRecorder:
+    """The bar's 3D error against the shaped reference while that moves (speed above
+    1 mm/s) on the way to ``MOVE_END_M``, and how far the bar passes the goal along the
+    move's direction."""
+
+    def __init__(self) -> None:
+        self.moving_errors_m: list[float] = []
+        self.overshoot_m = 0.0
+        self._direction = np.subtract(MOVE_END_M, MOVE_START_M) / np.linalg.norm(
+            np.subtract(MOVE_END_M, MOVE_START_M)
+        )
+
+    def __call__(self, result: TickResult) -> None:
+        reference = result.reference
+        if reference is None:
+            return
+        bar = payload_position(np.asarray(result.record.state))
+        if float(np.dot(reference.velocity_mps, self._direction)) > 1e-3:
+            error = bar - np.asarray(reference.payload_position_m)
+            self.moving_errors_m.append(float(np.linalg.norm(error)))
+        past = float(np.dot(bar - np.asarray(MOVE_END_M), self._direction))
+        self.overshoot_m = max(self.overshoot_m, past)
+
+
+def move_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """A 4 m straight move of the bar (along the diagonal, 1 m high) at 1 m/s and 1 m/s²
+    and at 2 m/s and 2 m/s², held 5 s at its end, without and with the acceleration
+    feed-forward (issue 33): ``moving RMSE mm`` is the bar centre's 3D RMSE against the
+    shaped reference while it moves, ``overshoot mm`` how far the bar passed the goal."""
+    scenario = _scenario(
+        {
+            "name": "4 m move",
+            "start": "hover",
+            "step": [
+                {"bar_position": list(MOVE_START_M), "hold_s": 3.0, "timeout_s": 30.0},
+                {"bar_position": list(MOVE_END_M), "hold_s": 5.0, "timeout_s": 30.0},
+            ],
+        }
+    )
+    variants = {}
+    for v, feed in itertools.product((1.0, 2.0), (False, True)):
+        label = f"{v:.0f} m/s, {v:.0f} m/s², {'' if feed else 'no '}acc. FF"
+        variants[label] = [
+            f"control.flight_rates.position_mps={v}",
+            f"control.flight_rates.acceleration_mps2={v}",
+            f"control.acceleration_feed_forward={str(feed).lower()}",
+        ]
+    table: dict[str, dict[str, Figures]] = {}
+    for controller in CONTROLLERS:
+        for label, overrides in variants.items():
+            move = MoveRecorder()
+            figures, _ = fly(shortened(scenario, seconds), controller, overrides, observe=move)
+            errors = np.array(move.moving_errors_m or [math.nan])
+            figures.extra["moving RMSE mm"] = 1e3 * float(np.sqrt(np.mean(errors**2)))
+            figures.extra["overshoot mm"] = 1e3 * move.overshoot_m
+            table.setdefault(controller, {})[label] = figures
+            print(f"  flown: {controller}, {label}", file=sys.stderr, flush=True)
+    return table
+
+
 CASES = {
     "default": default_case,
+    "move": move_case,
     "push": push_case,
     "combined": combined_case,
     "noise": noise_case,

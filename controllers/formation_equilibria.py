@@ -52,6 +52,12 @@ class FormationReference:
     ``cone_angle_rate_radps`` is how fast the cone angle moves: the UAVs' velocities along
     the equilibrium family (each cable swinging outward), a feed-forward in the same
     sense; without it a θ_l ramp is tracked with a lag of about two seconds (issue 19).
+    ``acceleration_mps2`` (default zero) makes it a uniform acceleration of the whole
+    formation, the payload level: each cable pulls its share of m (a + g) more, each UAV
+    adds m_i a to its thrust, so that x_eq + v t + a t²/2 solves the model with the same
+    u_eq — exactly for attachments level with the payload's CoM (a bar, a plate); with
+    attachments above or below it, a level payload would need a moment no cable gives,
+    and the equilibrium is a feed-forward.
     """
 
     payload_position_m: tuple[float, float, float]
@@ -62,6 +68,7 @@ class FormationReference:
     payload_yaw_rate_radps: float = 0.0
     uav_yaw_rates_radps: tuple[float, ...] = ()
     cone_angle_rate_radps: float = 0.0
+    acceleration_mps2: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not self.uav_yaw_rates_radps:
@@ -75,7 +82,8 @@ class FormationReference:
         return replace(self, payload_yaw_rad=payload_yaw_rad, uav_yaw_rad=uav_yaw_rad)
 
     def at_rest(self) -> FormationReference:
-        """The same reference with zero velocity and rates (where it will stop)."""
+        """The same reference with zero velocity, rates and acceleration (where it will
+        stop)."""
         return FormationReference(
             self.payload_position_m, self.payload_yaw_rad, self.uav_yaw_rad, self.cone_angle_rad
         )
@@ -111,6 +119,7 @@ class FormationEquilibrium:
     attachments_m: tuple[FloatArray, ...]
     payload_force_n: tuple[FloatArray, ...]
     payload_mass_share_kg: tuple[float, ...]
+    acceleration_mps2: FloatArray
 
     @cached_property
     def layout(self) -> FormationLayout:
@@ -142,6 +151,7 @@ class FormationEquilibrium:
             self.agent_input(i),
             self.payload_force_n[i - 1],
             self.payload_mass_share_kg[i - 1],
+            self.acceleration_mps2,
         )
 
 
@@ -149,14 +159,16 @@ class FormationEquilibrium:
 class AgentEquilibrium:
     """Decentralized agent ``i``'s part of a formation equilibrium: its x_i (18,) and
     u_i (4,), the horizontal pull of the rest of the payload on its attachment [N] (3,)
-    and its cable's vertical load V_i / g [kg]. ``agent_equilibrium`` gives it without
-    the other vehicles, so that an agent's tick does not grow with N."""
+    and its cable's vertical load V_i / g [kg], and the formation's acceleration [m/s²]
+    (3,). ``agent_equilibrium`` gives it without the other vehicles, so that an agent's
+    tick does not grow with N."""
 
     i: int
     x: FloatArray
     u: FloatArray
     payload_force_n: FloatArray
     payload_mass_share_kg: float
+    acceleration_mps2: FloatArray
 
 
 def _agent_state(
@@ -195,6 +207,7 @@ def _check_reference(reference: FormationReference, n: int) -> None:
         reference.payload_yaw_rate_radps,
         *rates,
         reference.cone_angle_rate_radps,
+        *reference.acceleration_mps2,
     )
     if not all(math.isfinite(v) for v in values):
         raise EquilibriumError("reference values must be finite")
@@ -317,12 +330,24 @@ def _vehicle(
     reach = math.hypot(rho_x, rho_y)
     out_x, out_y = (rho_x / reach, rho_y / reach) if reach > BAR_TOLERANCE_M else (0.0, 0.0)
     vertical, tan_angle = float(loads.vertical_n[k]), float(loads.tan_angle[k])
-    angle = math.atan(tan_angle)
-    sin_a, cos_a = math.sin(angle), math.cos(angle)
-    tension = vertical / cos_a
-    n_x, n_y, n_z = sin_a * out_x, sin_a * out_y, cos_a
+    static_angle = math.atan(tan_angle)
+    sin_a, cos_a = math.sin(static_angle), math.cos(static_angle)
+    # The cable's pull on the payload: the static one scaled by the effective gravity's
+    # vertical part, and its share V_i / g of the payload's horizontal m a.
+    acc_x, acc_y, acc_z = reference.acceleration_mps2
+    lift = 1.0 + acc_z / g
+    horizontal = lift * vertical * tan_angle
+    pull = (
+        horizontal * out_x + vertical * acc_x / g,
+        horizontal * out_y + vertical * acc_y / g,
+        lift * vertical,
+    )
+    tension = math.hypot(*pull)
+    n_x, n_y, n_z = pull[0] / tension, pull[1] / tension, pull[2] / tension
+    angle = math.acos(n_z)
     end = (bx + rho_x, by + rho_y, bz + az)
-    thrust_vector = (tension * n_x, tension * n_y, uav.mass_kg * g + tension * n_z)
+    m = uav.mass_kg
+    thrust_vector = (m * acc_x + pull[0], m * acc_y + pull[1], m * (g + acc_z) + pull[2])
     thrust = math.hypot(*thrust_vector)
     tilt = math.atan2(math.hypot(thrust_vector[0], thrust_vector[1]), thrust_vector[2])
     if limits is not None:
@@ -352,7 +377,8 @@ def _vehicle(
         yaw_rate * math.sin(roll) * cos_pitch,
         yaw_rate * math.cos(roll) * cos_pitch,
     )
-    return _Vehicle(block, thrust, tension, angle, tilt, end, (-tension * n_x, -tension * n_y, 0.0))
+    payload_force = (-horizontal * out_x, -horizontal * out_y, 0.0)
+    return _Vehicle(block, thrust, tension, angle, tilt, end, payload_force)
 
 
 def _payload_motion(reference: FormationReference) -> tuple[FloatArray, ...]:
@@ -382,7 +408,8 @@ def _cached_equilibrium(
         u[layout.thrust_index(i)] = vehicle.thrust_n
     ends = tuple(np.array(v.attachment_m) for v in vehicles)
     forces = tuple(np.array(v.payload_force_n) for v in vehicles)
-    for array in (*ends, *forces):
+    acceleration = np.array(reference.acceleration_mps2, dtype=float)
+    for array in (*ends, *forces, acceleration):
         array.setflags(write=False)
     g = params.gravity_mps2
     return FormationEquilibrium(
@@ -395,6 +422,7 @@ def _cached_equilibrium(
         attachments_m=ends,
         payload_force_n=forces,
         payload_mass_share_kg=tuple(float(v) / g for v in loads.vertical_n),
+        acceleration_mps2=acceleration,
     )
 
 
@@ -431,8 +459,9 @@ def _cached_agent_equilibrium(
         u_i,
         np.array(vehicle.payload_force_n),
         float(loads.vertical_n[i - 1]) / params.gravity_mps2,
+        np.array(reference.acceleration_mps2, dtype=float),
     )
-    for array in (agent.x, agent.u, agent.payload_force_n):
+    for array in (agent.x, agent.u, agent.payload_force_n, agent.acceleration_mps2):
         array.setflags(write=False)
     return agent
 

@@ -266,8 +266,8 @@ class _PreparedModel:
     def fits(self, reference: FormationReference, tolerance: float) -> bool:
         """Whether it may stand for the linearization at ``reference`` (turned to the
         measured yaws): yaws and the cone angle within ``tolerance`` [rad], and the
-        reference's velocity [m/s] and turn and cone-angle rates [rad/s] within the same
-        number."""
+        reference's velocity [m/s], acceleration [m/s²] and turn and cone-angle rates
+        [rad/s] within the same number."""
         mine = self.reference
         angles = zip(
             (mine.payload_yaw_rad, *mine.uav_yaw_rad, mine.cone_angle_rad),
@@ -277,8 +277,8 @@ class _PreparedModel:
         if any(abs(math.remainder(a - b, 2.0 * math.pi)) > tolerance for a, b in angles):
             return False
         rates = zip(
-            (*mine.velocity_mps, *_rates(mine)),
-            (*reference.velocity_mps, *_rates(reference)),
+            (*mine.velocity_mps, *mine.acceleration_mps2, *_rates(mine)),
+            (*reference.velocity_mps, *reference.acceleration_mps2, *_rates(reference)),
             strict=True,
         )
         return all(abs(a - b) <= tolerance for a, b in rates)
@@ -532,11 +532,13 @@ class _Agent:
         self.u_lb, self.u_ub = _input_bounds(settings, 1)
 
     def external_force(self, lin: AgentEquilibrium) -> FloatArray:
-        """f_ext [N] that makes ``lin`` a fixed point of this agent's model: the pull of the
-        rest of the payload, and the difference between the vertical load the cable carries
-        at ``lin`` and the model's weight (zero for a bar, and at a cone angle of 0)."""
-        force = lin.payload_force_n.copy()
-        force[2] = (self.payload_mass_kg - lin.payload_mass_share_kg) * self.params.gravity_mps2
+        """f_ext [N] that makes ``lin`` a fixed point of this agent's model (accelerating
+        with the formation at ``lin``'s acceleration a): the pull of the rest of the
+        payload, and the difference between the load the cable carries at ``lin`` and the
+        model's payload mass under g and a (zero for a bar, and at a cone angle of 0)."""
+        surplus_kg = self.payload_mass_kg - lin.payload_mass_share_kg
+        gravity = np.array((0.0, 0.0, self.params.gravity_mps2))
+        force: FloatArray = lin.payload_force_n + surplus_kg * (lin.acceleration_mps2 + gravity)
         return force
 
     def linearize(self, lin: AgentEquilibrium) -> tuple[FloatArray, FloatArray]:

@@ -50,6 +50,7 @@ def core_settings_from_config(config: Config) -> CoreSettings:
         landing_clearance_m=c.landing_clearance_m,
         bumpless_ticks=c.bumpless_ticks,
         rate_lookahead_steps=c.rate_lookahead_steps,
+        acceleration_feed_forward=c.acceleration_feed_forward,
         pd_gains=c.pd.to_gains(),
         feasibility=c.feasibility(),
     )

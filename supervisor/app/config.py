@@ -640,6 +640,9 @@ class ControlSection(_Section):
     """Ticks over which a controller switch blends the inputs."""
     rate_lookahead_steps: Annotated[int, Field(ge=0)] = 3
     """Which step of the MPC's predicted rates a rate-controlled PX4 is sent."""
+    acceleration_feed_forward: bool = True
+    """The reference carries its profile's acceleration: the UAVs' tilt and thrust that
+    the payload's acceleration needs are in the equilibrium the MPC regulates to."""
     flight_rates: RatesSection = RatesSection()
     takeoff_rates: TakeoffRatesSection = TakeoffRatesSection()
     abort_rates: AbortRatesSection = AbortRatesSection()

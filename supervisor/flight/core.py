@@ -84,6 +84,7 @@ class CoreSettings:
     landing_clearance_m: float = 0.3
     bumpless_ticks: int = 15
     rate_lookahead_steps: int = 3
+    acceleration_feed_forward: bool = True
     pd_gains: UavPdGains = field(default_factory=UavPdGains)
     feasibility: FeasibilitySettings = field(default_factory=FeasibilitySettings)
 
@@ -510,7 +511,7 @@ class FlightCore:
                 self._set_descend_targets(x)
             self.queue.clear()
             if x is not None:
-                self._shaper = ReferenceShaper(self._current_reference(x), self._rates(mode))
+                self._shaper = self._new_shaper(x, self._rates(mode))
         elif mode is Mode.HOVER:
             self._enter_phase(Phase.HOVER)
             if self._shaper is not None:
@@ -538,6 +539,11 @@ class FlightCore:
 
     def _enter_phase(self, phase: Phase) -> None:
         self.phase = next_phase(self.phase, phase)
+
+    def _new_shaper(self, x: FloatArray, limits: RateLimits) -> ReferenceShaper:
+        """A reference shaper starting from the formation at ``x``."""
+        feed = self.settings.acceleration_feed_forward
+        return ReferenceShaper(self._current_reference(x), limits, feed_acceleration=feed)
 
     def _rates(self, mode: Mode) -> RateLimits:
         if mode is Mode.ABORT:
@@ -698,9 +704,7 @@ class FlightCore:
             speeds = [np.linalg.norm(layout.uav_velocity(x, i)) for i in layout.vehicles]
             if taut and max(speeds) < 0.3:
                 self._enter_phase(Phase.LIFT)
-                self._shaper = ReferenceShaper(
-                    self._current_reference(x), self.settings.takeoff_rates
-                )
+                self._shaper = self._new_shaper(x, self.settings.takeoff_rates)
             return commands, None, None
         assert self._shaper is not None
         p_b = payload_position(x)
@@ -733,7 +737,7 @@ class FlightCore:
     ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
         x = estimate.x
         if self._shaper is None:
-            self._shaper = ReferenceShaper(self._current_reference(x), self.settings.flight_rates)
+            self._shaper = self._new_shaper(x, self.settings.flight_rates)
         if self._hold_target is None:
             self._hold_target = self._shaper.current
         target = self._hold_target
@@ -762,9 +766,7 @@ class FlightCore:
             return self._set_down(now_s, x)
         if self.phase is Phase.LOWER:
             if self._shaper is None:
-                self._shaper = ReferenceShaper(
-                    self._current_reference(x), self._rates(self.modes.mode)
-                )
+                self._shaper = self._new_shaper(x, self._rates(self.modes.mode))
             current = self._shaper.current
             target = FormationReference(
                 (current.payload_position_m[0], current.payload_position_m[1], self._ground_bar_z),

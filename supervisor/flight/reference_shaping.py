@@ -41,7 +41,8 @@ def _move(
     position: FloatArray, velocity: FloatArray, target: FloatArray, limits: RateLimits, dt: float
 ) -> tuple[FloatArray, FloatArray]:
     """One step of a trapezoidal profile toward ``target``: speed ≤ ``position_mps``,
-    acceleration ≤ ``acceleration_mps2``, slowing down in time to stop on the target."""
+    acceleration ≤ ``acceleration_mps2``, slowing down in time to stop on the target.
+    Returns the new position and velocity."""
     offset = target - position
     distance = float(np.linalg.norm(offset))
     a = limits.acceleration_mps2
@@ -66,12 +67,20 @@ def _move(
 class ReferenceShaper:
     """Moves the reference toward the target at bounded rates (time as an argument). The
     payload's position follows a trapezoidal velocity profile and the reference carries
-    that velocity (zero once the target is reached); yaws and the cone angle move at
-    bounded rates."""
+    that velocity (zero once the target is reached) and, with ``feed_acceleration``, the
+    profile's acceleration over the step just taken (the UAVs' tilt and thrust that the
+    payload's acceleration needs, ``FormationReference.acceleration_mps2``); yaws and the
+    cone angle move at bounded rates."""
 
-    def __init__(self, start: FormationReference, limits: RateLimits = RateLimits()) -> None:
+    def __init__(
+        self,
+        start: FormationReference,
+        limits: RateLimits = RateLimits(),
+        feed_acceleration: bool = True,
+    ) -> None:
         self.current = start
         self.limits = limits
+        self.feed_acceleration = feed_acceleration
         self._last_s: float | None = None
 
     def reset(self, reference: FormationReference) -> None:
@@ -106,6 +115,8 @@ class ReferenceShaper:
             for new, old in zip(yaws, before, strict=True)
         ]
         cone = _approach(c.cone_angle_rad, target.cone_angle_rad, lim.theta_l_radps * dt)
+        moving = self.feed_acceleration and dt > 0.0 and velocity.any()
+        acceleration = (velocity - np.array(c.velocity_mps)) / dt if moving else np.zeros(3)
         self.current = FormationReference(
             (float(position[0]), float(position[1]), float(position[2])),
             yaws[0],
@@ -115,5 +126,6 @@ class ReferenceShaper:
             rates[0],
             tuple(rates[1:]),
             (cone - c.cone_angle_rad) / dt if dt > 0.0 else 0.0,
+            (float(acceleration[0]), float(acceleration[1]), float(acceleration[2])),
         )
         return self.current

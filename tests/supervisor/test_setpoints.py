@@ -194,6 +194,33 @@ def test_reference_accelerates_gently_and_carries_its_velocity() -> None:
     assert positions[-1] == target.payload_position_m and velocities[-1] == (0.0, 0.0, 0.0)
 
 
+@pytest.mark.parametrize("feed", [True, False])
+def test_reference_carries_its_profiles_acceleration_when_fed(feed: bool) -> None:
+    """Fed, the acceleration is the velocity's change over the step just taken: the bound
+    along the move while speeding up, zero cruising, against it slowing down, zero held;
+    not fed, always zero."""
+    limits = RateLimits(position_mps=0.4, acceleration_mps2=0.5)
+    start = FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))
+    shaper = ReferenceShaper(start, limits, feed_acceleration=feed)
+    target = FormationReference((1.0, 1.0, 1.5), 0.0, (0.0, 0.0))
+    dt = 0.02
+    velocities, accelerations = [np.zeros(3)], []
+    for k in range(300):
+        ref = shaper.update(target, dt * k)
+        velocities.append(np.array(ref.velocity_mps))
+        accelerations.append(np.array(ref.acceleration_mps2))
+    a = np.array(accelerations)
+    if not feed:
+        assert not a.any()
+        return
+    moving = [k for k in range(1, 300) if velocities[k + 1].any()]
+    np.testing.assert_allclose(a[moving], (np.diff(velocities, axis=0)[moving]) / dt, atol=1e-9)
+    direction = np.array([1.0, 1.0, 0.5]) / 1.5
+    along = a @ direction
+    assert along.max() == pytest.approx(0.5) and along.min() == pytest.approx(-0.5)
+    assert not a[-1].any()  # held on the target
+
+
 def test_a_turn_through_180_degrees_lands_on_the_target_itself() -> None:
     shaper = ReferenceShaper(FormationReference((0.0, 0.0, 1.0), math.radians(170), (0.0, 0.0)))
     target = FormationReference((0.0, 0.0, 1.0), math.radians(-170), (0.0, 0.0))

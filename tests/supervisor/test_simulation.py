@@ -235,7 +235,11 @@ def test_short_slack_episodes_repeated_abort_a_flight_in_closed_loop(
 
 
 # The paper's controllers: beyond-the-paper settings the shipped setup turns on, off.
-PAPERS = ["mpc.decentralized.reference_lead_s=[0, 0]", "mpc.rate_crossover_s=0"]
+PAPERS = [
+    "mpc.decentralized.reference_lead_s=[0, 0]",
+    "mpc.rate_crossover_s=0",
+    "control.acceleration_feed_forward=false",
+]
 
 
 def test_paper_scenario_centralized_tracks_the_bar_better(
