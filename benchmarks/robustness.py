@@ -12,6 +12,7 @@ the figures side by side.
 * ``combined``: the paper's sequence, the paper's controllers at the nominal 5 ms of
   latency against all three remedies at 45 ms (delay 0.045 s, rate filter 0.5, integral
   0.4).
+* ``shipped``: issue 33's checks of the shipped settings against those before them.
 * ``move``: a 4 m straight move at 1 m/s and 1 m/s², and at 2 m/s and 2 m/s² (issue 33).
 * ``noise``: the move and hold of ``offset`` (nominal bar) with the UAVs' body rates
   unfiltered and filtered (``mpc.rate_filter_weight``, controllers/rate_filter.py).
@@ -388,8 +389,55 @@ def move_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     return table
 
 
+BEFORE_OFFSET_FREE = ["mpc.integral_gain_per_s=0", "mpc.delay_s=0"]
+
+
+def shipped_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """Issue 33's checks of the shipped settings, against the settings before them (no
+    integral, no delay compensation) in the same run: the paper's sequence nominal and
+    with 45 ms of mocap latency, a bar 50 % heavier hovering 120 s, a 1 N push on the bar
+    held 30 s, and the paper's sequence with the bar's CoM 5 cm off. ``RMS mm``: the bar's
+    3D error RMS; ``mean mm``: the norm of its mean; ``x std mm`` as in ``default``."""
+    hover = {
+        "name": "hover 120 s",
+        "start": "hover",
+        "step": [{"action": "hover", "hold_s": 120.0}],
+    }
+    push = {
+        "name": "push 1 N",
+        "start": "hover",
+        "load": [{"body": "bar", "force_n": [1.0, 0.0, 0.0], "start_s": 2.0}],
+        "step": [{"action": "hover", "hold_s": 30.0}],
+    }
+    paper = load_scenario("paper")
+    flights = {
+        "paper's sequence": (paper, []),
+        "paper's, 45 ms latency": (paper, ["sim.mocap.latency_s=0.045"]),
+        "bar +50 %, 120 s hover": (_scenario(hover), ["sim.bar_mass_scale=1.5"]),
+        "1 N push, 30 s": (_scenario(push), []),
+        "paper's, CoM 5 cm off": (paper, ["sim.bar_com_shift_m=0.05"]),
+    }
+    table: dict[str, dict[str, Figures]] = {}
+    for controller in CONTROLLERS:
+        for label, (scenario, overrides) in flights.items():
+            for variant, settings in (("before", BEFORE_OFFSET_FREE), ("shipped", [])):
+                figures, recorder = fly(
+                    shortened(scenario, seconds), controller, [*overrides, *settings]
+                )
+                errors = np.array(recorder.errors)
+                figures.extra["x std mm"] = 1e3 * float(errors[:, 0].std())
+                figures.extra["RMS mm"] = 1e3 * float(np.sqrt((errors**2).sum(axis=1).mean()))
+                figures.extra["mean mm"] = 1e3 * float(np.linalg.norm(errors.mean(axis=0)))
+                steady = errors[-round(STEADY_S / TICK_S) :]
+                figures.extra["steady mm"] = 1e3 * float(np.linalg.norm(steady.mean(axis=0)))
+                table.setdefault(controller, {})[f"{label}, {variant}"] = figures
+                print(f"  flown: {controller}, {label}, {variant}", file=sys.stderr, flush=True)
+    return table
+
+
 CASES = {
     "default": default_case,
+    "shipped": shipped_case,
     "move": move_case,
     "push": push_case,
     "combined": combined_case,
