@@ -9,12 +9,13 @@ import math
 import re
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 from playwright.async_api import Browser, Page, expect
 
 from benchmarks.px4_ulog import ulog_figures
-from benchmarks.service import all_disarmed, in_mode, notices, running_service
+from benchmarks.service import RunningService, all_disarmed, in_mode, notices, running_service
 from benchmarks.tick import flight_truths, world_truth
 from controllers.formation_params import FormationParams
 from geometry.state import payload_points
@@ -99,6 +100,24 @@ def assert_set_down_by_uavs_2_and_3(log: FlightLog) -> None:
         assert payload_points(states[-1], PARAMS.payload.attachments_m)[i - 1][2] < 0.1, i
 
 
+async def plate_drawn_where_it_is(
+    page: Page, service: RunningService, http: httpx.AsyncClient
+) -> tuple[dict[str, float], list[list[float]]]:
+    """The plate's orange pixels and its corners from the status as the view projects
+    them, once the two agree or after 5 s. The page draws at most 10 times a second from
+    its telemetry, which a loaded machine delays: the canvas may show the plate a
+    moment before the status does."""
+    for _ in range(25):
+        corners = (await service.status(http)).bar.ends
+        drawn = await colour_pixels(page, "#view3d", PLATE_ORANGE)
+        project = "p => window.uavbarView3d.project(p)"
+        projected = [await page.evaluate(project, corner) for corner in corners]
+        if drawn["count"] > 100 and inside((drawn["x"], drawn["y"]), projected):
+            break
+        await page.wait_for_timeout(200)
+    return drawn, projected
+
+
 async def test_three_uavs_and_a_plate_land_abort_and_lose_a_link_in_a_row(
     browser: Browser, tmp_path: Path
 ) -> None:
@@ -119,10 +138,7 @@ async def test_three_uavs_and_a_plate_land_abort_and_lose_a_link_in_a_row(
         assert len(status.uavs) == 3 and len(status.bar.ends) == 3
 
         await service.take_off(http)
-        await page.wait_for_timeout(500)  # a few messages drawn since
-        corners = (await service.status(http)).bar.ends
-        drawn = await colour_pixels(page, "#view3d", PLATE_ORANGE)
-        projected = [await page.evaluate("p => window.uavbarView3d.project(p)", c) for c in corners]
+        drawn, projected = await plate_drawn_where_it_is(page, service, http)
         assert drawn["count"] > 100, drawn
         # The orange pixels' centre lies inside the plate's corners as the view's camera
         # puts them (UAVs and cables in front of the plate shift it, never out of it).
