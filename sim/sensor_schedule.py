@@ -6,7 +6,7 @@ reach PX4 microseconds apart, and PX4's rate controller differentiates the gyro 
 that gap for its D term. Measured on three PX4 v1.15.4 SITL under the plate (ULogs,
 ``sim.px4_ulog``): after a 16 ms stall, samples 2–5 µs apart, an angular acceleration of
 1302 rad/s², the pitch torque setpoint at 7.7 (saturated at 1), and a 0.63 rad/s pitch
-rate nobody asked for; flights with such kicks left the plate 7 cm off or flipped a UAV.
+rate nobody asked for; that flight left the plate 7 cm off its reference.
 A real IMU samples on its own clock, so a sample is never sent sooner than most of a
 period after the last by the wall clock: the one held back is not sent late, the next
 carries the world's newer state.
