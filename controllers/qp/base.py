@@ -1,6 +1,7 @@
 """The optimal-control QP every back-end solves, and the small interface they share.
 
-    min  Σ_{k=0}^{N-1} (Δx_kᵀ Q Δx_k + Δu_kᵀ R Δu_k) + Δx_Nᵀ Q_N Δx_N
+    min  Σ_{k=0}^{N-1} ((Δx_k − x̄_k)ᵀ Q (Δx_k − x̄_k) + (Δu_k − ū_k)ᵀ R (Δu_k − ū_k))
+           + (Δx_N − x̄_N)ᵀ Q_N (Δx_N − x̄_N)
     s.t. Δx_{k+1} = A Δx_k + B Δu_k,   Δx_0 = x0,
          u_lb ≤ Δu_k ≤ u_ub            (k = 0 … N-1),
          x_lb ≤ Δx_k ≤ x_ub            (k = 1 … N-1, optional; ±inf entries are free),
@@ -8,6 +9,13 @@
 
 This is (MPC) of Section IV in deviation coordinates (Δx = x − x_eq, Δu = u − u_eq):
 A and B are the same on every stage but change every tick; Q, R, Q_N are diagonal.
+
+x̄_k and ū_k are per-stage tracking targets (``x_target`` (N + 1, nx), ``u_target``
+(N, nu)); either left at None is zero, and with both None the cost is the regulation
+problem Σ Δx_kᵀ Q Δx_k + Δu_kᵀ R Δu_k + Δx_Nᵀ Q_N Δx_N. Expanded, the targets only add
+linear terms −2 (Q x̄_k)ᵀ Δx_k and −2 (R ū_k)ᵀ Δu_k (−2 (Q_N x̄_N)ᵀ Δx_N at N) and a
+constant: the Hessian and the constraints do not depend on them, and x̄_0 (Δx_0 is fixed)
+changes only the constant.
 """
 
 from __future__ import annotations
@@ -32,7 +40,8 @@ class QpStatus(Enum):
 
 @dataclass(frozen=True)
 class OcpQp:
-    """One tick's QP data. Shapes: A (nx, nx), B (nx, nu), q/q_N (nx,), r (nu,)."""
+    """One tick's QP data. Shapes: A (nx, nx), B (nx, nu), q/q_N (nx,), r (nu,);
+    the optional targets x_target (N + 1, nx) and u_target (N, nu) (None: zero)."""
 
     A: FloatArray
     B: FloatArray
@@ -47,6 +56,8 @@ class OcpQp:
     x_ub: FloatArray | None = None
     x_terminal_lb: FloatArray | None = None
     x_terminal_ub: FloatArray | None = None
+    x_target: FloatArray | None = None
+    u_target: FloatArray | None = None
 
     @property
     def nx(self) -> int:

@@ -7,6 +7,11 @@ recursions instead of forming Γ (O(N² nx nu²) rather than O(N² nx² nu²)):
     H_{ij}  = (A^{j-i} B)ᵀ P_j B  (i ≤ j),  H_ii += R
     λ_N = Q_N A^N x0,  λ_k = Q A^k x0 + Aᵀ λ_{k+1},  g_i = Bᵀ λ_{i+1}.
 
+Targets (base.py) change only g: the cost's deviations from them are A^k x0 − x̄_k on the
+free response and U − Ū on the inputs, so
+
+    λ_N = Q_N (A^N x0 − x̄_N),  λ_k = Q (A^k x0 − x̄_k) + Aᵀ λ_{k+1},  g_i = Bᵀ λ_{i+1} − R ū_i.
+
 Input bounds are simple bounds; finite state bounds become general rows of Γ.
 DAQP is warm-started with the previous active set.
 """
@@ -72,11 +77,14 @@ class CondensedDaqpBackend:
                 blocks[idx + d, :, idx, :] = upper.transpose(0, 2, 1)
         H[np.diag_indices_from(H)] += np.tile(R, N)
         free = self._free_response(A, qp.x0)
+        deviation = free if qp.x_target is None else free - qp.x_target
         lam = np.empty((N + 1, nx))
-        lam[N] = Q_N @ free[N]
+        lam[N] = Q_N @ deviation[N]
         for k in range(N - 1, 0, -1):
-            lam[k] = Q @ free[k] + A.T @ lam[k + 1]
+            lam[k] = Q @ deviation[k] + A.T @ lam[k + 1]
         g = (lam[1:] @ B).reshape(-1)
+        if qp.u_target is not None:
+            g -= (qp.u_target * R).reshape(-1)
         return H, g, AB, free
 
     def _state_rows(
@@ -113,6 +121,10 @@ class CondensedDaqpBackend:
         nx, nu, N = self._dims
         if not all(np.all(np.isfinite(a)) for a in (qp.A, qp.B, qp.x0)):
             return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
+        if qp.x_target is not None or qp.u_target is not None:
+            targets = (qp.x_target, qp.u_target)
+            if not all(t is None or np.all(np.isfinite(t)) for t in targets):
+                return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
         H, g, AB, free = self.condense(qp)
         G, g_lo, g_hi = self._state_rows(qp, AB, free)
         upper = np.concatenate([np.tile(qp.u_ub, N), g_hi])

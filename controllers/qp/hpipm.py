@@ -13,6 +13,12 @@ stage 0 has no state (nx₀ = 0) and reaches x₁ = B u₀ + b₀, b₀ = A x₀
 its input box. Stages 1 … N−1 carry the finite entries of the state box, stage N those of
 the terminal box (±inf entries are left out: HPIPM's IPM stalls on huge bounds).
 
+HPIPM's cost is Σ ½ xᵀQx + ½ uᵀRu + qᵀx + rᵀu; it is handed Q, R and Q_N as they are, so
+it minimizes half of ``OcpQp``'s cost, and the targets x̄_k, ū_k become the linear terms
+q_k = −Q x̄_k (stages 1 … N−1), q_N = −Q_N x̄_N and r_k = −R ū_k (stages 0 … N−1); stage 0
+has no state, so x̄_0 (a constant of the cost) is never handed over. Without targets q and
+r stay zero and are not touched.
+
 Most ticks of a hovering or tracking flight have no active bound, and then the QP's
 solution is that of the same QP without boxes. So each solve first solves the box-free QP
 and keeps it when it satisfies every box (exactly the KKT conditions with zero
@@ -105,6 +111,11 @@ def _finite_indices(lower: FloatArray | None, upper: FloatArray | None) -> np.nd
     return np.flatnonzero(np.isfinite(lower) | np.isfinite(upper)).astype(np.int32)
 
 
+def _finite_targets(qp: OcpQp) -> bool:
+    """Whether every target ``qp`` has is finite."""
+    return all(t is None or bool(np.isfinite(t).all()) for t in (qp.x_target, qp.u_target))
+
+
 class _HpipmProblem:
     """One HPIPM problem: the stage-wise OCP-QP, its partial condensing into blocks of
     stages (in C), and the interior-point solver on the blocks.
@@ -112,7 +123,9 @@ class _HpipmProblem:
     The initial state is eliminated: stage 0 has no state (nx₀ = 0) and its dynamics is
     x₁ = B u₀ + b₀ with b₀ = A x₀. ``boxed=False`` leaves every bound out: HPIPM then
     solves with one Riccati recursion. Q, R and Q_N are set once (``set_weights``); a
-    tick sets A, B and b₀ (``set_model``) and, for the boxed problem, the boxes.
+    tick sets A, B and b₀ (``set_model``) and, for the boxed problem, the boxes; the
+    targets' linear terms q and r are set (``set_gradient``) only while there are targets
+    and once more to clear them.
     """
 
     def __init__(
@@ -241,6 +254,8 @@ class _HpipmProblem:
         lib.d_ocp_qp_ipm_ws_create(solved_dim, self._arg, self._ws, workspace)
         self._status = c_int(0)
         self._iterations = c_int(0)
+        self.has_gradient = False
+        """Whether q and r hold a (targets') gradient rather than zeros."""
         # Solution buffers for d_ocp_qp_sol_get_all (it writes π and the bound multipliers
         # too); stage 0 has no state and stage N no input.
         self.u = np.zeros((N + 1, nu))
@@ -277,6 +292,16 @@ class _HpipmProblem:
             set_A(stage, A, qp)
             set_B(stage, B, qp)
         lib.d_ocp_qp_set_b(stages[0], b0, qp)
+
+    def set_gradient(self, q_rows: Any, r_rows: Any) -> None:
+        """q_k on stages 1 … N and r_k on stages 0 … N−1 from ``q_rows[k]``, ``r_rows[k]``
+        (pointers to nx and nu values; q_rows[0] is not read: stage 0 has no state)."""
+        lib, stages, qp, N = self._lib, self.stages, self._qp, self._N
+        set_q, set_r = lib.d_ocp_qp_set_q, lib.d_ocp_qp_set_r
+        for k in range(N):
+            set_r(stages[k], r_rows[k], qp)
+        for k in range(1, N + 1):
+            set_q(stages[k], q_rows[k], qp)
 
     def set_boxes(self, lbu: Any, ubu: Any, lbx: Any, ubx: Any, lbx_N: Any, ubx_N: Any) -> None:
         """The input box on every stage, the state box on stages 1 … N−1, the terminal
@@ -366,6 +391,13 @@ class HpipmBackend:
         self._weight_pointers = tuple(_pointer(a) for a in (self._Q, self._R, self._QN))
         box_buffers = (self._lbu, self._ubu, self._lbx, self._ubx, self._lbx_N, self._ubx_N)
         self._box_pointers = tuple(_pointer(a) for a in box_buffers)
+        # The targets' linear terms, stage by stage (row k: stage k).
+        self._q_lin = np.zeros((N + 1, nx))
+        self._r_lin = np.zeros((N, nu))
+        self._gradient_pointers = (
+            [_pointer(row) for row in self._q_lin],
+            [_pointer(row) for row in self._r_lin],
+        )
         self._boxes_set = False
         self.last_was_box_free = False
         """Whether the last solve's box-free solution met every box (no IPM run)."""
@@ -375,13 +407,17 @@ class HpipmBackend:
 
     def prepare(self, qp: OcpQp) -> None:
         """Build the box-free solution map of ``qp``'s model now; a later ``solve`` of a
-        QP with the same A, B and weights uses it. Raises ``LinAlgError`` when a condensed
-        Hessian block is not positive definite."""
+        QP with the same A, B and weights uses it, with any targets. The map's part for
+        targets is built now when ``qp`` has targets, else at the first solve with them.
+        Raises ``LinAlgError`` when a condensed Hessian block is not positive definite."""
         self._prepared_model = ()
         self._solution_map = None
         blocks = {m: condense(qp.A, qp.B, qp.q_diag, qp.r_diag, m) for m in set(self._lengths)}
         ordered = [blocks[m] for m in self._lengths]
-        self._solution_map = unboxed_solution_map(ordered, qp.q_terminal_diag)
+        solution_map = unboxed_solution_map(ordered, qp.q_terminal_diag, qp.q_diag, qp.r_diag)
+        if qp.x_target is not None or qp.u_target is not None:
+            _ = solution_map.target_recursion  # built ahead of the state, as the map is
+        self._solution_map = solution_map
         self._prepared_model = tuple(np.array(a) for a in self._model(qp))
 
     def solve(self, qp: OcpQp) -> QpSolution:
@@ -390,6 +426,9 @@ class HpipmBackend:
         HPIPM; never raises."""
         data = (qp.A, qp.B, qp.x0, qp.u_lb, qp.u_ub)
         if not all(np.isfinite(a).all() for a in data):
+            return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
+        targeted = qp.x_target is not None or qp.u_target is not None
+        if targeted and not _finite_targets(qp):
             return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
         if self._boxes_empty(qp):
             return QpSolution.failed(qp, QpStatus.INFEASIBLE)
@@ -401,11 +440,11 @@ class HpipmBackend:
         loaded = False  # this QP's data in the buffers HPIPM reads (the map needs none)
         if self._try_box_free:
             if self.last_was_prepared and self._solution_map is not None:
-                u, x = self._solution_map.solve(qp.x0)
+                u, x = self._solution_map.solve(qp.x0, qp.x_target, qp.u_target)
             else:
                 self._load_data(qp)
                 loaded = True
-                status, iterations, u, x = self._run(self._free, qp.x0)
+                status, iterations, u, x = self._run(self._free, qp.x0, targeted)
             self.last_was_box_free = status == 0 and self._within_boxes(qp, u, x)
         if not self.last_was_box_free:
             if self._try_box_free:
@@ -416,7 +455,7 @@ class HpipmBackend:
                 self._load_data(qp)
             if self._load_boxes(qp):
                 self._boxed.set_boxes(*self._box_pointers)
-            status, boxed_iterations, u, x = self._run(self._boxed, qp.x0)
+            status, boxed_iterations, u, x = self._run(self._boxed, qp.x0, targeted)
             iterations += boxed_iterations
             # Saturation lasts a few ticks: while an input bound is active, skip the attempt.
             self._try_box_free = not self._input_bound_active(qp, u)
@@ -426,10 +465,17 @@ class HpipmBackend:
         return QpSolution(u, x, result, iterations)
 
     def _run(
-        self, problem: _HpipmProblem, x0: FloatArray
+        self, problem: _HpipmProblem, x0: FloatArray, targeted: bool
     ) -> tuple[int, int, FloatArray, FloatArray]:
-        """``problem`` on this tick's model: (status, iterations, u (N, nu), x (N+1, nx))."""
+        """``problem`` on this tick's model (and targets, loaded by ``_load_data``):
+        (status, iterations, u (N, nu), x (N+1, nx))."""
         problem.set_model(*self._model_pointers)
+        if targeted or problem.has_gradient:  # without targets, once to clear the last ones
+            if not targeted:
+                self._q_lin.fill(0.0)
+                self._r_lin.fill(0.0)
+            problem.set_gradient(*self._gradient_pointers)
+            problem.has_gradient = targeted
         status, iterations = problem.solve()
         trajectory = problem.x.copy()
         trajectory[0] = x0
@@ -441,11 +487,28 @@ class HpipmBackend:
         return (qp.A, qp.B, qp.q_diag, qp.r_diag, qp.q_terminal_diag)
 
     def _load_data(self, qp: OcpQp) -> None:
-        """The weights (when changed), A, B and b₀ = A x₀ into the buffers HPIPM reads."""
+        """The weights (when changed), A, B, b₀ = A x₀ and the targets' linear terms (when
+        there are targets) into the buffers HPIPM reads."""
         self._load_weights(qp)
         self._A[:] = qp.A
         self._B[:] = qp.B
         np.dot(qp.A, qp.x0, out=self._b0)
+        if qp.x_target is not None or qp.u_target is not None:
+            self._load_targets(qp)
+
+    def _load_targets(self, qp: OcpQp) -> None:
+        """HPIPM's linear terms of ``qp``'s targets into their buffers (see the module
+        docstring)."""
+        N = self._dims[2]
+        if qp.x_target is None:
+            self._q_lin.fill(0.0)
+        else:
+            np.multiply(qp.x_target, -qp.q_diag, out=self._q_lin)
+            np.multiply(qp.x_target[N], -qp.q_terminal_diag, out=self._q_lin[N])
+        if qp.u_target is None:
+            self._r_lin.fill(0.0)
+        else:
+            np.multiply(qp.u_target, -qp.r_diag, out=self._r_lin)
 
     def _load_weights(self, qp: OcpQp) -> None:
         """Q, R and Q_N into both problems, when they differ from the last ones set."""

@@ -4,6 +4,11 @@ Variables z = (Δx_0, …, Δx_N, Δu_0, …, Δu_{N-1}); equality rows for Δx_
 dynamics, box rows for inputs and finite state bounds. The sparsity pattern is fixed at
 construction (from ``a_pattern``/``b_pattern``, the model's structural nonzeros) so each
 tick only updates values.
+
+OSQP minimizes ½ zᵀPz + qᵀz, so P holds twice the weights (``_cost``) and the targets
+(base.py) become q = −2 (Q x̄_k, Q_N x̄_N, R ū_k) on their variables; x̄_0's entry is
+left zero (Δx_0 is fixed: it would only shift that equality's multiplier). Without
+targets q stays zero and is not updated.
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ class OsqpBackend:
             warm_starting=True,
         )
         self._cost_key = self._weights_key(template)
+        self._linear_cost_set = False  # whether q holds targets' terms rather than zeros
 
     @staticmethod
     def _finite_rows(lb: FloatArray | None, ub: FloatArray | None, nx: int) -> np.ndarray:
@@ -79,6 +85,18 @@ class OsqpBackend:
         N = self._dims[2]
         diag = np.concatenate([np.tile(qp.q_diag, N), qp.q_terminal_diag, np.tile(qp.r_diag, N)])
         return sp.diags(2.0 * diag, format="csc")
+
+    def _linear_cost(self, qp: OcpQp) -> FloatArray:
+        """OSQP's q for ``qp``'s targets (see the module docstring)."""
+        nx, nu, N = self._dims
+        q = np.zeros((N + 1) * nx + N * nu)
+        if qp.x_target is not None:
+            states = q[: (N + 1) * nx].reshape(N + 1, nx)
+            np.multiply(qp.x_target[1:N], -2.0 * qp.q_diag, out=states[1:N])
+            np.multiply(qp.x_target[N], -2.0 * qp.q_terminal_diag, out=states[N])
+        if qp.u_target is not None:
+            q[(N + 1) * nx :] = (-2.0 * qp.r_diag * qp.u_target).reshape(-1)
+        return q
 
     def _constraint_matrix(self, qp: OcpQp) -> tuple[sp.csc_matrix, np.ndarray]:
         """Rows: [Δx_0 = x0; Δx_{k+1} − AΔx_k − BΔu_k = 0; Δu_k box; Δx_k box; Δx_N box].
@@ -188,6 +206,15 @@ class OsqpBackend:
         if key != self._cost_key:
             self._solver.update(Px=self._cost(qp).data)
             self._cost_key = key
+        if qp.x_target is not None or qp.u_target is not None:
+            q = self._linear_cost(qp)
+            if not np.all(np.isfinite(q)):
+                return QpSolution.failed(qp, QpStatus.NUMERICAL_ERROR)
+            self._solver.update(q=q)
+            self._linear_cost_set = True
+        elif self._linear_cost_set:  # the last targets' terms, cleared once
+            self._solver.update(q=np.zeros((N + 1) * nx + N * nu))
+            self._linear_cost_set = False
         self._solver.update(Ax=self._matrix_data, l=self._lower(qp), u=self._upper(qp))
         result = self._solver.solve(raise_error=False)
         status_text = result.info.status
