@@ -281,6 +281,8 @@ def formation_equilibrium(
     params: FormationParams,
     reference: FormationReference,
     limits: FormationLimits | None = None,
+    *,
+    remember: bool = True,
 ) -> FormationEquilibrium:
     """The equilibrium (x_eq, u_eq) for ``reference``, in closed form (one least-norm
     solve of at most three equations for the vertical loads).
@@ -291,8 +293,12 @@ def formation_equilibrium(
     cable), or, given ``limits``, a UAV whose thrust or tilt would break them (naming the
     UAV and the bound). A tick asks for the same reference more than once (safety,
     controller, the record), so recent answers are kept: callers get their own x and u.
+    ``remember=False`` neither reads nor keeps them (a horizon of references asked once
+    each would push out those asked again).
     """
     _check_reference(reference, params.n_vehicles)
+    if not remember:
+        return _equilibrium(params, reference, limits)
     cached = _cached_equilibrium(params, reference, limits)
     return replace(cached, x=cached.x.copy(), u=cached.u.copy())
 
@@ -391,8 +397,7 @@ def _payload_motion(reference: FormationReference) -> tuple[FloatArray, ...]:
     )
 
 
-@lru_cache(maxsize=8)
-def _cached_equilibrium(
+def _equilibrium(
     params: FormationParams,
     reference: FormationReference,
     limits: FormationLimits | None,
@@ -424,6 +429,9 @@ def _cached_equilibrium(
         payload_mass_share_kg=tuple(float(v) / g for v in loads.vertical_n),
         acceleration_mps2=acceleration,
     )
+
+
+_cached_equilibrium = lru_cache(maxsize=8)(_equilibrium)
 
 
 def agent_equilibrium(

@@ -27,7 +27,7 @@ the centralized MPC plans the whole 12 + 12N-state, the decentralized one runs N
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -37,6 +37,7 @@ import numpy as np
 from controllers.codegen import NumericFunction
 from controllers.formation_equilibria import (
     AgentEquilibrium,
+    FormationEquilibrium,
     FormationReference,
     formation_equilibrium,
     hanging_mass_shares_kg,
@@ -46,6 +47,7 @@ from controllers.formation_params import FormationParams
 from controllers.linearization import discretize, formation_jacobians, payload_jacobians
 from controllers.model import PayloadModel
 from controllers.params import Clock, MpcSettings, ReferenceLead, StateBound
+from controllers.preview import Kinematics, moved_like, sampled_stages, stage_targets
 from controllers.qp.base import OcpQp, QpBackend, QpStatus
 from controllers.qp.registry import make_backend
 from controllers.vectors import cross3, rotate_zyx
@@ -56,12 +58,14 @@ from geometry.state import (
     AGENT_STATES,
     AGENT_YAW_INDICES,
     P_B,
+    P_I,
     P_P,
     PAYLOAD_PITCH,
     PAYLOAD_YAW,
     TH_B,
     UAV_BLOCK,
     V_B,
+    V_I,
     V_P,
     W_B,
     payload_yaw,
@@ -164,8 +168,10 @@ class LinearMpc:
         du_lb: FloatArray,
         du_ub: FloatArray,
         x_eq: FloatArray,
+        targets: tuple[FloatArray, FloatArray] | None = None,
     ) -> OcpQp:
-        """This tick's QP; absolute state bounds become bounds on Δx around ``x_eq``."""
+        """This tick's QP; absolute state bounds become bounds on Δx around ``x_eq``;
+        ``targets`` (x̄, ū) are the per-stage ones of a preview (``controllers.preview``)."""
         state_box = self._state_bounds
         terminal = self._terminal_bounds
         return OcpQp(
@@ -182,6 +188,8 @@ class LinearMpc:
             x_ub=None if state_box is None else state_box[1] - x_eq,
             x_terminal_lb=None if terminal is None else terminal[0] - x_eq,
             x_terminal_ub=None if terminal is None else terminal[1] - x_eq,
+            x_target=None if targets is None else targets[0],
+            u_target=None if targets is None else targets[1],
         )
 
 
@@ -381,6 +389,14 @@ class CentralizedMpc:
         self._preparation = _ModelPreparation(
             self._layout, settings, lambda turned: (self._linearize(turned),), (self._mpc,)
         )
+        layout = self._layout
+        self._kinematics = Kinematics(
+            (
+                (P_B, V_B),
+                *((layout.uav_slices(i)[0], layout.uav_slices(i)[1]) for i in layout.vehicles),
+            ),
+            ((PAYLOAD_YAW, 0), *((layout.uav_yaw_index(i), i) for i in layout.vehicles)),
+        )
 
     def reset(self) -> None:
         """Forget the previous plan (e.g. after a controller switch)."""
@@ -412,8 +428,15 @@ class CentralizedMpc:
         """Whether the last ``prepare`` kept the models it had (no new linearization)."""
         return self._preparation.last_kept
 
-    def step(self, state: FloatArray, reference: FormationReference, now_s: float) -> Plan:
-        """One tick: u* for ``state`` (12 + 12N,, paper order) tracking ``reference``."""
+    def step(
+        self,
+        state: FloatArray,
+        reference: FormationReference,
+        now_s: float,
+        preview: Sequence[FormationReference] = (),
+    ) -> Plan:
+        """One tick: u* for ``state`` (12 + 12N,, paper order) tracking ``reference`` now
+        and, when given, ``preview``'s references at the stages 1 … N ahead."""
         started = self._clock()
         try:
             eq = formation_equilibrium(self.params, reference)
@@ -429,7 +452,8 @@ class CentralizedMpc:
         try:
             A, B = self._preparation.models(state, reference)[0]
             dx0 = wrap_angles(state - eq.x, self._layout.yaw_indices)
-            qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x)
+            targets = self._targets(eq.x, eq.u, reference, preview)
+            qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x, targets)
             solution = self._mpc.backend.solve(qp)
         except Exception as error:
             return self._plans.fallback(now_s, PlanStatus.SHIFTED_ERROR, hold, repr(error))
@@ -455,8 +479,39 @@ class CentralizedMpc:
         )
         return self._plans.accept(plan)
 
+    def _targets(
+        self,
+        x_eq: FloatArray,
+        u_eq: FloatArray,
+        reference: FormationReference,
+        preview: Sequence[FormationReference],
+    ) -> tuple[FloatArray, FloatArray] | None:
+        if not preview:
+            return None
+        sampled = _sampled_equilibria(self.params, preview)
+        return stage_targets(
+            x_eq,
+            u_eq,
+            reference,
+            {k: (e.x, e.u) for k, e in sampled.items()},
+            len(preview),
+            self._kinematics,
+            self.settings.dt_s,
+        )
+
     def _no_plan(self, now_s: float) -> Plan:
         return _empty_plan(self._layout.n_states, self._layout.n_inputs, self.settings, now_s)
+
+
+def _sampled_equilibria(
+    params: FormationParams, preview: Sequence[FormationReference]
+) -> dict[int, FormationEquilibrium]:
+    """The equilibria of the preview's stages ``sampled_stages`` picks (stage k is
+    ``preview[k - 1]``)."""
+    return {
+        k: formation_equilibrium(params, preview[k - 1], remember=False)
+        for k in sampled_stages(len(preview))
+    }
 
 
 def _empty_plan(nx: int, nu: int, settings: MpcSettings, now_s: float) -> Plan:
@@ -547,15 +602,20 @@ class _Agent:
         return discretize(A_c, B_c, self.settings.dt_s)
 
     def solve(
-        self, x_i: FloatArray, eq: AgentEquilibrium, model: tuple[FloatArray, FloatArray]
+        self,
+        x_i: FloatArray,
+        eq: AgentEquilibrium,
+        model: tuple[FloatArray, FloatArray],
+        targets: tuple[FloatArray, FloatArray] | None = None,
     ) -> tuple[FloatArray, FloatArray, int] | str:
-        """(u_pred, x_pred, iterations) in absolute terms, or the failure text."""
+        """(u_pred, x_pred, iterations) in absolute terms, or the failure text; ``targets``
+        are the per-stage ones of a preview."""
         i = self.i
         x_eq, u_eq = eq.x, eq.u
         A, B = model
         dx0 = wrap_angles(x_i - x_eq, AGENT_YAW_INDICES)
         solution = self.mpc.backend.solve(
-            self.mpc.qp(A, B, dx0, self.u_lb - u_eq, self.u_ub - u_eq, x_eq)
+            self.mpc.qp(A, B, dx0, self.u_lb - u_eq, self.u_ub - u_eq, x_eq, targets)
         )
         if solution.status is not QpStatus.SOLVED:
             return f"UAV {i}: {solution.status.value}"
@@ -592,6 +652,29 @@ class DecentralizedMpc:
         """Forget the previous plan (e.g. after a controller switch)."""
         self._plans.previous = None
 
+    def _targets(
+        self,
+        eq: FormationEquilibrium,
+        reference: FormationReference,
+        preview: Sequence[FormationReference],
+    ) -> list[tuple[FloatArray, FloatArray] | None]:
+        """Each agent's per-stage targets from ``preview`` (None each without one)."""
+        if not preview:
+            return [None] * len(self.agents)
+        sampled = _sampled_equilibria(self.params, preview)
+        return [
+            stage_targets(
+                eq.agent_state(agent.i),
+                eq.agent_input(agent.i),
+                reference,
+                {k: (e.agent_state(agent.i), e.agent_input(agent.i)) for k, e in sampled.items()},
+                len(preview),
+                Kinematics(((P_I, V_I), (P_P, V_P)), ((PAYLOAD_YAW, agent.i),)),
+                self.settings.dt_s,
+            )
+            for agent in self.agents
+        ]
+
     def _linearize(self, turned: FormationReference) -> Models:
         lin = formation_equilibrium(self.params, turned)
         return tuple(agent.linearize(lin.agent(agent.i)) for agent in self.agents)
@@ -611,12 +694,21 @@ class DecentralizedMpc:
         """Whether the last ``prepare`` kept the models it had (no new linearization)."""
         return self._preparation.last_kept
 
-    def step(self, state: FloatArray, reference: FormationReference, now_s: float) -> Plan:
+    def step(
+        self,
+        state: FloatArray,
+        reference: FormationReference,
+        now_s: float,
+        preview: Sequence[FormationReference] = (),
+    ) -> Plan:
         """One tick for every agent; ``state`` is the formation's (each agent takes its
         part). The agents regulate to ``reference`` moved by the settings'
-        ``reference_lead``."""
+        ``reference_lead`` and, when given, track ``preview``'s references at the stages
+        1 … N ahead (moved the same way)."""
         started = self._clock()
-        reference = led_reference(reference, state, self.settings.reference_lead)
+        led = led_reference(reference, state, self.settings.reference_lead)
+        preview = moved_like(preview, reference, led)
+        reference = led
         try:
             eq = formation_equilibrium(self.params, reference)
         except ValueError as error:
@@ -631,9 +723,12 @@ class DecentralizedMpc:
             )
         try:
             models = self._preparation.models(state, reference)
+            targets = self._targets(eq, reference, preview)
             results = [
-                agent.solve(agent_state(state, self.params, agent.i), eq.agent(agent.i), model)
-                for agent, model in zip(self.agents, models, strict=True)
+                agent.solve(
+                    agent_state(state, self.params, agent.i), eq.agent(agent.i), model, target
+                )
+                for agent, model, target in zip(self.agents, models, targets, strict=True)
             ]
         except Exception as error:
             return self._plans.fallback(now_s, PlanStatus.SHIFTED_ERROR, hold, repr(error))
