@@ -51,6 +51,8 @@ def core_settings_from_config(config: Config) -> CoreSettings:
         bumpless_ticks=c.bumpless_ticks,
         rate_lookahead_steps=c.rate_lookahead_steps,
         acceleration_feed_forward=c.acceleration_feed_forward,
+        preview=c.preview,
+        path_jerk_mps3=c.path_jerk_mps3,
         pd_gains=c.pd.to_gains(),
         feasibility=c.feasibility(),
     )

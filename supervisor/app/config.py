@@ -643,6 +643,11 @@ class ControlSection(_Section):
     acceleration_feed_forward: bool = True
     """The reference carries its profile's acceleration: the UAVs' tilt and thrust that
     the payload's acceleration needs are in the equilibrium the MPC regulates to."""
+    preview: bool = True
+    """The MPC is given the reference at each stage of its horizon (where a move or a path
+    will be), not only the reference now carried on."""
+    path_jerk_mps3: PositiveFloat = 2.0
+    """A path's jerk along it when its request names none."""
     flight_rates: RatesSection = RatesSection()
     takeoff_rates: TakeoffRatesSection = TakeoffRatesSection()
     abort_rates: AbortRatesSection = AbortRatesSection()

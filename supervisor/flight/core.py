@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
@@ -23,6 +24,7 @@ from controllers.formation_params import FormationParams
 from controllers.integral_action import ReferenceIntegrator
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
 from controllers.params import Clock, MpcSettings
+from controllers.preview import moved_like
 from controllers.rate_filter import RateCrossover, RateFilter
 from controllers.uav_pd import UavPdGains, uav_pd_control
 from geometry.arrays import FloatArray
@@ -36,8 +38,10 @@ from geometry.state import (
     stacked_agent_slice,
 )
 from supervisor.flight.estimation import Estimate
-from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
+from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds, theta_l_problem
 from supervisor.flight.modes import Event, FlightModes, Mode, Transition
+from supervisor.flight.path_timing import PathError, PathLimits
+from supervisor.flight.paths import PathPlan, PathRunner, path_problem, plan_path
 from supervisor.flight.phases import Phase, next_phase
 from supervisor.flight.preflight import resting_limits, resting_pose_problems, takeoff_problem
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
@@ -46,11 +50,14 @@ from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonito
 from supervisor.flight.setpoints import (
     Arena,
     Setpoint,
+    SetpointError,
     SetpointQueue,
     SetpointRefusedError,
+    arena_problem,
     validate_setpoints,
 )
 from supervisor.flight.tick_record import TickRecord
+from supervisor.flight.waypoint import Waypoint
 from supervisor.vehicles.types import UavCommand
 
 CONTROLLERS = ("centralized", "decentralized")
@@ -85,6 +92,8 @@ class CoreSettings:
     bumpless_ticks: int = 15
     rate_lookahead_steps: int = 3
     acceleration_feed_forward: bool = True
+    preview: bool = True
+    path_jerk_mps3: float = 2.0
     pd_gains: UavPdGains = field(default_factory=UavPdGains)
     feasibility: FeasibilitySettings = field(default_factory=FeasibilitySettings)
 
@@ -174,6 +183,7 @@ class FlightCore:
         self._limits = mpc_settings["centralized"].limits
         self._shaper: ReferenceShaper | None = None
         self._hold_target: FormationReference | None = None
+        self._paths = PathRunner(self.settings.acceleration_feed_forward)
         n = self._layout.n_vehicles
         self._ground_bar_z = 0.0
         self._ground_uav_z = (0.0,) * n
@@ -298,11 +308,122 @@ class FlightCore:
         validate_setpoints(setpoints, self.params, self.arena, self.setpoint_bounds)
         self.queue.extend(setpoints)
 
+    def queue_path(
+        self,
+        waypoints: Sequence[Waypoint],
+        speed_mps: float,
+        accel_mps2: float,
+        jerk_mps3: float | None = None,
+        hold_s: float = 0.0,
+    ) -> Setpoint:
+        """Queue a path through ``waypoints`` after what is queued, timed within the speed,
+        acceleration and jerk (default ``settings.path_jerk_mps3``) and the flight rates'
+        yaw and θ_l rates: as a setpoint at its end, held ``hold_s`` once reached.
+        Refused like a setpoint (raises ``SetpointError``) in a mode that takes none, with a
+        full queue, or when any point along its timing cannot be flown; returns what was
+        queued."""
+        mode = self.modes.mode
+        if mode not in TAKES_SETPOINTS:
+            raise SetpointRefusedError(refusal(mode, Request.SETPOINT))
+        self.queue.check_room(1)
+        rates = self.settings.flight_rates
+        try:
+            limits = PathLimits(
+                speed_mps,
+                accel_mps2,
+                self.settings.path_jerk_mps3 if jerk_mps3 is None else jerk_mps3,
+                rates.yaw_radps,
+                rates.theta_l_radps,
+            )
+            plan = plan_path(
+                self._queue_end(waypoints[0] if waypoints else None), waypoints, limits
+            )
+        except PathError as error:
+            raise SetpointError(str(error)) from None
+        for index, point in enumerate(waypoints):
+            steep = theta_l_problem(point.theta_l_rad or 0.0, self.setpoint_bounds)
+            if steep is not None:
+                raise SetpointError(f"waypoint {index}: {steep}")
+        problem = path_problem(plan, self.params, self.setpoint_bounds, self.arena)
+        if problem is not None:
+            raise SetpointError(problem)
+        end = plan.end()
+        setpoint = Setpoint(
+            end.payload_position_m,
+            end.payload_yaw_rad,
+            end.uav_yaw_rad,
+            end.cone_angle_rad,
+            hold_s,
+            path=plan,
+        )
+        self.queue.extend([setpoint])
+        return setpoint
+
+    def path_progress(self, now_s: float) -> tuple[PathPlan, float] | None:
+        """The path flown now (or last, until the next setpoint starts) and how long since
+        it began [s]; None without one."""
+        return self._paths.progress(now_s)
+
+    def _queue_end(self, first: Waypoint | None) -> FormationReference:
+        """Where the bar will be when a setpoint queued now starts: the last queued one's
+        end, else the active one's, else the reference held; on the ground, where the
+        take-off will lift it; ``first`` (a path's first waypoint) with nothing measured."""
+        n = self._layout.n_vehicles
+        last = self.queue.queued[-1] if self.queue.queued else self.queue.active
+        if last is not None:
+            return last.reference(n)
+        if self._hold_target is not None:
+            return self._hold_target.at_rest()
+        if self._shaper is not None:
+            return self._shaper.current.at_rest()
+        if self._last_estimate is None:
+            position = first.bar_position_m if first is not None else (0.0, 0.0, 0.0)
+            return FormationReference(position, 0.0, (0.0,) * n)
+        here = self._current_reference(self._last_estimate.x)
+        if self.modes.mode not in (Mode.ARMED, Mode.TAKEOFF):
+            return here
+        x, y, z = here.payload_position_m
+        ground_z = z if self.modes.mode is Mode.ARMED else self._ground_bar_z
+        return replace(here, payload_position_m=(x, y, ground_z + self.settings.takeoff_height_m))
+
     def clear_setpoints(self) -> None:
-        """Drop the queue and the active setpoint; in flight the bar holds its reference."""
+        """Drop the queue and the active setpoint; in flight the bar stops where braking
+        from its reference's motion at the flight rates' acceleration (a path's, if it
+        flew one) brings it, sooner if that would leave the arena, and holds there."""
+        active = self.queue.active
         self.queue.clear()
         if self._shaper is not None and self.modes.mode in (Mode.HOVER, Mode.TRACKING):
-            self._hold_target = self._shaper.current.at_rest()
+            accel = self._shaper.limits.acceleration_mps2
+            if active is not None and active.path is not None:
+                accel = max(accel, active.path.limits.accel_mps2)
+            self._hold_target = self._stop_inside_arena(self._shaper, accel)
+
+    def _stop_inside_arena(self, shaper: ReferenceShaper, accel_mps2: float) -> FormationReference:
+        """The shaper's stop braking at ``accel_mps2``, or, where that stop's equilibrium
+        leaves the arena, the furthest stop short of it that does not (braking harder);
+        the shaper is set to brake so."""
+        here = shaper.current.at_rest()
+        stop = shaper.stopping_point(accel_mps2)
+        offset = np.subtract(stop.payload_position_m, here.payload_position_m)
+        fraction = 1.0
+        for _ in range(12):
+            if fraction < 1e-3:
+                fraction = 0.0
+                break
+            p = np.add(here.payload_position_m, fraction * offset)
+            candidate = replace(here, payload_position_m=(float(p[0]), float(p[1]), float(p[2])))
+            try:
+                eq = formation_equilibrium(self.params, candidate, remember=False)
+            except ValueError:
+                fraction *= 0.5
+                continue
+            if arena_problem(eq, self.arena) is None:
+                break
+            fraction *= 0.5
+        if fraction > 0.0:  # else not even here is inside: the reference stops at once
+            shaper.brake(accel_mps2 / fraction)
+        p = np.add(here.payload_position_m, fraction * offset)
+        return replace(here, payload_position_m=(float(p[0]), float(p[1]), float(p[2])))
 
     def hand_over_to_px4(self, why: str, now_s: float) -> Notice | None:
         """Airborne, stop commanding: each PX4 lands on its own (the flight process stops
@@ -514,7 +635,9 @@ class FlightCore:
                 self._shaper = self._new_shaper(x, self._rates(mode))
         elif mode is Mode.HOVER:
             self._enter_phase(Phase.HOVER)
-            if self._shaper is not None:
+            # A hold already chosen (the take-off's height, the queue's end, a cleared
+            # queue's stop) stands; else the reference where it is.
+            if self._shaper is not None and self._hold_target is None:
                 self._hold_target = self._shaper.current
         elif mode is Mode.TRACKING:
             self._enter_phase(Phase.TRACKING)
@@ -654,7 +777,11 @@ class FlightCore:
         )
 
     def _mpc(
-        self, now_s: float, x: FloatArray, reference: FormationReference
+        self,
+        now_s: float,
+        x: FloatArray,
+        reference: FormationReference,
+        preview: Sequence[FormationReference] = (),
     ) -> tuple[tuple[UavCommand, ...], Plan]:
         controller = self.controllers[self.controller]
         # The estimate is the state the mocap latency ago; the MPC plans from now on.
@@ -668,7 +795,8 @@ class FlightCore:
             self._rate_crossover.reset()
             self._mpc_state = x
         shifted = self._integral.shifted(reference, x, now_s)
-        plan = controller.step(self._mpc_state, shifted, now_s)
+        ahead = moved_like(preview, reference, shifted)
+        plan = controller.step(self._mpc_state, shifted, now_s, ahead)
         self._mpc_reference = shifted
         self.mpc_was_prepared = controller.last_step_was_prepared
         return self._mpc_commands(plan), plan
@@ -745,7 +873,11 @@ class FlightCore:
         n = self._layout.n_vehicles
         if active is not None:
             target = active.reference(n)
-        reached = self._shaper.current == target and self._reached(x, target)
+        reached = (
+            self._shaper.current == target
+            and self._reached(x, target)
+            and not self._paths.flying(active, now_s)
+        )
         setpoint = self.queue.update(reached, now_s)
         if setpoint is not None:
             target = setpoint.reference(n)
@@ -754,9 +886,21 @@ class FlightCore:
         elif self.modes.mode is Mode.TRACKING:
             self._hold_target = target
             events.append(Event.HOLD)
-        reference = self._shaper.update(target, now_s)
-        commands, plan = self._mpc(now_s, x, reference)
+        stages, dt_s = self._horizon()
+        along = self._paths.step(setpoint, self._shaper, now_s, stages, dt_s)
+        if along is not None:
+            reference, preview = along
+        else:
+            reference = self._shaper.update(target, now_s)
+            preview = self._shaper.preview(target, now_s, stages, dt_s) if stages else ()
+        commands, plan = self._mpc(now_s, x, reference, preview if stages else ())
         return commands, plan, reference
+
+    def _horizon(self) -> tuple[int, float]:
+        """How many stages ahead the MPC is given the reference (0: the preview is off),
+        and its step [s]."""
+        settings = self.controllers[self.controller].settings
+        return (settings.horizon if self.settings.preview else 0), settings.dt_s
 
     def _land(
         self, now_s: float, estimate: Estimate, events: list[Event]

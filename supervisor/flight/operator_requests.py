@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
 from supervisor.flight.modes import Event
 from supervisor.flight.setpoints import Setpoint, SetpointError
+from supervisor.flight.waypoint import Waypoint
 
 if TYPE_CHECKING:  # the API process parses requests without loading the tick core
     from supervisor.flight.core import FlightCore
@@ -31,6 +32,10 @@ DURATION_LIMIT_S = 3600.0  # hold and timeout: an hour
 # The tick core's queue capacity (supervisor.flight.setpoints.SetpointQueue): no request
 # can queue more, so a longer list is refused by its length before any entry is read.
 MAX_SETPOINTS_PER_REQUEST = 32
+MAX_WAYPOINTS_PER_PATH = 256
+SPEED_LIMIT_MPS = 10.0  # a path's limits: far beyond what a cable-suspended load flies
+ACCELERATION_LIMIT_MPS2 = 20.0
+JERK_LIMIT_MPS3 = 200.0
 
 Coordinate = Annotated[
     float, Field(ge=-POSITION_LIMIT_M, le=POSITION_LIMIT_M, allow_inf_nan=False, strict=True)
@@ -124,6 +129,54 @@ class QueueRequest(_Message):
     ]
 
 
+Speed = Annotated[float, Field(gt=0.0, le=SPEED_LIMIT_MPS, allow_inf_nan=False, strict=True)]
+Acceleration = Annotated[
+    float, Field(gt=0.0, le=ACCELERATION_LIMIT_MPS2, allow_inf_nan=False, strict=True)
+]
+Jerk = Annotated[float, Field(gt=0.0, le=JERK_LIMIT_MPS3, allow_inf_nan=False, strict=True)]
+
+
+class WaypointFields(_Message):
+    """One point of a path: the bar's centre [m, arena frame, each within ±100], and the
+    bar's yaw and the cable angle θ_l there [rad] (default: those of the point before)."""
+
+    bar_position: Annotated[
+        list[Coordinate],
+        Field(min_length=3, max_length=3, description="the bar's centre (x, y, z) [m]"),
+    ]
+    bar_yaw: Annotated[Yaw | None, Field(description="the bar's yaw there [rad]")] = None
+    theta_l: Annotated[CableAngle | None, Field(description="θ_l there [rad]")] = None
+
+    def to_waypoint(self) -> Waypoint:
+        p = self.bar_position
+        return Waypoint((p[0], p[1], p[2]), self.bar_yaw, self.theta_l)
+
+
+class PathFields(_Message):
+    """A path: the bar through ``waypoints`` from where it is when the path starts (after
+    what is queued), smooth, timed within the speed, acceleration and jerk along it
+    (default: the setup's ``control.path_jerk_mps3``) and the flight rates' yaw and θ_l
+    rates; at its end it is a setpoint held ``hold_s``."""
+
+    waypoints: Annotated[
+        list[WaypointFields], Field(min_length=1, max_length=MAX_WAYPOINTS_PER_PATH)
+    ]
+    speed_mps: Annotated[Speed, Field(description="the bar's top speed along it [m/s]")]
+    accel_mps2: Annotated[Acceleration, Field(description="the bar's top acceleration [m/s²]")]
+    jerk_mps3: Annotated[
+        Jerk | None, Field(description="the bar's top jerk along it [m/s³] (default: the setup's)")
+    ] = None
+    hold_s: Annotated[HoldTime, Field(description="how long to hold its end once reached [s]")] = (
+        0.0
+    )
+
+
+class PathRequest(PathFields):
+    """Queue a path (all of it or nothing)."""
+
+    kind: Literal["path"] = "path"
+
+
 class ClearSetpointsRequest(_Message):
     """Drop the queue and the active setpoint."""
 
@@ -137,7 +190,12 @@ class SetpointsQuery(_Message):
 
 
 Request = Annotated[
-    ModeRequest | ControllerRequest | QueueRequest | ClearSetpointsRequest | SetpointsQuery,
+    ModeRequest
+    | ControllerRequest
+    | QueueRequest
+    | PathRequest
+    | ClearSetpointsRequest
+    | SetpointsQuery,
     Field(discriminator="kind"),
 ]
 
@@ -195,6 +253,27 @@ def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
         except SetpointError as error:  # not in this mode, queue full, outside the arena, ...
             return Reply(outcome=Outcome.REFUSED, reason=str(error))
         return Reply(outcome=Outcome.OK, data={"queued": len(core.queue.queued)})
+    if isinstance(request, PathRequest):
+        try:
+            setpoint = core.queue_path(
+                [point.to_waypoint() for point in request.waypoints],
+                request.speed_mps,
+                request.accel_mps2,
+                request.jerk_mps3,
+                request.hold_s,
+            )
+        except SetpointError as error:
+            return Reply(outcome=Outcome.REFUSED, reason=str(error))
+        assert setpoint.path is not None
+        timed = setpoint.path.timed
+        return Reply(
+            outcome=Outcome.OK,
+            data={
+                "queued": len(core.queue.queued),
+                "duration_s": timed.duration_s,
+                "length_m": timed.length_m,
+            },
+        )
     if isinstance(request, ClearSetpointsRequest):
         core.clear_setpoints()
         return Reply(outcome=Outcome.OK)

@@ -6,7 +6,7 @@ carries its velocity, turn rates and cone-angle rate so the MPC regulates to a m
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -82,17 +82,54 @@ class ReferenceShaper:
         self.limits = limits
         self.feed_acceleration = feed_acceleration
         self._last_s: float | None = None
+        self._braking_mps2: float | None = None
 
     def reset(self, reference: FormationReference) -> None:
         """Jump to ``reference`` (when a flight phase starts from where the system is)."""
         self.current = reference
         self._last_s = None
 
+    def stopping_point(self, acceleration_mps2: float) -> FormationReference:
+        """Where the reference comes to rest braking at ``acceleration_mps2`` from its
+        velocity now, along it."""
+        velocity = np.array(self.current.velocity_mps)
+        speed = float(np.linalg.norm(velocity))
+        stop = np.array(self.current.payload_position_m) + velocity * speed / (
+            2.0 * acceleration_mps2
+        )
+        return replace(
+            self.current.at_rest(),
+            payload_position_m=(float(stop[0]), float(stop[1]), float(stop[2])),
+        )
+
+    def brake(self, acceleration_mps2: float) -> None:
+        """Until the reference is at rest, allow ``acceleration_mps2`` (if above the
+        limits') and its speed now (if above theirs): a move faster than the limits (a
+        path) is stopped as it was flown, not at the limits' gentler rates."""
+        self._braking_mps2 = acceleration_mps2
+
+    def follow(self, reference: FormationReference, now_s: float) -> None:
+        """Take ``reference`` as where the reference is at ``now_s`` (a path flies it)."""
+        self.current = reference
+        self._last_s = now_s
+
+    def preview(
+        self, target: FormationReference, now_s: float, steps: int, step_s: float
+    ) -> tuple[FormationReference, ...]:
+        """The references ``steps`` steps of ``step_s`` after ``now_s`` (the MPC's stages
+        ahead), were the target to stay ``target``; this shaper is left as it is. Empty
+        when the reference rests on the target: every stage would be the reference."""
+        if self.current == target.at_rest():
+            return ()
+        ahead = ReferenceShaper(self.current, self.limits, self.feed_acceleration)
+        ahead._last_s, ahead._braking_mps2 = now_s, self._braking_mps2
+        return tuple(ahead.update(target, now_s + k * step_s) for k in range(1, steps + 1))
+
     def update(self, target: FormationReference, now_s: float) -> FormationReference:
         """The reference at ``now_s``, moved toward ``target``."""
         dt = 0.0 if self._last_s is None else max(0.0, now_s - self._last_s)
         self._last_s = now_s
-        c, lim = self.current, self.limits
+        c, lim = self.current, self._limits_now()
         position, velocity = _move(
             np.array(c.payload_position_m),
             np.array(c.velocity_mps),
@@ -129,3 +166,18 @@ class ReferenceShaper:
             (float(acceleration[0]), float(acceleration[1]), float(acceleration[2])),
         )
         return self.current
+
+    def _limits_now(self) -> RateLimits:
+        """The limits, raised while braking (``brake``) until the reference rests."""
+        braking = self._braking_mps2
+        if braking is None:
+            return self.limits
+        speed = float(np.linalg.norm(self.current.velocity_mps))
+        if speed == 0.0:
+            self._braking_mps2 = None
+            return self.limits
+        return replace(
+            self.limits,
+            position_mps=max(self.limits.position_mps, speed),
+            acceleration_mps2=max(self.limits.acceleration_mps2, braking),
+        )

@@ -15,15 +15,23 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from controllers.equilibria import EquilibriumError
-from controllers.formation_equilibria import FormationReference, formation_equilibrium
+from controllers.formation_equilibria import (
+    FormationEquilibrium,
+    FormationReference,
+    formation_equilibrium,
+)
 from controllers.formation_params import FormationParams
 from geometry.state import payload_position
 from supervisor.errors import OperatorError
 from supervisor.flight.feasibility import SetpointBounds, equilibrium_problems, theta_l_problem
+
+if TYPE_CHECKING:
+    from supervisor.flight.paths import PathPlan
 
 
 class SetpointError(OperatorError, ValueError):
@@ -43,7 +51,8 @@ class SetpointQueueFullError(SetpointRefusedError):
 class Setpoint:
     """One queue entry, as the operator states it (the API's and the scenarios' names):
     bar centre [m, arena frame], bar yaw, UAV yaws, θ_l (the cone angle) [rad], hold [s],
-    and optionally how long to wait for it to be reached before moving on anyway [s]."""
+    and optionally how long to wait for it to be reached before moving on anyway [s].
+    With ``path`` it is the end of a path, flown along it (``supervisor.flight.paths``)."""
 
     bar_position_m: tuple[float, float, float]
     bar_yaw_rad: float = 0.0
@@ -51,6 +60,7 @@ class Setpoint:
     theta_l_rad: float = 0.0
     hold_s: float = 5.0
     timeout_s: float | None = None
+    path: PathPlan | None = None
 
     def uav_yaws(self, n_vehicles: int) -> tuple[float, ...]:
         """The UAVs' yaws [rad]: as given, or each the bar's."""
@@ -110,7 +120,15 @@ def validate_setpoint(
     problems += equilibrium_problems(eq, bounds)
     if problems:
         raise SetpointError("; ".join(problems))
-    vehicles = params.layout.vehicles
+    outside = arena_problem(eq, arena)
+    if outside is not None:
+        raise SetpointError(outside)
+
+
+def arena_problem(eq: FormationEquilibrium, arena: Arena) -> str | None:
+    """Which point of ``eq`` (the bar's centre, an end, a UAV) lies outside ``arena`` with
+    its margin, and where (None: all inside)."""
+    vehicles = eq.layout.vehicles
     points = {
         "bar centre": payload_position(eq.x),
         **{f"bar end {i}": eq.attachments_m[i - 1] for i in vehicles},
@@ -119,10 +137,11 @@ def validate_setpoint(
     for name, point in points.items():
         if not arena.contains(point):
             where = ", ".join(f"{v:.2f}" for v in point)
-            raise SetpointError(
+            return (
                 f"{name} would be at ({where}) m, outside the arena "
                 f"{list(arena.min_m)}..{list(arena.max_m)} with a {arena.margin_m} m margin"
             )
+    return None
 
 
 def validate_setpoints(

@@ -43,6 +43,7 @@ from supervisor.flight.modes import Event, Mode
 from supervisor.flight.setpoints import SetpointError
 from supervisor.logs.flight_log import FlightLogSink, formation_header, open_flight_log
 from supervisor.runtime.tick_driver import TickDriver
+from supervisor.simulate.path_metrics import PathTracking
 from supervisor.simulate.scenarios import Scenario, Step, check_setpoints, scenario_config
 
 TICK_S = 0.02
@@ -67,6 +68,7 @@ class SimulationResult:
     wall_time_s: float
     final_mode: str
     truth: TruthStats
+    paths: PathTracking = field(default_factory=PathTracking)
     messages: list[str] = field(default_factory=list)
     log_path: Path | None = None
 
@@ -128,15 +130,17 @@ class ScenarioScript:
 
     def _start(self, step: Step, core: FlightCore, now_s: float) -> None:
         if step.action is None:
-            setpoints = [step.setpoint()]
-            # Queue the following setpoint steps too, so the queue flows from one to the next.
-            while self.index + 1 < len(self.steps) and self.steps[self.index + 1].action is None:
+            # Queue the following setpoint and path steps too, so the queue flows from one to
+            # the next.
+            while True:
+                try:
+                    _queue(self.steps[self.index], core)
+                except SetpointError as error:
+                    self._fail(f"step {self.index + 1}: setpoints refused: {error}")
+                    return
+                if self.index + 1 >= len(self.steps) or self.steps[self.index + 1].action:
+                    return
                 self.index += 1
-                setpoints.append(self.steps[self.index].setpoint())
-            try:
-                core.queue_setpoints(setpoints)
-            except SetpointError as error:
-                self._fail(f"step {self.index + 1}: setpoints refused: {error}")
         elif step.action == "takeoff":
             for request in (Event.ARM, Event.TAKEOFF):
                 result = core.request(request, now_s)
@@ -158,6 +162,15 @@ class ScenarioScript:
         if step.action == "hover":
             return now_s - self._started_s >= step.hold_s
         return mode is Mode.DISARMED
+
+
+def _queue(step: Step, core: FlightCore) -> None:
+    """Queue a setpoint or path step (raises ``SetpointError`` when refused)."""
+    if step.path is None:
+        core.queue_setpoints([step.setpoint()])
+        return
+    assert step.speed_mps is not None and step.accel_mps2 is not None
+    core.queue_path(step.waypoints(), step.speed_mps, step.accel_mps2, step.jerk_mps3, step.hold_s)
 
 
 class ClosedLoop:
@@ -269,6 +282,7 @@ def run_scenario(
     script = ScenarioScript(scenario)
     layout = loop.plant.layout
     truth = TruthStats(loop.resting_heights()[0], (layout.payload_name, *layout.uav_names))
+    paths = PathTracking()
     header = {
         "setup": config.name,
         "scenario": scenario.name,
@@ -293,6 +307,10 @@ def run_scenario(
             script.advance(loop.core, loop.now_s)
             loop.driver.finish(result)  # as the service does after a tick
             truth.update(loop.plant, loop.core.modes.mode.airborne)
+            paths.update(
+                loop.core.path_progress(loop.now_s),
+                loop.plant.body(layout.payload_name).position_m,
+            )
             if script.done:
                 break
             loop.advance_plant(loop.now_s + TICK_S)
@@ -308,6 +326,7 @@ def run_scenario(
         wall_time_s=time.perf_counter() - started,
         final_mode=loop.core.modes.mode.value,
         truth=truth,
+        paths=paths,
         messages=script.messages,
         log_path=log.path if log is not None else None,
     )
@@ -327,5 +346,7 @@ def result_summary(result: SimulationResult, controller: str) -> dict[str, Any]:
         "max_tilt_deg": t.max_tilt_deg,
         "min_tension_n": t.min_tension_n,
         "min_tension_airborne_n": t.min_tension_airborne_n,
+        "moving_rmse_m": result.paths.moving_rmse_m,
+        "overshoot_m": result.paths.overshoot_m,
         "messages": result.messages,
     }

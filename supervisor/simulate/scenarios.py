@@ -4,7 +4,10 @@ A scenario starts either hovering at the hanging equilibrium (``start = "hover"`
 paper's Section VII) or resting on the ground (``start = "ground"``). Each ``[[step]]`` is
 a bar setpoint (``bar_position`` [m], ``bar_yaw_deg``, ``uav_yaw_deg`` [ψ1, …, ψN]
 (default: the bar yaw), ``theta_l_deg``, ``hold_s``, and ``timeout_s``, after which the queue moves
-on even if the setpoint was not reached) or an operator action (``action = "takeoff"`` —
+on even if the setpoint was not reached), a path (``path = [[x, y, z], …]`` [m] from where the
+bar is, ``speed_mps``, ``accel_mps2``, optionally ``jerk_mps3``, ``bar_yaw_deg`` one per point
+or one for all, ``theta_l_deg`` and ``hold_s`` at its end; ``supervisor.flight.paths``) or an
+operator action (``action = "takeoff"`` —
 arm and take off, done when hovering; ``"hover"`` — wait ``hold_s``; ``"land"`` — done
 when landed and disarmed; ``"abort"`` — done when landed and disarmed). A ``[control]``
 table sets keys of the setup's ``control`` section for this scenario alone (the reference's
@@ -48,7 +51,9 @@ from supervisor.app.config import (
 )
 from supervisor.app.config_files import SCENARIO_DIR, shipped_scenarios
 from supervisor.app.sim_assembly import plant_params_from_config
+from supervisor.flight.operator_requests import MAX_WAYPOINTS_PER_PATH
 from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
+from supervisor.flight.waypoint import Waypoint
 
 
 class _Strict(BaseModel):
@@ -56,11 +61,18 @@ class _Strict(BaseModel):
 
 
 class Step(_Strict):
-    """One scripted step: a setpoint when ``action`` is absent, else an operator action."""
+    """One scripted step: a setpoint (``bar_position``), a path (``path``) or an operator
+    action (``action``)."""
 
     action: Literal["takeoff", "hover", "land", "abort"] | None = None
     bar_position: Vec3 | None = None
-    bar_yaw_deg: FiniteFloat = 0.0
+    path: Annotated[list[Vec3], Field(min_length=1, max_length=MAX_WAYPOINTS_PER_PATH)] | None = (
+        None
+    )
+    speed_mps: PositiveFloat | None = None
+    accel_mps2: PositiveFloat | None = None
+    jerk_mps3: PositiveFloat | None = None
+    bar_yaw_deg: FiniteFloat | list[FiniteFloat] = 0.0
     uav_yaw_deg: (
         Annotated[list[FiniteFloat], Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)] | None
     ) = None
@@ -69,16 +81,47 @@ class Step(_Strict):
     timeout_s: PositiveFloat | None = None
 
     @model_validator(mode="after")
-    def _setpoint_or_action(self) -> Step:
-        if self.action is None and self.bar_position is None:
-            raise ValueError("a step needs either 'action' or 'bar_position'")
-        if self.action is not None and self.bar_position is not None:
-            raise ValueError("a step is either an 'action' or a setpoint, not both")
+    def _one_kind(self) -> Step:
+        kinds = [k for k in ("action", "bar_position", "path") if getattr(self, k) is not None]
+        if len(kinds) != 1:
+            raise ValueError(
+                "a step is exactly one of an 'action', a setpoint ('bar_position') or a "
+                f"'path'; this one has {' and '.join(kinds) or 'none'}"
+            )
+        if self.path is None:
+            if isinstance(self.bar_yaw_deg, list):
+                raise ValueError("bar_yaw_deg is a list only for a path (one per point)")
+            if self.speed_mps is not None or self.accel_mps2 is not None:
+                raise ValueError("speed_mps and accel_mps2 belong to a 'path' step")
+            return self
+        if self.speed_mps is None or self.accel_mps2 is None:
+            raise ValueError("a 'path' step needs speed_mps and accel_mps2")
+        if isinstance(self.bar_yaw_deg, list) and len(self.bar_yaw_deg) != len(self.path):
+            raise ValueError(
+                f"bar_yaw_deg: one per point of the path ({len(self.path)}), "
+                f"got {len(self.bar_yaw_deg)}"
+            )
+        if self.uav_yaw_deg is not None:
+            raise ValueError("a path's UAVs keep their yaws about the bar's: no uav_yaw_deg")
         return self
 
+    def waypoints(self) -> list[Waypoint]:
+        """This path step's waypoints (only for a ``path`` step)."""
+        assert self.path is not None
+        yaws = (
+            self.bar_yaw_deg
+            if isinstance(self.bar_yaw_deg, list)
+            else [self.bar_yaw_deg] * len(self.path)
+        )
+        theta = math.radians(self.theta_l_deg)
+        return [
+            Waypoint((p[0], p[1], p[2]), math.radians(yaw), theta)
+            for p, yaw in zip(self.path, yaws, strict=True)
+        ]
+
     def setpoint(self) -> Setpoint:
-        """This step as a setpoint (only for steps without an action)."""
-        assert self.bar_position is not None
+        """This step as a setpoint (only for a setpoint step)."""
+        assert self.bar_position is not None and not isinstance(self.bar_yaw_deg, list)
         bar_yaw = math.radians(self.bar_yaw_deg)
         uav_yaw = (
             tuple(math.radians(yaw) for yaw in self.uav_yaw_deg)
@@ -223,8 +266,14 @@ def check_setpoints(scenario: Scenario, config: Config) -> None:
     for number, step in enumerate(scenario.step, start=1):
         if step.action is not None:
             continue
+        points = (
+            [step.setpoint()]
+            if step.path is None
+            else [Setpoint(w.bar_position_m, w.bar_yaw_rad or 0.0) for w in step.waypoints()]
+        )
         try:
-            validate_setpoint(step.setpoint(), params, arena, bounds)
+            for point in points:
+                validate_setpoint(point, params, arena, bounds)
         except SetpointError as error:
             raise ConfigError(
                 f"scenario {scenario.name}, step {number}: cannot be flown in setup "

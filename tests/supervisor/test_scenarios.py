@@ -13,7 +13,7 @@ from supervisor.app.config_files import CONFIG_DIR as CONFIGS
 from supervisor.app.config_files import shipped_scenarios
 from supervisor.cli.main import main
 from supervisor.simulate.closed_loop import run_scenario
-from supervisor.simulate.scenarios import check_setpoints, load_scenario, scenario_config
+from supervisor.simulate.scenarios import Step, check_setpoints, load_scenario, scenario_config
 
 
 def test_shipped_scenarios_load() -> None:
@@ -26,6 +26,17 @@ def test_shipped_scenarios_load() -> None:
     assert paper.step[3].setpoint().theta_l_rad == pytest.approx(math.pi / 4)
     takeoff = load_scenario("takeoff-land")
     assert [s.action for s in takeoff.step] == ["takeoff", "hover", "land"]
+    paths = load_scenario("paths")
+    loop = paths.step[2].waypoints()
+    assert len(loop) == 8 and loop[-1].bar_position_m == (1.6, 0.0, 1.2)
+    assert paths.step[2].speed_mps == 2.0 and paths.step[2].accel_mps2 == 2.0
+
+
+def test_a_path_step_gives_each_point_its_yaw() -> None:
+    step = Step(path=[[1, 0, 1], [1, 1, 1]], speed_mps=1, accel_mps2=1, bar_yaw_deg=[0, 90])
+    assert [w.bar_yaw_rad for w in step.waypoints()] == pytest.approx([0.0, math.pi / 2])
+    one = Step(path=[[1, 0, 1], [1, 1, 1]], speed_mps=1, accel_mps2=1, bar_yaw_deg=45)
+    assert [w.bar_yaw_rad for w in one.waypoints()] == pytest.approx([math.pi / 4] * 2)
 
 
 @pytest.mark.parametrize(
@@ -33,11 +44,25 @@ def test_shipped_scenarios_load() -> None:
     [
         ('name = "x"\nstart = "hover"\n[[step]]\nbar_positon = [0, 0, 1]\n', "bar_positon"),
         ('name = "x"\nstart = "orbit"\n[[step]]\naction = "land"\n', "start"),
-        ('name = "x"\nstart = "hover"\n[[step]]\nhold_s = 3\n', "either 'action'"),
+        ('name = "x"\nstart = "hover"\n[[step]]\nhold_s = 3\n', "exactly one of .* has none"),
         (
             'name = "x"\nstart = "hover"\n[[step]]\naction = "land"\nbar_position = [0, 0, 1]\n',
-            "not both",
+            "has action and bar_position",
         ),
+        (
+            'name = "x"\nstart = "hover"\n[[step]]\npath = [[1, 0, 1]]\nspeed_mps = 1\n',
+            "needs speed_mps and accel_mps2",
+        ),
+        (
+            'name = "x"\nstart = "hover"\n[[step]]\npath = [[1, 0, 1]]\nspeed_mps = 1\n'
+            "accel_mps2 = 1\nbar_yaw_deg = [0, 90]\n",
+            r"one per point of the path \(1\), got 2",
+        ),
+        (
+            'name = "x"\nstart = "hover"\n[[step]]\nbar_position = [1, 0, 1]\nspeed_mps = 1\n',
+            "belong to a 'path' step",
+        ),
+        ('name = "x"\nstart = "hover"\n[[step]]\npath = []\nspeed_mps = 1\n', "path"),
         ('name = "x"\nstart = "hover"\n[[step]]\naction = "takeoff"\n', "cannot take off"),
         ('name = "x"\nstart = "hover"\nstep = []\n', "step"),
         ('name = "x"\nstart = "hover"\n[[step]]\nbar_position = [0, 0]\n', "bar_position"),
