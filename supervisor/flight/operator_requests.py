@@ -32,7 +32,7 @@ DURATION_LIMIT_S = 3600.0  # hold and timeout: an hour
 # The tick core's queue capacity (supervisor.flight.setpoints.SetpointQueue): no request
 # can queue more, so a longer list is refused by its length before any entry is read.
 MAX_SETPOINTS_PER_REQUEST = 32
-MAX_WAYPOINTS_PER_PATH = 256
+MAX_WAYPOINTS_PER_PATH = 64  # a path is timed and checked between two ticks
 SPEED_LIMIT_MPS = 10.0  # a path's limits: far beyond what a cable-suspended load flies
 ACCELERATION_LIMIT_MPS2 = 20.0
 JERK_LIMIT_MPS3 = 200.0

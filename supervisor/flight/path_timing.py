@@ -35,8 +35,11 @@ from supervisor.flight.waypoint import Waypoint
 
 SAMPLE_STEP_S = 0.01
 SAME_POINT_M = 1e-3  # waypoints closer than this are one point
-_GRID_PER_SEGMENT = 400  # arc-length grid points per spline segment (at least)
-_GRID_SPACING_M = 0.005  # ... and no coarser than this
+_GRID_PER_SEGMENT = 40  # arc-length grid points per spline segment (at least)
+_GRID_SPACING_M = 0.005  # ... no coarser than this
+_GRID_POINTS = 20_000  # ... unless the path is longer than 100 m: timing stays ~20 ms
+MAX_TURN_DEG = 120.0  # the sharpest turn at a waypoint (between its chords)
+MAX_DURATION_S = 600.0
 
 
 class PathError(ValueError):
@@ -157,22 +160,37 @@ def _points(start: Waypoint, waypoints: Sequence[Waypoint]) -> list[Waypoint]:
             )
     if len(points) < 2:
         raise PathError("the path does not move the bar: its waypoints lie on its start")
+    _check_turns(points)
     return points
+
+
+def _check_turns(points: Sequence[Waypoint]) -> None:
+    """Raise ``PathError`` at a waypoint where the path doubles back (turns more than
+    ``MAX_TURN_DEG`` between its chords): a smooth curve through it would have to stop
+    and reverse there, which a smoothed speed law does not do."""
+    xyz = np.array([p.bar_position_m for p in points], dtype=float)
+    chords = np.diff(xyz, axis=0)
+    for k in range(1, len(chords)):
+        before, after = chords[k - 1], chords[k]
+        cosine = float(before @ after) / float(np.linalg.norm(before) * np.linalg.norm(after))
+        turn = math.degrees(math.acos(max(-1.0, min(1.0, cosine))))
+        if turn > MAX_TURN_DEG:
+            raise PathError(
+                f"the path turns by {turn:.0f}° at waypoint {k - 1} (at most "
+                f"{MAX_TURN_DEG:.0f}°): fly it as two paths, one ending there"
+            )
 
 
 def _geometry(points: Sequence[Waypoint]) -> _Geometry:
     xyz = np.array([p.bar_position_m for p in points], dtype=float)
     chords = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
     knots = np.concatenate(([0.0], np.cumsum(chords)))
-    closed = (
-        len(points) > 2
-        and chords[-1] >= 0.0
-        and float(np.linalg.norm(xyz[-1] - xyz[0])) < SAME_POINT_M
-    )
+    closed = len(points) > 2 and float(np.linalg.norm(xyz[-1] - xyz[0])) < SAME_POINT_M
     if closed:
         xyz[-1] = xyz[0]
     spline = CubicSpline(knots, xyz, bc_type="periodic" if closed else "natural")
-    per_segment = max(_GRID_PER_SEGMENT, math.ceil(float(chords.max()) / _GRID_SPACING_M))
+    spacing = max(_GRID_SPACING_M, float(chords.sum()) / _GRID_POINTS)
+    per_segment = max(_GRID_PER_SEGMENT, math.ceil(float(chords.max()) / spacing))
     u = np.unique(
         np.concatenate([np.linspace(a, b, per_segment + 1) for a, b in itertools.pairwise(knots)])
     )
@@ -233,6 +251,11 @@ def _arc_law(arc: FloatArray, v: FloatArray) -> FloatArray:
     ds = np.diff(arc)
     accel = (v[1:] ** 2 - v[:-1] ** 2) / (2.0 * ds)
     t_grid = np.concatenate(([0.0], np.cumsum(2.0 * ds / np.maximum(v[1:] + v[:-1], 1e-12))))
+    if not t_grid[-1] <= MAX_DURATION_S:
+        raise PathError(
+            f"the path would take {t_grid[-1]:.0f} s within its limits (at most "
+            f"{MAX_DURATION_S:.0f} s): fly it faster or as several paths"
+        )
     t = np.arange(0.0, t_grid[-1] + SAMPLE_STEP_S, SAMPLE_STEP_S)
     k = np.clip(np.searchsorted(t_grid, t, side="right") - 1, 0, len(ds) - 1)
     tau = np.minimum(t - t_grid[k], t_grid[k + 1] - t_grid[k])
@@ -315,6 +338,8 @@ def _sampled(
         float(np.abs(yaw_rate).max()) / limits.yaw_radps,
         float(np.abs(theta_rate).max()) / limits.theta_l_radps,
     )
+    if not math.isfinite(stretch):
+        raise PathError("the path cannot be timed within its limits")
     if stretch > 1.0 + 1e-6:
         # A little more than needed: the resampled law's own rounding must not ask again.
         old_t = np.arange(len(s)) * SAMPLE_STEP_S * stretch * 1.001

@@ -12,16 +12,19 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from controllers.equilibria import EquilibriumError
 from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from controllers.formation_params import FormationParams
 from supervisor.flight.feasibility import SetpointBounds, equilibrium_problems
-from supervisor.flight.path_timing import PathLimits, TimedPath, time_path
+from supervisor.flight.path_timing import SAMPLE_STEP_S, PathLimits, TimedPath, time_path
 from supervisor.flight.reference_shaping import ReferenceShaper
 from supervisor.flight.setpoints import Arena, Setpoint, arena_problem
 from supervisor.flight.waypoint import Waypoint
 
-CHECK_STEP_S = 0.1  # how often along its timing a path is checked like a setpoint
+CHECK_STEP_S = 0.1  # how often along its timing a path is checked like a setpoint,
+MAX_CHECKS = 300  # ... unless that makes more checks than this (~10 ms between ticks)
 
 
 @dataclass(frozen=True)
@@ -79,12 +82,14 @@ def path_problem(
     arena: Arena,
 ) -> str | None:
     """Why the vehicles cannot fly ``plan`` (None: they can): at samples every
-    ``CHECK_STEP_S``, the equilibrium of the path's reference there (its acceleration
-    included) against ``bounds`` and ``arena``."""
-    duration_s = plan.timed.duration_s
-    steps = math.ceil(duration_s / CHECK_STEP_S)
-    for k in range(steps + 1):
-        t_s = min(k * CHECK_STEP_S, duration_s)
+    ``CHECK_STEP_S`` (on a long path ``MAX_CHECKS`` of them evenly spread) and at its
+    greatest acceleration, the equilibrium of the path's reference there (its
+    acceleration included) against ``bounds`` and ``arena``."""
+    timed = plan.timed
+    step_s = max(CHECK_STEP_S, timed.duration_s / MAX_CHECKS)
+    times = [*np.arange(0.0, timed.duration_s, step_s).tolist(), timed.duration_s]
+    hardest = int(np.argmax(np.linalg.norm(timed.accelerations_mps2, axis=1)))
+    for t_s in sorted({*times, hardest * SAMPLE_STEP_S}):
         reference = plan.reference(t_s)
         try:
             eq = formation_equilibrium(params, reference, remember=False)

@@ -117,7 +117,7 @@ def test_a_stop_ahead_becomes_targets_whose_velocities_agree_with_their_position
     bar_x = x_target[:, P_B][:, 0]
     assert abs(bar_x[10]) < 1e-9  # still cruising at stage 10
     assert bar_x[-1] == pytest.approx(-0.5 * 2.0 * (0.4) ** 2, abs=1e-9)  # braked 0.4 s
-    carried = carried_on(eq.x, cruise, kinematics, np.arange(HORIZON + 1) * DT_S)
+    carried = carried_on(eq.x, cruise, kinematics, np.arange(HORIZON + 1, dtype=np.float64) * DT_S)
     absolute = carried + x_target
     for position, velocity in kinematics.moving:
         rate = np.gradient(absolute[:, position], DT_S, axis=0)

@@ -28,7 +28,8 @@ TOLERANCE = 1.02  # the samples' finite differences against the bounds
 
 
 def _speeds(path: TimedPath) -> np.ndarray:
-    return np.linalg.norm(path.velocities_mps, axis=1)
+    speeds: np.ndarray = np.linalg.norm(path.velocities_mps, axis=1)
+    return speeds
 
 
 def _within_limits(path: TimedPath, limits: PathLimits) -> None:
@@ -127,6 +128,9 @@ def test_sampling_interpolates_and_holds_the_ends() -> None:
         ([], "at least one waypoint"),
         ([Waypoint(START.bar_position_m)], "does not move"),
         ([Waypoint((1.0, 0.0, 1.5)), Waypoint((1.0, 0.0, 1.5))], "waypoint 1 lies on"),
+        # Out and back: a smooth curve would have to stop and reverse at the far end.
+        ([Waypoint((2.0, 0.0, 1.5)), Waypoint((0.0, 0.0, 1.5))], "turns by 180° at waypoint 0"),
+        ([Waypoint((2.0, 0.0, 1.5)), Waypoint((1.0, 0.2, 1.5))], "turns by 169°"),
     ],
 )
 def test_waypoints_that_make_no_path_are_refused(waypoints: list[Waypoint], message: str) -> None:
@@ -138,3 +142,15 @@ def test_waypoints_that_make_no_path_are_refused(waypoints: list[Waypoint], mess
 def test_limits_must_be_positive_numbers(bad: float) -> None:
     with pytest.raises(PathError, match="speed_mps"):
         PathLimits(bad, 1.0, 1.0, 1.0, 1.0)
+
+
+def test_a_path_longer_than_ten_minutes_is_refused_before_it_is_sampled() -> None:
+    slow = PathLimits(0.001, 1.0, 2.0, math.radians(20.0), math.radians(10.0))
+    with pytest.raises(PathError, match=r"would take 40\d\d s .*at most 600 s"):
+        time_path(START, [Waypoint((4.0, 0.0, 1.5))], slow)
+
+
+def test_a_right_angle_is_flown_through() -> None:
+    path = time_path(START, [Waypoint((1.0, 0.0, 1.5)), Waypoint((1.0, 1.0, 1.5))], LIMITS)
+    _within_limits(path, LIMITS)
+    assert np.all(np.isfinite(path.accelerations_mps2))

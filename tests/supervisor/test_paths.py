@@ -53,12 +53,16 @@ def test_a_path_is_flown_from_its_start_along_its_timing_to_its_end() -> None:
     now_s = 0.0
     while runner.progress(now_s) is None:
         assert runner.flying(setpoint, now_s)
-        reference, ahead = runner.step(setpoint, shaper, now_s, 30, DT_S)
+        shaped = runner.step(setpoint, shaper, now_s, 30, DT_S)
+        assert shaped is not None
+        reference, ahead = shaped
         # The stages ahead while moving; none once resting on the start.
         assert len(ahead) in (0, 30) and reference.payload_position_m[0] <= 0.5
         now_s += DT_S
         assert now_s < 5.0, "never reached the path's start"
-    began_s = now_s - runner.progress(now_s)[1]
+    progress = runner.progress(now_s)
+    assert progress is not None
+    began_s = now_s - progress[1]
     samples = []
     while (along := runner.step(setpoint, shaper, now_s, 30, DT_S)) is not None:
         reference, ahead = along
