@@ -61,6 +61,8 @@ from supervisor.flight.operator_requests import (
     ModeRequest,
     OperatorEvent,
     Outcome,
+    PathFields,
+    PathRequest,
     QueueRequest,
     Reply,
     SetpointsQuery,
@@ -68,6 +70,7 @@ from supervisor.flight.operator_requests import (
 from supervisor.flight.operator_requests import Request as FlightRequest
 from supervisor.flight.setpoints import Arena, SetpointError, validate_setpoints
 from supervisor.flight.status import FlightStatus, ProcessStatus, Status, WorldStatus
+from supervisor.flight.waypoint_checks import validate_waypoints
 from supervisor.ipc.client import FlightClient, SubscriptionEndedError
 from supervisor.ipc.world_client import WorldClient
 from supervisor.ipc.world_messages import (
@@ -263,7 +266,7 @@ def create_app(
 ) -> FastAPI:
     """The FastAPI application serving ``flight`` (``params``, ``arena`` and ``bounds``: the
     system, its flight volume and what the vehicles can hold, for the equilibria it reports
-    and the setpoints it checks) behind the
+    and the setpoints and waypoints it checks) behind the
     gate ``policy`` describes, and, when ``serve`` runs the simulated world itself,
     ``world``; ``processes``: serve's process table for the status."""
     app = FastAPI(
@@ -455,7 +458,7 @@ def _setpoint_routes(
     bounds: SetpointBounds,
     policy: HttpPolicy,
 ) -> APIRouter:
-    """Reading the queue is ``read``; changing it needs the token."""
+    """Reading the queue is ``read``; changing it (setpoints, paths) needs the token."""
     router = APIRouter()
     flight = statuses.flight
 
@@ -484,6 +487,29 @@ def _setpoint_routes(
             return JSONResponse({"accepted": False, "detail": str(error)}, 409)
         flown = outcomes.setpoint_flown(entries[-1])
         return await _answer_once_settled(statuses, QueueRequest(setpoints=entries), flown, wait_s)
+
+    @router.post("/api/path", **_operation(Access.TOKEN, policy, *FLIGHT, *WITH_BODY))
+    async def post_path(body: PathFields, wait_s: WaitSeconds = None) -> JSONResponse:
+        """Queue a path after what is queued: the bar from where it will be then through the
+        waypoints (at most 64), smooth, timed within ``speed_mps``, ``accel_mps2`` and
+        ``jerk_mps3`` (default: the setup's) and the flight's yaw and θ_l rates, its end a
+        setpoint held ``hold_s``. Each waypoint is checked here first as a setpoint at rest
+        (the arena, equilibrium feasibility; a yaw or θ_l not yet named is the start's,
+        which only the flight knows: then only the bar's centre); the tick core then checks
+        the whole timed path from its start, with the mode and the queue's room. Either
+        refusal is 409 with the reason. Accepted, the answer says how many are queued and
+        the path's ``duration_s`` and ``length_m``. With ``wait_s``, until its end has been
+        reached and held."""
+        waypoints = [point.to_waypoint() for point in body.waypoints]
+        try:
+            # Up to 64 equilibria (about 15 ms): in a thread, so that no abort's turn of the
+            # event loop waits behind them.
+            await asyncio.to_thread(validate_waypoints, waypoints, params, arena, bounds)
+        except SetpointError as error:
+            return JSONResponse({"accepted": False, "detail": str(error)}, 409)
+        flown = outcomes.path_flown([point.bar_position for point in body.waypoints])
+        request = PathRequest.model_validate(dict(body))
+        return await _answer_once_settled(statuses, request, flown, wait_s)
 
     @router.delete("/api/setpoints", **_operation(Access.TOKEN, policy, *FLIGHT))
     async def delete_setpoints() -> JSONResponse:

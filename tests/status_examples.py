@@ -53,6 +53,7 @@ STATUS_JSON: dict[str, Any] = {
         "refused": {},
     },
     "setpoints": {"active": None, "queued": []},
+    "path": None,
     "plan": {"status": None, "solve_ms": None, "thrust_n": None},
     "faults": [],
     "notices": [],

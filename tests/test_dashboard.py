@@ -700,3 +700,71 @@ async def test_the_controls_bar_and_plots_in_sight_and_armed_disarmed_aborted_di
         assert again["flight"] == "disarmed" and not again["lastFlight"], again
         assert again["header"] == disarmed["header"], (again, disarmed)
         assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+PATH_PINK = (0xFF, 0x5F, 0xD2)
+SQUARE_PATH = {
+    "waypoints": [
+        {"bar_position": [1.0, 0.0, 1.1]},
+        {"bar_position": [1.0, 1.0, 1.4]},
+        {"bar_position": [0.0, 1.0, 1.1]},
+    ],
+    "speed_mps": 0.4,
+    "accel_mps2": 0.5,
+    "hold_s": 1.0,
+}
+PATH_PROGRESS = re.compile(
+    r"^Path \d\.\d\d m through 3 waypoints in \d+\.\d s: \d+\.\d / \d+\.\d s$"
+)
+DRAWN_PX_JS = """([selector, points]) => {
+    const drawn = JSON.parse(document.querySelector(selector).dataset.arena);
+    const [a, b] = selector === "#top-view" ? [0, 1] : [0, 2];
+    const scale = (drawn.right - drawn.left) / (drawn.max[0] - drawn.min[0]);
+    return points.map((p) => [drawn.left + (p[a] - drawn.min[0]) * scale,
+                              drawn.bottom - (p[b] - drawn.min[1]) * scale]);
+}"""
+
+
+def around(points_px: list[list[float]], drawn: dict[str, float], margin_px: float) -> bool:
+    """The drawn pixels' centroid lies within the points' box, ``margin_px`` around it."""
+    xs, ys = [p[0] for p in points_px], [p[1] for p in points_px]
+    inside_x = min(xs) - margin_px <= drawn["x"] <= max(xs) + margin_px
+    return inside_x and min(ys) - margin_px <= drawn["y"] <= max(ys) + margin_px
+
+
+async def test_the_active_path_is_drawn_in_every_view_with_its_progress(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """A path queued in a hover: drawn as a line where its points are in the top, side and
+    3D views, its progress said under the active setpoint; gone from all once flown."""
+    views = ("#top-view", "#side-view", "#view3d")
+    async with running_service(TOKEN, tmp_path) as service:
+        page = await open_dashboard(browser, service, TOKEN)
+        async with service.client() as http:
+            await service.take_off(http)
+            for selector in views:
+                assert (await colour_pixels(page, selector, PATH_PINK))["count"] == 0, selector
+            (await http.post("/api/path", json=SQUARE_PATH)).raise_for_status()
+            progress = page.get_by_test_id("path-progress")
+            await expect(progress).to_have_text(PATH_PROGRESS, timeout=15_000)
+            path = (await service.status(http)).path
+            assert path is not None
+            await page.wait_for_timeout(500)  # a few messages drawn since
+            for selector in views[:2]:
+                drawn = await colour_pixels(page, selector, PATH_PINK)
+                points_px = await page.evaluate(DRAWN_PX_JS, [selector, path.points])
+                assert drawn["count"] > 50 and around(points_px, drawn, 4.0), (selector, drawn)
+            drawn = await colour_pixels(page, "#view3d", PATH_PINK)
+            projected = [
+                await page.evaluate("p => window.uavbarView3d.project(p)", point)
+                for point in path.points
+            ]
+            assert drawn["count"] > 30 and around(projected, drawn, 4.0), drawn
+            await page.screenshot(path=str(IMAGES / "dashboard-path.png"))
+            await expect(progress).to_have_text("", timeout=60_000)  # flown and its end held
+            await page.wait_for_timeout(500)
+            for selector in views:
+                assert (await colour_pixels(page, selector, PATH_PINK))["count"] == 0, selector
+            (await http.post("/api/land")).raise_for_status()
+            await service.wait_for(http, in_mode(Mode.DISARMED), 90.0, "landed")
+        assert not PAGE_ERRORS, PAGE_ERRORS

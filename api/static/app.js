@@ -22,7 +22,7 @@ const state = {
 };
 // [page time s, value] for the last PLOT_SECONDS; null breaks the line (no live data).
 const plots = { error: [], solve: [], battery: [[], []] };  // battery: one series per UAV
-const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", ref: "#9be39b", grid: "#2a333c", edge: "#5c6a78", muted: "#8c98a4", text: "#e6e9ec" };
+const COLOURS = { bar: "#f0a030", uav: "#4ea1ff", ref: "#9be39b", path: "#ff5fd2", grid: "#2a333c", edge: "#5c6a78", muted: "#8c98a4", text: "#e6e9ec" };
 // Each UAV's line in the battery plot, UAV 1's first.
 const UAV_COLOURS = ["#4ea1ff", "#c58bff", "#5fd3c6", "#f27a8f", "#e0d25a", "#9fb7ff", "#ff9f5a", "#7be07b"];
 const tickHistory = [];  // [page time s, tick count, missed deadlines], the last TICK_WINDOW_S
@@ -573,6 +573,7 @@ function render(t) {
   });
   setText("tick-info", `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`);
   renderSetpoints(t.setpoints);
+  renderPath(t.path);
   const now = performance.now() / 1000;
   pushHistory(plots.error, now, t.bar.error_m);
   pushHistory(plots.solve, now, t.plan ? t.plan.solve_ms : null);
@@ -605,6 +606,19 @@ function renderSetpoints(setpoints) {
     item.textContent = describeSetpoint(s);
     return item;
   }));
+}
+
+// The active setpoint's path: its length, waypoints and how far along it the reference is.
+function renderPath(path) {
+  if (!path) {
+    setText("path-progress", "");
+    return;
+  }
+  let progress = "not begun (the bar is brought to its start)";
+  if (path.elapsed_s !== null && path.elapsed_s >= path.duration_s) progress = "flown, its end held";
+  else if (path.elapsed_s !== null) progress = `${fmt(path.elapsed_s, 1)} / ${fmt(path.duration_s, 1)} s`;
+  setText("path-progress", `Path ${fmt(path.length_m)} m through ${path.waypoints.length} waypoints ` +
+    `in ${fmt(path.duration_s, 1)} s: ${progress}`);
 }
 
 function pushHistory(series, t, value) {
@@ -752,6 +766,12 @@ function drawView(id, t, arena, a, b) {
     min: [arena.min[a], arena.min[b]], max: [arena.max[a], arena.max[b]],
   });
   if (canvas.dataset.arena !== key) canvas.dataset.arena = key;
+  if (t.path) {  // under the reference, which moves along it
+    g.lineWidth = 2;
+    g.strokeStyle = COLOURS.path;
+    line(g, px, t.path.points);
+    t.path.waypoints.forEach((point) => dot(g, px(point), 3, null, COLOURS.path));
+  }
   const reference = t.reference;
   if (reference) {
     g.setLineDash([5, 4]);

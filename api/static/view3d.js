@@ -1,6 +1,6 @@
 // The 3D view: the arena (floor grid every 0.5 m, 1 m lines labelled, its bounds), the bar,
-// the cables, the UAVs and the reference (dashed), in the arena's frame (z up), drawn with
-// three.js (vendor/three.module.min.js, r170, MIT: vendor/three-LICENSE.txt).
+// the cables, the UAVs, the reference (dashed) and the active path, in the arena's frame
+// (z up), drawn with three.js (vendor/three.module.min.js, r170, MIT: vendor/three-LICENSE.txt).
 // A module of its own, fed by app.js's "uavbar:telemetry" events: if WebGL or the library
 // is missing, the view says so and the rest of the page, ABORT first, works as before.
 // Drag to turn, wheel to zoom, double-click for the first view; at zoom 1 the whole arena,
@@ -10,7 +10,7 @@
 // scrolled out of sight.
 import * as THREE from "/static/vendor/three.module.min.js";
 
-const COLOURS = { bar: 0xf0a030, uav: 0x4ea1ff, cable: 0x9aa4ad, ref: 0x9be39b, grid: 0x2a333c, major: 0x46525e, box: 0x5c6a78 };
+const COLOURS = { bar: 0xf0a030, uav: 0x4ea1ff, cable: 0x9aa4ad, ref: 0x9be39b, path: 0xff5fd2, grid: 0x2a333c, major: 0x46525e, box: 0x5c6a78 };
 const HOME = { azimuth: -Math.PI / 3, elevation: Math.PI / 7, zoom: 1 };
 const FOV_DEG = 40;
 const TELEMETRY_DRAWS_HZ = 10;
@@ -134,6 +134,35 @@ function movingPlate(colour) {
 
 const known = (p) => Array.isArray(p) && p.every((v) => v !== null && v !== undefined);
 
+// The active setpoint's path: a thin tube through its points (a WebGL line is one pixel
+// wide whatever it is asked), made again only when the path changes (it holds up to 2000
+// points: not rebuilt 25 times a second).
+const PATH_RADIUS_M = 0.02;  // half the bar's: a few pixels with the whole arena in sight
+
+function pathTube(colour) {
+  const tube = new THREE.Mesh(new THREE.BufferGeometry(), new THREE.MeshBasicMaterial({ color: colour }));
+  tube.frustumCulled = false;
+  tube.visible = false;
+  let shown = "";
+  tube.show = (path) => {
+    const key = path ? JSON.stringify([path.waypoints, path.duration_s, path.points.length]) : "";
+    tube.visible = Boolean(path);
+    if (key === shown) return;
+    shown = key;
+    // Points held still (its start, its end) are one point: a curve has no direction there.
+    const points = [];
+    for (const point of path ? path.points : []) {
+      const here = new THREE.Vector3(...point);
+      if (!points.length || here.distanceTo(points[points.length - 1]) > 1e-3) points.push(here);
+    }
+    tube.geometry.dispose();
+    tube.geometry = points.length > 1
+      ? new THREE.TubeGeometry(new THREE.CatmullRomCurve3(points, false, "centripetal"), points.length, PATH_RADIUS_M, 6)
+      : new THREE.BufferGeometry();
+  };
+  return tube;
+}
+
 function start() {
   const canvas = document.getElementById("view3d");
   const note = document.getElementById("view3d-note");
@@ -159,7 +188,8 @@ function start() {
   const drop = movingLine(COLOURS.box, true);  // from the payload's middle to the floor: its height
   const uavs = [], cables = [];
   const reference = { bar: movingLine(COLOURS.ref, true), cables: [], uavs: [] };
-  scene.add(bar, plate, drop, reference.bar);
+  const path = pathTube(COLOURS.path);
+  scene.add(bar, plate, drop, reference.bar, path);
 
   // One sphere, cable and reference ghost per UAV the status lists (two until it says).
   function ensureVehicles(count) {
@@ -311,6 +341,7 @@ function start() {
       const outline = r.bar_ends.length > 2 ? [...r.bar_ends, r.bar_ends[0]] : r.bar_ends;
       reference.bar.place(...outline);
     }
+    path.show(t.path);
     redrawForTelemetry();
   }
 

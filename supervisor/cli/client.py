@@ -1,5 +1,5 @@
-"""The terminal client: status, arm, takeoff, land, abort, disarm, kill, mode and setpoint
-against a running service's REST API; fault and reset for the embedded simulated world
+"""The terminal client: status, arm, takeoff, land, abort, disarm, kill, mode, setpoint and
+path against a running service's REST API; fault and reset for the embedded simulated world
 (docs/faults.md).
 
 It starts on the standard library (``supervisor.cli.rest_client``), so that it answers at
@@ -19,6 +19,7 @@ import math
 import os
 import sys
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from supervisor.app.config_files import TOKEN_ENV
@@ -29,10 +30,12 @@ from supervisor.cli.output import (
     format_answer,
     format_detail,
     format_faults,
+    format_path_answer,
     format_setpoints,
     format_status,
 )
 from supervisor.cli.parsing import finite_float, non_negative_float, positive_float
+from supervisor.cli.path_file import FILE_FORMAT, read_path_file
 from supervisor.cli.rest_client import JsonClient, UnreachableError
 from supervisor.cli.usage import EXIT_REFUSED, EXIT_UNREACHABLE, UsageError
 from supervisor.flight import outcomes
@@ -51,8 +54,16 @@ URGENT_COMMANDS = ("abort", "kill")
 URGENT_HTTP_TIMEOUT_S = 0.3
 HTTP_TIMEOUT_S = 10.0
 # How long --wait waits by default: a take-off climbs for about 10 s, a landing from a few
-# metres takes under a minute, a setpoint travels and holds.
-WAIT_TIMEOUT_S = {"arm": 15.0, "takeoff": 60.0, "land": 120.0, "setpoint": 120.0, "mode": 10.0}
+# metres takes under a minute, a setpoint travels and holds; a path's is counted beyond its
+# own duration and hold.
+WAIT_TIMEOUT_S = {
+    "arm": 15.0,
+    "takeoff": 60.0,
+    "land": 120.0,
+    "setpoint": 120.0,
+    "path": 120.0,
+    "mode": 10.0,
+}
 CONTROLLERS = ("centralized", "decentralized")
 PROBLEMS_SHOWN = 3  # of a status that does not fit: the first few fields name the mismatch
 
@@ -178,6 +189,8 @@ def _request_for(args: argparse.Namespace) -> tuple[str, str, Any]:
         return "POST", "/api/kill", {"confirm": True}
     if command == "mode":
         return "POST", "/api/mode", {"controller": args.controller}
+    if command == "path":
+        return "POST", "/api/path", read_path_file(args.file)
     if args.clear:
         if args.position:
             raise UsageError("setpoint --clear drops every setpoint: give it no X Y Z")
@@ -197,6 +210,8 @@ def _goal(args: argparse.Namespace, body: Any) -> outcomes.Goal:
         return outcomes.landed
     if command == "mode":
         return outcomes.controller(args.controller)
+    if command == "path":
+        return outcomes.path_flown([point["bar_position"] for point in body["waypoints"]])
     from supervisor.flight.operator_requests import SetpointFields
 
     return outcomes.setpoint_flown(SetpointFields.model_validate(body))
@@ -211,11 +226,25 @@ def _print_answer(args: argparse.Namespace, answer: Any) -> None:
         print(format_faults(answer))
     elif args.command == "setpoint" and "queued" in answer and isinstance(answer["queued"], list):
         print(format_setpoints(answer))
+    elif args.command == "path":
+        print(format_path_answer(answer))
     else:
         print(format_answer(args.command, answer))
 
 
-def _wait(client: JsonClient, args: argparse.Namespace, body: Any, sent_at_s: float) -> int:
+def _wait_timeout_s(args: argparse.Namespace, body: Any, answer: Any) -> float:
+    """``--timeout``, else the command's own; a path's beyond its duration and hold."""
+    if args.timeout is not None:
+        return float(args.timeout)
+    timeout_s = WAIT_TIMEOUT_S[args.command]
+    if args.command == "path":
+        timeout_s += float(answer.get("duration_s", 0.0)) + float(body.get("hold_s", 0.0))
+    return timeout_s
+
+
+def _wait(
+    client: JsonClient, args: argparse.Namespace, body: Any, answer: Any, sent_at_s: float
+) -> int:
     """Poll the status until the request's outcome is known; its exit status."""
 
     def fetch() -> Status:
@@ -224,7 +253,7 @@ def _wait(client: JsonClient, args: argparse.Namespace, body: Any, sent_at_s: fl
             raise UnreachableError(f"GET /api/status answered {response.status}")
         return _parse_status(response.body)
 
-    timeout_s = args.timeout if args.timeout is not None else WAIT_TIMEOUT_S[args.command]
+    timeout_s = _wait_timeout_s(args, body, answer)
     outcome = awaiting.await_goal(_goal(args, body), fetch, sent_at_s, timeout_s)
     if args.json:
         print(json.dumps({"reached": outcome.reached, "message": outcome.message}))
@@ -276,7 +305,7 @@ def run_client(args: argparse.Namespace) -> int:
             if not waiting:
                 _print_answer(args, answer)
                 return 0
-            return _wait(client, args, body, sent_at_s)
+            return _wait(client, args, body, answer, sent_at_s)
         except UnreachableError as error:
             return _unreachable(address, f"while waiting: {error}")
         except MalformedStatusError as error:
@@ -301,7 +330,8 @@ def _add_client_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the raw JSON answer")
 
 
-def _add_wait_options(parser: argparse.ArgumentParser, command: str) -> None:
+def _add_wait_options(parser: argparse.ArgumentParser, command: str, beyond: str = "") -> None:
+    """``--wait`` and ``--timeout`` (``beyond``: what the default timeout is counted from)."""
     parser.add_argument(
         "--wait",
         action="store_true",
@@ -312,7 +342,8 @@ def _add_wait_options(parser: argparse.ArgumentParser, command: str) -> None:
         "--timeout",
         type=positive_float,
         metavar="S",
-        help=f"with --wait: give up after S seconds, exit 1 (default: {WAIT_TIMEOUT_S[command]:g})",
+        help=f"with --wait: give up after S seconds, exit 1 "
+        f"(default: {WAIT_TIMEOUT_S[command]:g}{beyond})",
     )
 
 
@@ -330,6 +361,9 @@ EXAMPLES = {
         "  uavbar-supervisor setpoint 0 0 1 --theta-l-deg 30   # the θ_l = 30° equilibrium\n"
         "  uavbar-supervisor setpoint                          # list active and queued\n"
         "  uavbar-supervisor setpoint --clear                  # drop them, hold where it is"
+    ),
+    "path": (
+        "  uavbar-supervisor path square.toml --wait   # exit 0 once its end is reached and held"
     ),
     "fault": (
         "  uavbar-supervisor fault mocap_silent --duration-s 1\n"
@@ -401,6 +435,17 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
     )
     setpoint.add_argument("--clear", action="store_true", help="drop the queue and the active")
     _add_wait_options(setpoint, "setpoint")
+    path = command(
+        "path",
+        "queue a path for the bar through waypoints, from a TOML file",
+        "Queue a path: the bar from where it will be (after what is queued) through the "
+        "waypoints, smooth, within a top speed, acceleration and jerk and the flight's yaw "
+        "and θ_l rates; its end is then held as a setpoint. Taken only while armed or "
+        "flying. FILE is TOML with the REST body's fields (metres, seconds, radians):"
+        f"\n\n{FILE_FORMAT}",
+    )
+    path.add_argument("file", type=Path, metavar="FILE", help="the path (TOML, as above)")
+    _add_wait_options(path, "path", " beyond the path's duration and hold")
     fault = command(
         "fault",
         "inject a fault into the embedded simulated world (no KIND: list them; --clear: "
@@ -435,7 +480,7 @@ def add_client_commands(commands: Any) -> list[argparse.ArgumentParser]:
     )
     fault.add_argument("--clear", action="store_true", help="end every fault")
     reset = command("reset", "put the embedded simulated world back in its resting pose (disarmed)")
-    parsers += [kill, mode, setpoint, fault, reset]
+    parsers += [kill, mode, setpoint, path, fault, reset]
     for parser in parsers:
         _add_client_options(parser)
         parser.set_defaults(handler=run_client)

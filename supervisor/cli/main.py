@@ -44,6 +44,7 @@ examples:
   uavbar-supervisor serve --set api.port=8131      # another port; the client finds it
   uavbar-supervisor takeoff --wait                 # exit 0 once hovering
   uavbar-supervisor setpoint 0.5 0 1.2 --yaw-deg 20 --wait
+  uavbar-supervisor path square.toml --wait        # waypoints in a TOML file (path --help)
   uavbar-supervisor land --wait
   uavbar-supervisor simulate --scenario paper --controller decentralized
   uavbar-supervisor config show --config kth_sml

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 from supervisor.flight.modes import Mode
 
 if TYPE_CHECKING:  # the client parses the status only once it has one
-    from supervisor.flight.status import Status, WorldStatus
+    from supervisor.flight.status import PathStatus, Status, WorldStatus
 
 # The modes in which an arm is the next thing an operator may want.
 WAITING_ON_THE_GROUND = frozenset({Mode.DISARMED, Mode.DISARMING, Mode.PX4_LANDING, Mode.KILLED})
@@ -69,6 +69,8 @@ def format_status(status: Status) -> str:
         + "; setpoints: "
         f"{'active' if setpoints.active else 'none active'}, {len(setpoints.queued)} queued"
     )
+    if status.path is not None:
+        lines.append(_path_line(status.path))
     lines.append(
         f"ticks {tick.count}, missed {tick.missed_deadlines}, compute p50/p99 "
         f"{_milliseconds(tick.compute_ms_p50)}/{_milliseconds(tick.compute_ms_p99)} ms"
@@ -94,6 +96,20 @@ def format_status(status: Status) -> str:
         f"notice ({notice.age_s:.0f} s ago): {notice.message}" for notice in status.notices[-3:]
     ]
     return "\n".join(lines)
+
+
+def _path_line(path: PathStatus) -> str:
+    """The active setpoint's path: its length, waypoints and how far along it is."""
+    if path.elapsed_s is None:
+        progress = "not begun"
+    elif path.elapsed_s >= path.duration_s:
+        progress = "flown, its end held"
+    else:
+        progress = f"{path.elapsed_s:.1f} of {path.duration_s:.1f} s"
+    return (
+        f"path {path.length_m:.2f} m through {len(path.waypoints)} waypoints "
+        f"in {path.duration_s:.1f} s: {progress}"
+    )
 
 
 def _world_line(world: WorldStatus) -> str:
@@ -137,6 +153,14 @@ def format_setpoints(answer: dict[str, Any]) -> str:
         return "no setpoint active or queued"
     header = ["", "x [m]", "y [m]", "z [m]", "bar yaw", "UAV yaws", "θ_l", "hold [s]"]
     return table(header, rows)
+
+
+def format_path_answer(answer: dict[str, Any]) -> str:
+    """An accepted path in one line: ``path: accepted, queued 2, 3.21 m in 8.4 s``."""
+    return (
+        f"path: accepted, queued {answer.get('queued')}, "
+        f"{answer.get('length_m', math.nan):.2f} m in {answer.get('duration_s', math.nan):.1f} s"
+    )
 
 
 def _fault_words(kind: object, params: Mapping[str, object], remaining_s: float | None) -> str:

@@ -12,7 +12,7 @@ Pure: ``judge`` and ``Staleness`` take the times as arguments.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -147,6 +147,43 @@ class _Setpoint:
 def setpoint_flown(wanted: SetpointFields) -> Goal:
     """The goal of ``setpoint`` for the setpoint that was queued."""
     return _Setpoint(wanted)
+
+
+def _same_points(shown: Sequence[Sequence[float]], wanted: Sequence[Sequence[float]]) -> bool:
+    """The same waypoints (x, y, z) [m], in the same order."""
+    return len(shown) == len(wanted) and all(
+        math.isclose(a, b, abs_tol=1e-9)
+        for point, other in zip(shown, wanted, strict=True)
+        for a, b in zip(point, other, strict=True)
+    )
+
+
+@dataclass
+class _Path:
+    """``path``: flown, i.e. its end reached and held: the status's ``path`` seen with
+    these waypoints and then gone, or never seen while nothing is queued for a second (flown
+    between two polls); the system coming down first is a failure."""
+
+    waypoints_m: list[list[float]]
+    seen: bool = field(default=False)
+
+    def __call__(self, status: Status, elapsed_s: float) -> Outcome | None:
+        if status.mode in COMING_DOWN:
+            return _failed(status, elapsed_s, "path not flown")
+        shown = status.path
+        if shown is not None and _same_points(shown.waypoints, self.waypoints_m):
+            self.seen = True
+            return None
+        setpoints = status.setpoints
+        idle = status.mode is Mode.HOVER and setpoints.active is None and not setpoints.queued
+        if self.seen or (idle and elapsed_s > UNSEEN_SETPOINT_S):
+            return Outcome(Verdict.REACHED, "path flown, its end reached and held")
+        return None
+
+
+def path_flown(waypoints_m: Sequence[Sequence[float]]) -> Goal:
+    """The goal of ``path`` for the path through ``waypoints_m`` (each (x, y, z) [m])."""
+    return _Path([list(point) for point in waypoints_m])
 
 
 def judge(

@@ -140,6 +140,38 @@ class SetpointsStatus(_StatusPart):
     queued: Annotated[list[SetpointFields], Field(description="the queue, next first")]
 
 
+Point3 = Annotated[list[Real], Field(min_length=3, max_length=3)]
+"""A point (x, y, z) [m] that is always known."""
+
+
+class PathStatus(_StatusPart):
+    """The path the active setpoint ends: its waypoints and limits, its timing, where it
+    goes (for drawing) and how far along it the bar's reference is."""
+
+    waypoints: Annotated[
+        list[Point3], Field(description="the bar's centre at each waypoint (x, y, z) [m], in order")
+    ]
+    speed_mps: Annotated[Real, Field(description="its top speed [m/s]")]
+    accel_mps2: Annotated[Real, Field(description="its top acceleration [m/s²]")]
+    jerk_mps3: Annotated[Real, Field(description="its top jerk along it [m/s³]")]
+    length_m: Annotated[Real, Field(description="its length from where it starts [m]")]
+    duration_s: Annotated[Real, Field(description="how long it takes, rest to rest [s]")]
+    elapsed_s: Annotated[
+        MaybeReal,
+        Field(
+            description="time since it began [s] (beyond duration_s while its end is held; "
+            "null: not begun, the bar still brought to its start)"
+        ),
+    ]
+    points: Annotated[
+        list[Point3],
+        Field(
+            description="the bar's centre along it (x, y, z) [m], to the millimetre, from its "
+            "start every 0.25 s (a path over 500 s: 2000 points evenly) and its end"
+        ),
+    ]
+
+
 class PlanSummary(_StatusPart):
     """The MPC's last plan (all null before the first tick)."""
 
@@ -202,8 +234,8 @@ UavCount = Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)
 
 class FlightStatus(_StatusPart):
     """The flight process's status at ``time_s``: the mode, the N vehicles (2 … 8, UAV 1's
-    first in every list), the bar, the mocap, the setpoints, the last plan, the timing and
-    the flight log."""
+    first in every list), the bar, the mocap, the setpoints and the path flown, the last
+    plan, the timing and the flight log."""
 
     time_s: Annotated[Real, Field(description="the flight process's monotonic clock [s]")]
     mode: Annotated[Mode, Field(description="the flight mode")]
@@ -220,6 +252,9 @@ class FlightStatus(_StatusPart):
     reference: Annotated[ReferenceStatus | None, Field(description="null: none yet")]
     mocap: MocapStatus
     setpoints: SetpointsStatus
+    path: Annotated[
+        PathStatus | None, Field(description="the active setpoint's path (null: it has none)")
+    ]
     plan: PlanSummary
     faults: Annotated[list[str], Field(description="what the safety monitors saw last tick")]
     notices: Annotated[list[RecentNotice], Field(description="recent notices, oldest first")]

@@ -22,6 +22,7 @@ from supervisor.flight.core import FlightCore, TickResult
 from supervisor.flight.estimation import Estimate
 from supervisor.flight.modes import FlightEnding
 from supervisor.flight.operator_requests import ControllerName, SetpointFields
+from supervisor.flight.path_timing import SAMPLE_STEP_S, TimedPath
 from supervisor.flight.status import (
     ArenaBox,
     BarStatus,
@@ -29,6 +30,7 @@ from supervisor.flight.status import (
     LastFlight,
     LiveViewPort,
     MocapStatus,
+    PathStatus,
     PlanSummary,
     RecentNotice,
     ReferenceStatus,
@@ -37,6 +39,11 @@ from supervisor.flight.status import (
     UavStatus,
 )
 from supervisor.vehicles.types import VehicleView
+
+PATH_POINT_STEP_S = 0.25  # the status's points along a path: fine enough to draw its bends
+# ... and at most this many, so that a long path keeps each message small (the channel
+# carries at most 1 MiB; 2000 points at the millimetre are about 35 kB of JSON).
+MAX_PATH_POINTS = 2000
 
 
 @dataclass(frozen=True)
@@ -147,6 +154,38 @@ def _setpoints(core: FlightCore) -> SetpointsStatus:
     )
 
 
+def _path_points(timed: TimedPath) -> list[list[float]]:
+    """The timed path's positions [m] every ``PATH_POINT_STEP_S`` from its start and its
+    end, at most ``MAX_PATH_POINTS`` (a longer path's evenly apart), to the millimetre."""
+    positions = timed.positions_m
+    last = len(positions) - 1
+    stride = max(round(PATH_POINT_STEP_S / SAMPLE_STEP_S), math.ceil(last / (MAX_PATH_POINTS - 1)))
+    chosen = np.vstack((positions[:-1:stride], positions[-1:]))
+    points: list[list[float]] = np.round(chosen, 3).tolist()
+    return points
+
+
+def _path(core: FlightCore, now_s: float) -> PathStatus | None:
+    """The active setpoint's path, and how long since it began (when it has)."""
+    active = core.queue.active
+    plan = active.path if active is not None else None
+    if plan is None:
+        return None
+    progress = core.path_progress(now_s)  # the path begun last: this one's, once begun
+    elapsed_s = progress[1] if progress is not None and progress[0] is plan else None
+    timed, limits = plan.timed, plan.limits
+    return PathStatus(
+        waypoints=[list(point.bar_position_m) for point in plan.waypoints],
+        speed_mps=limits.speed_mps,
+        accel_mps2=limits.accel_mps2,
+        jerk_mps3=limits.jerk_mps3,
+        length_m=timed.length_m,
+        duration_s=timed.duration_s,
+        elapsed_s=elapsed_s,
+        points=_path_points(timed),
+    )
+
+
 def build_telemetry(
     core: FlightCore,
     estimate: Estimate | None,
@@ -179,6 +218,7 @@ def build_telemetry(
         reference=_reference(core, reference),
         mocap=_mocap(mocap, estimate),
         setpoints=_setpoints(core),
+        path=_path(core, now_s),
         plan=_plan(last_tick),
         faults=[f.message for f in last_tick.faults] if last_tick is not None else [],
         notices=[

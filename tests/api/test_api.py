@@ -6,6 +6,7 @@ import asyncio
 import json
 import math
 import re
+from typing import Any
 
 import pytest
 import websockets
@@ -24,7 +25,21 @@ MUTATING = [
     ("/api/kill", {"confirm": True}),
     ("/api/mode", {"controller": "decentralized"}),
     ("/api/setpoints", {"bar_position": [0.0, 0.0, 1.0]}),
+    (
+        "/api/path",
+        {"waypoints": [{"bar_position": [0.5, 0.0, 1.0]}], "speed_mps": 0.4, "accel_mps2": 0.5},
+    ),
 ]
+PATH = {
+    "waypoints": [
+        {"bar_position": [0.2, 0.0, 1.2]},
+        {"bar_position": [0.5, 0.0, 1.2], "bar_yaw": 0.3},
+        {"bar_position": [0.6, 0.5, 1.2], "theta_l": 0.2},
+    ],
+    "speed_mps": 0.4,
+    "accel_mps2": 0.5,
+    "hold_s": 2.0,
+}
 
 
 @pytest.mark.parametrize("token", [None, "wrong-token", "Bearer"])
@@ -210,6 +225,82 @@ async def test_a_full_queue_is_409(api: ApiUnderTest) -> None:
     assert len(api.core.queue.queued) == capacity
 
 
+async def test_a_path_is_queued_as_its_end_and_answers_its_timing(api: ApiUnderTest) -> None:
+    refused = await api.post("/api/path", PATH)  # the tick core's mode table
+    assert refused.status_code == 409 and "not allowed in mode 'disarmed'" in refused.text
+    assert (await api.post("/api/arm")).status_code == 200
+    response = await api.post("/api/path", PATH)
+    assert response.status_code == 200, response.text
+    answer = response.json()
+    assert answer["accepted"] and answer["queued"] == 1
+    assert 1.0 < answer["length_m"] < 1.5 and answer["duration_s"] > 1.0 / 0.4
+    [end] = api.core.queue.queued
+    assert end.path is not None and end.path.timed.duration_s == answer["duration_s"]
+    listed = (await api.http.get("/api/setpoints")).json()["queued"]
+    assert listed[0]["bar_position"] == pytest.approx([0.6, 0.5, 1.2])
+    assert listed[0]["bar_yaw"] == pytest.approx(0.3) and listed[0]["hold_s"] == 2.0
+
+
+NAMED = {"bar_yaw": 0.0, "theta_l": 0.0}  # a waypoint's yaw and θ_l, named
+
+
+@pytest.mark.parametrize(
+    ("waypoints", "reason"),
+    [
+        ([[0.0, 0.0, 2.9]], "waypoint 0: bar centre would be at (0.00, 0.00, 2.90) m, outside"),
+        ([[0.0, 0.0, 1.0], [0.0, -2.9, 1.0]], "waypoint 1: bar centre would be at (0.00, -2.90"),
+        # Its yaw and θ_l named (here, by the waypoint before): checked as a setpoint at rest,
+        # its bar's ends and its UAVs too.
+        ([[0.0, 0.0, 1.0, NAMED], [2.5, 0.0, 1.0]], "waypoint 1: bar end 2 would be at (3.2"),
+        (
+            [[0.0, 0.0, 1.5, {"bar_yaw": 0.0, "theta_l": math.radians(85)}]],
+            "waypoint 0: θ_l 85.0° exceeds the maximum 75.0° by 10.0°",
+        ),
+        # Its yaw not yet named, the bar's ends depend on the start's: left to the tick core,
+        # which refuses it along the path.
+        ([[0.0, 0.0, 1.0], [2.5, 0.0, 1.0]], "s along the path: bar end 2 would be at"),
+    ],
+)
+async def test_a_path_that_cannot_be_flown_is_409_by_its_waypoint_before_the_flight_process(
+    api: ApiUnderTest, waypoints: list[list[Any]], reason: str
+) -> None:
+    """The API process refuses what it can know from the waypoints, naming the waypoint;
+    the tick core, what only the start shows, naming the time along the path. Nothing is
+    queued."""
+    assert (await api.post("/api/arm")).status_code == 200
+    points = [
+        {"bar_position": point[:3], **(point[3] if len(point) > 3 else {})} for point in waypoints
+    ]
+    response = await api.post("/api/path", {**PATH, "waypoints": points})
+    assert response.status_code == 409, response.text
+    assert response.json()["accepted"] is False
+    assert reason in response.json()["detail"], response.json()["detail"]
+    assert api.core.queue.queued == []
+
+
+@pytest.mark.parametrize(
+    ("changes", "reason"),
+    [
+        ({"waypoints": []}, "at least 1 item"),
+        ({"speed_mps": 0}, "greater than 0"),
+        ({"accel_mps2": None}, "valid number"),
+        ({"jerk_mps3": True}, "valid number"),
+        ({"hold_s": -1}, "greater than or equal to 0"),
+        ({"colour": "red"}, "Extra inputs"),
+        ({"waypoints": [{"bar_position": [0.0, 1.0]}]}, "at least 3 items"),
+        ({"waypoints": [{"bar_position": [0.0, 0.0, 1.0], "uav_yaw": [0, 0]}]}, "Extra inputs"),
+    ],
+)
+async def test_a_path_that_does_not_fit_its_schema_is_422(
+    api: ApiUnderTest, changes: dict[str, object], reason: str
+) -> None:
+    assert (await api.post("/api/arm")).status_code == 200
+    response = await api.post("/api/path", {**PATH, **changes})
+    assert response.status_code == 422
+    assert reason in json.dumps(response.json())
+    assert api.core.queue.queued == []
+
+
 async def test_equilibria(api: ApiUnderTest) -> None:
     response = await api.http.get("/api/equilibria", params={"theta_l": math.pi / 4})
     assert response.status_code == 200
@@ -242,7 +333,14 @@ async def test_telemetry_websocket_passes_on_every_message_of_the_flight_process
 
 async def test_openapi_schema_lists_the_routes(api: ApiUnderTest) -> None:
     schema = (await api.http.get("/openapi.json")).json()
-    for path in ("/api/status", "/api/arm", "/api/kill", "/api/mode", "/api/setpoints"):
+    for path in (
+        "/api/status",
+        "/api/arm",
+        "/api/kill",
+        "/api/mode",
+        "/api/setpoints",
+        "/api/path",
+    ):
         assert path in schema["paths"]
 
 

@@ -7,8 +7,10 @@ import asyncio
 import contextlib
 import http.server
 import json
+import re
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -68,6 +70,46 @@ async def test_refusals_exit_1_with_the_reason(
     wrong = capsys.readouterr().err
     assert "401" in wrong and "not this service's" in wrong and "API token" in wrong
     assert api.core.modes.mode is Mode.DISARMED
+
+
+PATH_FILE = """
+speed_mps = 0.4
+accel_mps2 = 0.5
+hold_s = 2
+
+[[waypoints]]
+bar_position = [0.2, 0.0, 1.1]
+
+[[waypoints]]
+bar_position = [0.5, 0.0, 1.2]
+bar_yaw = 0.3
+"""
+
+
+async def test_a_path_from_a_file_is_queued_or_refused_with_the_reason(
+    api: ApiUnderTest, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    file = tmp_path / "path.toml"
+    file.write_text(PATH_FILE)
+    assert await cli(api, "arm") == 0
+    assert await cli(api, "path", str(file)) == 0
+    said = capsys.readouterr().out.strip().splitlines()[-1]
+    assert re.fullmatch(r"path: accepted, queued 1, \d\.\d\d m in \d+\.\d s", said), said
+    [end] = api.core.queue.queued
+    assert end.path is not None and end.bar_position_m == pytest.approx((0.5, 0.0, 1.2))
+    assert end.bar_yaw_rad == pytest.approx(0.3) and end.hold_s == 2.0
+    file.write_text(PATH_FILE.replace("1.2]", "2.9]"))
+    assert await cli(api, "path", str(file)) == 1
+    refused = capsys.readouterr().err
+    assert (
+        "path refused (409): waypoint 1: bar centre would be at (0.50, 0.00, 2.90) m" in refused
+    ), refused
+    file.write_text(PATH_FILE.replace("0.4", "0"))
+    assert await cli(api, "path", str(file), "--json") == 1
+    assert (
+        "path refused (422): speed_mps: Input should be greater than 0" in capsys.readouterr().err
+    )
+    assert len(api.core.queue.queued) == 1
 
 
 async def test_a_missing_token_is_a_set_up_error_saying_where_the_token_is(

@@ -68,6 +68,38 @@ def test_a_setpoint_is_flown_once_it_has_left_the_queue() -> None:
     assert aborted is not None and aborted.message.endswith("abort: UAV 1 tilted 50°")
 
 
+def a_path(waypoints: list[list[float]], elapsed_s: float | None) -> dict[str, Any]:
+    """The status's ``path`` of a path through ``waypoints``, 5 s long."""
+    return {
+        "waypoints": waypoints,
+        "speed_mps": 0.4,
+        "accel_mps2": 0.5,
+        "jerk_mps3": 2.0,
+        "length_m": 1.2,
+        "duration_s": 5.0,
+        "elapsed_s": elapsed_s,
+        "points": [[0.0, 0.0, 1.0], *waypoints],
+    }
+
+
+def test_a_path_is_flown_once_it_is_no_longer_the_active_setpoint() -> None:
+    wanted = [[0.6, 0.0, 1.0], [0.6, 0.5, 1.2]]
+    end = {**SetpointFields(bar_position=[0.6, 0.5, 1.2]).model_dump(), "uav_yaw": [0.0, 0.0]}
+    flying = {"active": end, "queued": []}
+    goal = outcomes.path_flown(wanted)
+    other = a_path([[0.0, 0.5, 1.0]], 2.0)  # one queued before it
+    assert goal(status("tracking", path=other, setpoints=flying | {"queued": [end]}), 0.2) is None
+    assert goal(status("tracking", path=a_path(wanted, None), setpoints=flying), 1.0) is None
+    assert goal(status("tracking", path=a_path(wanted, 6.5), setpoints=flying), 8.0) is None
+    flown = goal(status("hover", setpoints={"active": None, "queued": []}), 9.0)
+    assert flown is not None and flown.reached and flown.message.startswith("path flown")
+    between_polls = outcomes.path_flown(wanted)  # never seen: flown once idle for a second
+    assert between_polls(status("hover"), 0.5) is None
+    assert (unseen := between_polls(status("hover"), 1.5)) is not None and unseen.reached
+    landing = outcomes.path_flown(wanted)(status("abort", (0.4, "abort: UAV 1 tilted 50°")), 1)
+    assert landing is not None and landing.message == "path not flown: abort: UAV 1 tilted 50°"
+
+
 def test_the_wait_gives_up_after_its_timeout_and_on_a_silent_flight_process() -> None:
     now = [0.0]
 

@@ -77,6 +77,46 @@ def test_a_mistake_is_one_line_and_an_exit_status(args: list[str], status: int, 
     assert "Traceback" not in result.stderr and result.stdout == ""
 
 
+GOOD_PATH = """
+speed_mps = 0.4
+accel_mps2 = 0.5
+
+[[waypoints]]
+bar_position = [0.5, 0.0, 1.2]
+"""
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        (None, "cannot read the path file: No such file or directory"),
+        ("speed_mps = ", "not valid TOML: Invalid value (at end of document)"),
+        (GOOD_PATH.replace("accel_mps2 = 0.5", ""), "accel_mps2: missing"),
+        (GOOD_PATH.replace("speed_mps", "speed"), "speed: unknown key (known: speed_mps, "),
+        ("speed_mps = 1\naccel_mps2 = 1\nwaypoints = 3", "waypoints: one [[waypoints]] table"),
+        (GOOD_PATH.replace("0.4", "nan"), "speed_mps: nan is not a finite number"),
+        (GOOD_PATH.replace("0.4", '"fast"'), "speed_mps: 'fast' is not a finite number"),
+        (GOOD_PATH + "bar_yaw_deg = 20", "waypoints[0].bar_yaw_deg: unknown key"),
+        (GOOD_PATH + "theta_l = true", "waypoints[0].theta_l: True is not a finite number"),
+        (GOOD_PATH.replace(", 1.2]", "]"), "waypoints[0].bar_position: three numbers [x, y, z]"),
+        (GOOD_PATH.replace("1.2]", "inf]"), "waypoints[0].bar_position: inf is not a finite"),
+        (GOOD_PATH.replace("bar_position", "position"), "waypoints[0].position: unknown key"),
+    ],
+)
+def test_a_path_file_that_cannot_be_used_is_one_line_naming_the_file_and_the_key(
+    tmp_path: Path, text: str | None, words: str
+) -> None:
+    """Said before any service is looked for (none runs here): exit 2, as a usage error."""
+    file = tmp_path / "path.toml"
+    if text is not None:
+        file.write_text(text)
+    result = cli("path", str(file), "--url", "http://127.0.0.1:9")
+    assert result.returncode == 2, result.stderr
+    assert f"path: {file}: {words}" in result.stderr, result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert "Traceback" not in result.stderr and result.stdout == ""
+
+
 def test_serve_on_a_port_in_use_says_so_in_one_line() -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
@@ -107,6 +147,11 @@ def test_version_and_help_name_units_defaults_and_examples() -> None:
     ):
         assert words in setpoint, words
     assert "(default: 60)" in " ".join(cli("takeoff", "--help").stdout.split())  # --timeout
+    path = " ".join(cli("path", "--help").stdout.split())
+    for words in ("FILE", "bar_position = [0.5, 0.0, 1.2]", "[m/s]", "[rad]", "--wait"):
+        assert words in path, words
+    assert "(default: 120 beyond the path's duration and hold)" in path
+    assert "path" in cli("--help").stdout
 
 
 def test_over_https_the_client_trusts_the_certificate_the_service_found_uses(

@@ -7,14 +7,17 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 import pydantic
 import pytest
 
 from supervisor.app.assembly import flight_core_from_config
 from supervisor.app.config import load_config
+from supervisor.flight.core import TickResult
 from supervisor.flight.modes import Mode
 from supervisor.flight.status import FlightStatus, Status
 from supervisor.flight.telemetry import MocapView, ShellView, build_telemetry
+from supervisor.flight.waypoint import Waypoint
 from supervisor.ipc.messages import CHANNEL_MESSAGE, TelemetryMessage
 from supervisor.runtime.scheduler import TimingStats
 from supervisor.simulate.closed_loop import ClosedLoop
@@ -66,29 +69,85 @@ hold_s = 1.0
 """
 
 
-@pytest.mark.parametrize("setup", ["sim.toml", "sim_tri.toml"])
-def test_a_status_in_flight_survives_the_channel_with_its_plan_and_reference(
-    setup: str, tmp_path: Path
-) -> None:
-    """Hovering on the plant under the MPC (a few ticks of the closed-loop simulator)."""
-    path = tmp_path / "hover.toml"
+def hovering(setup: str, folder: Path) -> ClosedLoop:
+    """The closed-loop simulator of ``setup`` hovering under the MPC, before its first tick."""
+    path = folder / "hover.toml"
     path.write_text(HOVER_SCENARIO)
     scenario = load_scenario(str(path))
     loop = ClosedLoop(scenario_config(load_config(CONFIGS / setup), scenario), "centralized", 1)
     loop.place(scenario)
     loop.advance_plant(0.2)
     loop.core.start_in_hover(loop.estimate(), loop.now_s, loop.resting_heights())
-    result = loop.decide()
+    return loop
+
+
+def in_flight(loop: ClosedLoop, result: TickResult) -> FlightStatus:
+    """What the flight process publishes after ``result``, its vehicles armed in offboard."""
     n = loop.core.params.n_vehicles
     vehicles = (VehicleView(connected=True, armed=True, px4_mode="OFFBOARD"),) * n
     shell = ShellView(streaming=True, log_path="/var/log/uavbar/flight-1.mcap")
-    status = build_telemetry(
-        loop.core, loop.estimate(), result, vehicles, MOCAP, TimingStats().summary(), shell, 1.0
+    summary = TimingStats().summary()
+    return build_telemetry(
+        loop.core, loop.estimate(), result, vehicles, MOCAP, summary, shell, loop.now_s
     )
+
+
+@pytest.mark.parametrize("setup", ["sim.toml", "sim_tri.toml"])
+def test_a_status_in_flight_survives_the_channel_with_its_plan_and_reference(
+    setup: str, tmp_path: Path
+) -> None:
+    """Hovering on the plant under the MPC (a few ticks of the closed-loop simulator)."""
+    loop = hovering(setup, tmp_path)
+    status = in_flight(loop, loop.decide())
+    n = loop.core.params.n_vehicles
     assert status.mode is Mode.HOVER and status.plan.status is not None
     assert status.plan.thrust_n is not None and len(status.plan.thrust_n) == n
     assert status.reference is not None and len(status.reference.uav_positions) == n
     assert status.bar.error_m is not None and status.bar.error_m < 0.05
+    received = CHANNEL_MESSAGE.validate_json(TelemetryMessage(status=status).model_dump_json())
+    assert isinstance(received, TelemetryMessage) and received.status == status
+    assert status.path is None  # hovering at a setpoint without one
+
+
+def test_a_path_flown_is_in_the_status_with_its_points_and_how_long_since_it_began(
+    tmp_path: Path,
+) -> None:
+    """Hovering on the plant: a path queued is not in the status until it is the active
+    setpoint; then its waypoints, limits and timing, its points every 0.25 s from the bar's
+    hover to its last waypoint (for drawing), and the time since it began, which grows with
+    the ticks. It survives the channel."""
+    loop = hovering("sim.toml", tmp_path)
+
+    def tick() -> FlightStatus:
+        result = loop.decide()
+        loop.apply(result)
+        loop.driver.finish(result)
+        status = in_flight(loop, result)
+        loop.advance_plant(loop.now_s + 0.02)
+        return status
+
+    tick()
+    waypoints = [Waypoint((0.6, 0.0, 1.0)), Waypoint((0.6, 0.5, 1.2), bar_yaw_rad=0.3)]
+    queued = loop.core.queue_path(waypoints, speed_mps=0.4, accel_mps2=0.5, hold_s=1.0)
+    assert queued.path is not None
+    timed = queued.path.timed
+    elapsed = []
+    for _ in range(50):  # 1 s of flight
+        status = tick()
+        assert status.path is not None, "the path is the active setpoint from the first tick"
+        elapsed.append(status.path.elapsed_s)
+    shown = status.path
+    assert shown is not None
+    assert shown.waypoints == [[0.6, 0.0, 1.0], [0.6, 0.5, 1.2]]
+    assert (shown.speed_mps, shown.accel_mps2, shown.jerk_mps3) == (0.4, 0.5, 2.0)
+    assert (shown.length_m, shown.duration_s) == (timed.length_m, timed.duration_s)
+    assert 4.0 < shown.duration_s < 20.0, shown.duration_s
+    every_quarter_second = [*timed.positions_m[:-1:25], timed.positions_m[-1]]  # and its end
+    assert shown.points == np.round(every_quarter_second, 3).tolist()  # to the millimetre
+    assert shown.points[0] == pytest.approx([0.0, 0.0, 1.0], abs=0.01)  # from the hover
+    assert shown.points[-1] == [0.6, 0.5, 1.2]
+    begun = [t for t in elapsed if t is not None]
+    assert begun == sorted(begun) and 0.9 < begun[-1] <= 1.0, elapsed
     received = CHANNEL_MESSAGE.validate_json(TelemetryMessage(status=status).model_dump_json())
     assert isinstance(received, TelemetryMessage) and received.status == status
 

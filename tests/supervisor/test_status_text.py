@@ -63,3 +63,25 @@ def test_how_the_last_flight_ended_is_said() -> None:
     assert "last flight" not in format_status(a_status())
     ended = {"ended_in": "abort", "age_s": 12.4}
     assert "last flight ended in abort 12 s ago" in format_status(a_status(last_flight=ended))
+
+
+def test_a_path_flown_is_said_with_how_far_along_it_is() -> None:
+    path = {
+        "waypoints": [[0.6, 0.0, 1.0], [0.6, 0.5, 1.2]],
+        "speed_mps": 0.4,
+        "accel_mps2": 0.5,
+        "jerk_mps3": 2.0,
+        "length_m": 1.173,
+        "duration_s": 4.75,
+        "elapsed_s": None,
+        "points": [[0.0, 0.0, 1.0], [0.6, 0.5, 1.2]],
+    }
+    assert "path" not in format_status(a_status(mode="tracking"))
+    lines = [
+        format_status(a_status(mode="tracking", path=path | {"elapsed_s": elapsed_s}))
+        for elapsed_s in (None, 2.04, 6.0)
+    ]
+    said = "path 1.17 m through 2 waypoints in 4.8 s: "
+    assert said + "not begun" in lines[0]
+    assert said + "2.0 of 4.8 s" in lines[1]
+    assert said + "flown, its end held" in lines[2]
