@@ -14,6 +14,10 @@ the figures side by side.
   0.4).
 * ``shipped``: issue 33's checks of the shipped settings against those before them.
 * ``move``: a 4 m straight move at 1 m/s and 1 m/s², and at 2 m/s and 2 m/s² (issue 33).
+* ``paths``: the paths of ``configs/scenarios/paths.toml`` — a 4 m straight path at 1 m/s
+  and 1 m/s², a closed path at 2 m/s and 2 m/s², and at 2 m/s and 4 m/s² — without and
+  with the preview (``control.preview``): moving RMSE and overshoot against the timed
+  path (the truth, as ``simulate --json``), and the MPC's solve time per tick.
 * ``noise``: the move and hold of ``offset`` (nominal bar) with the UAVs' body rates
   unfiltered and filtered (``mpc.rate_filter_weight``, controllers/rate_filter.py).
 
@@ -90,11 +94,13 @@ class Recorder:
         self.saturated = 0
         self.errors: list[np.ndarray] = []
         self.inputs: list[np.ndarray] = []
+        self.solve_times_s: list[float] = []
 
     def __call__(self, result: TickResult) -> None:
         if result.plan is None:
             return
         self.mpc_ticks += 1
+        self.solve_times_s.append(result.plan.solve_time_s)
         u = np.asarray(result.record.inputs).reshape(self._params.n_vehicles, -1)
         at_bound = (
             np.any(u[:, 0] <= self._thrust[0] + SATURATION_MARGIN)
@@ -155,6 +161,10 @@ def fly(
         bar_error_std_mm=1e3 * float(np.linalg.norm(errors.std(axis=0))),
         torque_step_median_nm=float(statistics.median(torque_steps.tolist() or [0.0])),
     )
+    paths = result.paths
+    if paths.moving_rmse_m is not None:
+        figures.extra["moving RMSE mm"] = 1e3 * paths.moving_rmse_m
+        figures.extra["overshoot mm"] = 1e3 * (paths.overshoot_m or 0.0)
     return figures, recorder
 
 
@@ -389,6 +399,43 @@ def move_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     return table
 
 
+def paths_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
+    """The shipped ``paths`` scenario's straight and closed paths (the closed one also at
+    4 m/s²), each from hover, without and with the preview."""
+    shipped = load_scenario("paths")
+    straight = shipped.model_copy(update={"step": shipped.step[:1]})
+    hover_at = shipped.step[1].bar_position
+    assert hover_at is not None
+    loop = shipped.step[2]
+    flights = {
+        "4 m line, 1 m/s, 1 m/s²": straight,
+        "loop, 2 m/s, 2 m/s²": shipped.model_copy(
+            update={"start_bar_position": hover_at, "step": [loop]}
+        ),
+        "loop, 2 m/s, 4 m/s²": shipped.model_copy(
+            update={
+                "start_bar_position": hover_at,
+                "step": [loop.model_copy(update={"accel_mps2": 4.0})],
+            }
+        ),
+    }
+    table: dict[str, dict[str, Figures]] = {}
+    for controller in CONTROLLERS:
+        for (name, scenario), preview in itertools.product(flights.items(), (False, True)):
+            label = f"{name}, {'' if preview else 'no '}preview"
+            recorder_figures, recorder = fly(
+                shortened(scenario, seconds),
+                controller,
+                [f"control.preview={str(preview).lower()}"],
+            )
+            solve_ms = 1e3 * np.array(recorder.solve_times_s or [math.nan])
+            recorder_figures.extra["solve p50 ms"] = float(np.median(solve_ms))
+            recorder_figures.extra["solve p99 ms"] = float(np.percentile(solve_ms, 99))
+            table.setdefault(controller, {})[label] = recorder_figures
+            print(f"  flown: {controller}, {label}", file=sys.stderr, flush=True)
+    return table
+
+
 BEFORE_OFFSET_FREE = ["mpc.integral_gain_per_s=0", "mpc.delay_s=0"]
 
 
@@ -444,6 +491,7 @@ CASES = {
     "default": default_case,
     "shipped": shipped_case,
     "move": move_case,
+    "paths": paths_case,
     "push": push_case,
     "combined": combined_case,
     "noise": noise_case,
@@ -456,7 +504,7 @@ CASES = {
 
 def _print(table: dict[str, dict[str, Figures]]) -> None:
     header = (
-        f"{'controller':<14} {'variant':<30} {'done':<5} {'tilt°':>6} {'sat %':>6} "
+        f"{'controller':<14} {'variant':<36} {'done':<5} {'tilt°':>6} {'sat %':>6} "
         f"{'slack':>5} {'err mm':>7} {'|Δτ| N m':>9}  extra / notices"
     )
     print(header)
@@ -465,7 +513,7 @@ def _print(table: dict[str, dict[str, Figures]]) -> None:
             extra = ", ".join(f"{k} {v:.2f}" for k, v in f.extra.items())
             notes = "; ".join(f.notices)[:120]
             print(
-                f"{controller:<14} {label:<30} {'yes' if f.completed else 'NO':<5} "
+                f"{controller:<14} {label:<36} {'yes' if f.completed else 'NO':<5} "
                 f"{f.max_tilt_deg:6.1f} {100 * f.saturated_share:6.2f} {f.slack_events:5d} "
                 f"{f.bar_error_std_mm:7.1f} {f.torque_step_median_nm:9.4f}  "
                 f"{extra} {f.final_mode} {notes}"
