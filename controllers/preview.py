@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -98,8 +99,19 @@ def stage_targets(
 
 def _interpolated(known: Sequence[int], values: FloatArray, stages: FloatArray) -> FloatArray:
     """``values`` (one row per stage in ``known``) interpolated linearly at ``stages``."""
-    columns = [np.interp(stages, known, values[:, j]) for j in range(values.shape[1])]
-    return np.stack(columns, axis=1)
+    weights: FloatArray = _interpolation(tuple(known), tuple(stages.tolist()))
+    return weights @ values
+
+
+@lru_cache(maxsize=8)
+def _interpolation(known: tuple[int, ...], stages: tuple[float, ...]) -> FloatArray:
+    """The matrix (len(stages), len(known)) of linear interpolation from ``known`` to
+    ``stages`` (a tick's horizon asks for the same one every time)."""
+    identity = np.eye(len(known))
+    columns = [np.interp(stages, known, identity[:, j]) for j in range(len(known))]
+    weights = np.stack(columns, axis=1)
+    weights.setflags(write=False)
+    return weights
 
 
 def _consistent_velocities(states: FloatArray, kinematics: Kinematics, dt_s: float) -> FloatArray:

@@ -12,7 +12,6 @@ import signal
 import sys
 from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
@@ -126,6 +125,17 @@ async def reset_and_arm(service: RunningService, http: httpx.AsyncClient) -> tup
     return await cli("arm", "--wait")
 
 
+# A path from the hover back to the start, flown with ``path FILE --wait``.
+BACK = """
+speed_mps = 1.0
+accel_mps2 = 1.0
+
+[[waypoints]]
+bar_position = [0.0, 0.0, 1.0]
+bar_yaw = 0.0
+"""
+
+
 @pytest.mark.slow
 async def test_awaited_commands_and_a_quiet_ctrl_c(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -150,6 +160,13 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
         bar = (await service.status(http)).bar
         assert abs(position_m(bar.position)[0] - 0.3) < 0.1
         assert bar.yaw is not None and abs(bar.yaw - 0.1745) < 0.1
+        back = tmp_path / "back.toml"
+        back.write_text(BACK)
+        status, out, err = await cli("path", str(back), "--wait")
+        assert status == 0 and "path flown, its end reached and held" in out, (out, err)
+        bar = (await service.status(http)).bar
+        assert math.dist(position_m(bar.position), [0.0, 0.0, 1.0]) < 0.1
+        assert bar.yaw is not None and abs(bar.yaw) < 0.1
         status, out, err = await cli("land", "--wait")
         assert status == 0 and "landed and disarmed" in out, err
         assert all_disarmed(await service.status(http))
@@ -191,76 +208,3 @@ async def test_awaited_commands_and_a_quiet_ctrl_c(
     assert "landed: stopping" in said and said.rstrip().endswith("stopped")
     assert "already stopping: landing first" in said and "interrupted" not in said
     assert "Traceback" not in said and "ERROR" not in said, said[-3000:]
-
-
-PATH: dict[str, Any] = {
-    "waypoints": [
-        {"bar_position": [0.6, 0.0, 1.1]},
-        {"bar_position": [0.6, 0.6, 1.3], "bar_yaw": 0.4},
-        {"bar_position": [0.0, 0.6, 1.1]},
-    ],
-    "speed_mps": 0.4,
-    "accel_mps2": 0.5,
-    "hold_s": 1.0,
-}
-BACK = """
-speed_mps = 0.5
-accel_mps2 = 0.5
-
-[[waypoints]]
-bar_position = [0.0, 0.0, 1.0]
-bar_yaw = 0.0
-"""
-
-
-def path_begun_for(seconds: float) -> Callable[[Status], bool]:
-    """The status shows a path begun at least ``seconds`` ago."""
-    return lambda s: s.path is not None and (s.path.elapsed_s or 0.0) > seconds
-
-
-@pytest.mark.slow
-async def test_a_path_over_rest_and_from_the_terminal(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """In a hover, ``POST /api/path``: without the token 401, through a waypoint outside the
-    arena 409 with the reason, nothing queued; one that can be flown is taken, shown in the
-    status (its waypoints and timing, its points from the hover to its end, the time since
-    it began growing) and flown to its end. Then ``path FILE --wait`` flies the bar back
-    and exits 0 once its end has been reached and held."""
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))  # only this serve is found
-    async with running_service(TOKEN, tmp_path) as service, service.client() as http:
-        hover = position_m((await service.take_off(http)).bar.position)
-        async with httpx.AsyncClient(base_url=service.url, timeout=10.0) as anonymous:
-            assert (await anonymous.post("/api/path", json=PATH)).status_code == 401
-        outside = {**PATH, "waypoints": [*PATH["waypoints"], {"bar_position": [0.0, 0.0, 3.5]}]}
-        refused = await http.post("/api/path", json=outside)
-        assert refused.status_code == 409, refused.text
-        assert refused.json()["detail"].startswith(
-            "waypoint 3: bar centre would be at (0.00, 0.00, 3.50) m, outside the arena"
-        )
-        before = await service.status(http)
-        assert before.path is None and before.setpoints.active is None
-
-        response = await http.post("/api/path", json=PATH)
-        assert response.status_code == 200, response.text
-        duration_s = response.json()["duration_s"]
-        shown = (await service.wait_for(http, path_begun_for(1.0), 20.0, "the path")).path
-        assert shown is not None and shown.duration_s == duration_s
-        assert shown.waypoints == [point["bar_position"] for point in PATH["waypoints"]]
-        assert len(shown.points) >= duration_s / 0.25
-        assert math.dist(shown.points[0], hover) < 0.05 and shown.points[-1] == [0.0, 0.6, 1.1]
-        later = (await service.wait_for(http, path_begun_for(2.0), 20.0, "a second more")).path
-        assert later is not None and later.elapsed_s is not None
-        assert shown.elapsed_s is not None and later.elapsed_s > shown.elapsed_s
-        flown = await service.wait_for(http, lambda s: s.path is None, duration_s + 20, "its end")
-        assert math.dist(position_m(flown.bar.position), [0.0, 0.6, 1.1]) < 0.1
-
-        back = tmp_path / "back.toml"
-        back.write_text(BACK)
-        code, out, err = await cli("path", str(back), "--wait")
-        assert code == 0 and "path flown, its end reached and held" in out, (out, err)
-        bar = (await service.status(http)).bar
-        assert math.dist(position_m(bar.position), [0.0, 0.0, 1.0]) < 0.1
-        assert bar.yaw is not None and abs(bar.yaw) < 0.1
-        landed = await http.post("/api/land?wait_s=90", timeout=100.0)
-        assert landed.status_code == 200, landed.text
