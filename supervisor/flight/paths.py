@@ -24,7 +24,7 @@ from supervisor.flight.setpoints import Arena, Setpoint, arena_problem
 from supervisor.flight.waypoint import Waypoint
 
 CHECK_STEP_S = 0.1  # how often along its timing a path is checked like a setpoint,
-MAX_CHECKS = 300  # ... unless that makes more checks than this (~10 ms between ticks)
+MAX_CHECKS = 200  # ... unless that makes more checks than this (~8 ms between ticks)
 
 
 @dataclass(frozen=True)
