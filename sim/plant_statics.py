@@ -45,12 +45,19 @@ def cross_matrix(v: FloatArray) -> FloatArray:
 
 
 def rotation_between(u: FloatArray, v: FloatArray) -> FloatArray:
-    """The smallest rotation taking unit vector ``u`` to unit vector ``v``, shape (3, 3)."""
+    """The smallest rotation taking unit vector ``u`` to unit vector ``v``, shape (3, 3).
+    For opposite vectors every half turn about an axis perpendicular to them is smallest:
+    the one about the vertical where it is perpendicular (a bar turned end for end stays
+    upright), else about the horizontal perpendicular."""
     axis = np.cross(u, v)
     sine = float(np.linalg.norm(axis))
-    if sine < 1e-15:
+    if sine >= 1e-15:
+        return turned(np.eye(3), axis / sine * math.atan2(sine, float(u @ v)))
+    if float(u @ v) > 0.0:
         return np.eye(3)
-    return turned(np.eye(3), axis / sine * math.atan2(sine, float(u @ v)))
+    up = _E_Z if abs(float(u[2])) < 0.9 else np.array([0.0, 1.0, 0.0])
+    perpendicular = up - float(up @ u) * u
+    return turned(np.eye(3), math.pi * perpendicular / float(np.linalg.norm(perpendicular)))
 
 
 def turned(R: FloatArray, rotation_vector_rad: FloatArray) -> FloatArray:

@@ -700,6 +700,31 @@ def test_hanging_state_with_unequal_cables(lengths_m: tuple[float, float], yaw_r
     assert sum(trim.tension_n) == pytest.approx(params.bar.mass_kg * G, rel=1e-6)
 
 
+@pytest.mark.parametrize("com_shift_m", [0.05, -0.05, 0.3])
+def test_a_bar_hangs_under_its_uavs_whatever_its_com(com_shift_m: float) -> None:
+    """Each UAV straight above a bar end, the bar's CoM off its midpoint either way (the
+    plant's mismatch; a shift toward cable 2 makes cable 1's end the farthest from the
+    CoM). The bar hangs level below, upright (the solver used to turn it end for end and
+    find no taut cables), the tensions carry its weight with its moment balanced, and the
+    free system stays put."""
+    params = PlantParams().with_mismatch(MismatchParams((1.0, 1.0), 1.0, com_shift_m))
+    bar = params.bar
+    cable = params.cables[0].length_m
+    positions = [np.array([-bar.d1_m, 0.0, 1.0 + cable]), np.array([bar.d2_m, 0.0, 1.0 + cable])]
+    plant = Plant(params)
+    trim = plant.place_hanging(positions, (0.0, 0.0))
+    rotation = plant.body("bar").rotation
+    assert rotation[:, 0] @ np.array([1.0, 0.0, 0.0]) == pytest.approx(1.0, abs=1e-6)
+    assert rotation[2, 2] == pytest.approx(1.0, abs=1e-6)  # upright
+    assert plant.body("bar").position_m[0] == pytest.approx(0.0, abs=1e-6)
+    tension_1, tension_2 = trim.tension_n
+    assert tension_1 + tension_2 == pytest.approx(bar.mass_kg * G, rel=1e-6)
+    assert tension_1 * bar.d1_m == pytest.approx(tension_2 * bar.d2_m, rel=1e-4)
+    start = plant.get_state()
+    plant.advance(1.0)
+    np.testing.assert_allclose(plant.get_state(), start, atol=1e-8)
+
+
 def test_a_payload_that_cannot_hang_is_refused() -> None:
     params = triangle_plate()
     positions = hover_positions(params)
