@@ -420,10 +420,11 @@ class FlightCore:
             if arena_problem(eq, self.arena) is None:
                 break
             fraction *= 0.5
-        if fraction > 0.0:  # else not even here is inside: the reference stops at once
-            shaper.brake(accel_mps2 / fraction)
         p = np.add(here.payload_position_m, fraction * offset)
-        return replace(here, payload_position_m=(float(p[0]), float(p[1]), float(p[2])))
+        stop = replace(here, payload_position_m=(float(p[0]), float(p[1]), float(p[2])))
+        if fraction > 0.0:  # else not even here is inside: the reference stops at once
+            shaper.brake(accel_mps2 / fraction, stop)
+        return stop
 
     def hand_over_to_px4(self, why: str, now_s: float) -> Notice | None:
         """Airborne, stop commanding: each PX4 lands on its own (the flight process stops

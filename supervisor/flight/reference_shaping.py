@@ -82,7 +82,7 @@ class ReferenceShaper:
         self.limits = limits
         self.feed_acceleration = feed_acceleration
         self._last_s: float | None = None
-        self._braking_mps2: float | None = None
+        self._braking: tuple[float, FormationReference] | None = None  # [m/s²], the stop
 
     def reset(self, reference: FormationReference) -> None:
         """Jump to ``reference`` (when a flight phase starts from where the system is)."""
@@ -102,11 +102,12 @@ class ReferenceShaper:
             payload_position_m=(float(stop[0]), float(stop[1]), float(stop[2])),
         )
 
-    def brake(self, acceleration_mps2: float) -> None:
-        """Until the reference is at rest, allow ``acceleration_mps2`` (if above the
-        limits') and its speed now (if above theirs): a move faster than the limits (a
-        path) is stopped as it was flown, not at the limits' gentler rates."""
-        self._braking_mps2 = acceleration_mps2
+    def brake(self, acceleration_mps2: float, stop: FormationReference) -> None:
+        """While the target is ``stop`` and until the reference rests, allow
+        ``acceleration_mps2`` (if above the limits') and its speed now (if above theirs):
+        a move faster than the limits (a path) is stopped as it was flown, not at the
+        limits' gentler rates. Any other target is flown at the limits."""
+        self._braking = (acceleration_mps2, stop)
 
     def follow(self, reference: FormationReference, now_s: float) -> None:
         """Take ``reference`` as where the reference is at ``now_s`` (a path flies it)."""
@@ -122,14 +123,14 @@ class ReferenceShaper:
         if self.current == target.at_rest():
             return ()
         ahead = ReferenceShaper(self.current, self.limits, self.feed_acceleration)
-        ahead._last_s, ahead._braking_mps2 = now_s, self._braking_mps2
+        ahead._last_s, ahead._braking = now_s, self._braking
         return tuple(ahead.update(target, now_s + k * step_s) for k in range(1, steps + 1))
 
     def update(self, target: FormationReference, now_s: float) -> FormationReference:
         """The reference at ``now_s``, moved toward ``target``."""
         dt = 0.0 if self._last_s is None else max(0.0, now_s - self._last_s)
         self._last_s = now_s
-        c, lim = self.current, self._limits_now()
+        c, lim = self.current, self._limits_now(target)
         position, velocity = _move(
             np.array(c.payload_position_m),
             np.array(c.velocity_mps),
@@ -167,14 +168,15 @@ class ReferenceShaper:
         )
         return self.current
 
-    def _limits_now(self) -> RateLimits:
-        """The limits, raised while braking (``brake``) until the reference rests."""
-        braking = self._braking_mps2
-        if braking is None:
+    def _limits_now(self, target: FormationReference) -> RateLimits:
+        """The limits, raised while braking to ``target`` (``brake``) until the reference
+        rests."""
+        if self._braking is None:
             return self.limits
+        braking, stop = self._braking
         speed = float(np.linalg.norm(self.current.velocity_mps))
-        if speed == 0.0:
-            self._braking_mps2 = None
+        if speed == 0.0 or target != stop:
+            self._braking = None
             return self.limits
         return replace(
             self.limits,

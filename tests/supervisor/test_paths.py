@@ -134,3 +134,22 @@ def test_a_cleared_path_stops_the_bar_where_it_is() -> None:
     assert np.median(-np.diff(speeds)[: speeds.index(0.0) - 1]) / DT_S == pytest.approx(1.0)
     assert max(-np.diff(speeds)) / DT_S <= 1.5
     assert speeds.index(0.0) * DT_S < 1.5
+
+
+def test_braking_ends_when_the_target_changes() -> None:
+    """A cleared path's braking is allowed the path's acceleration and speed only toward
+    its stop: a setpoint queued during it is flown at the flight rates."""
+    limits = RateLimits(position_mps=0.3, acceleration_mps2=0.3)
+    moving = FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0), 0.0, (1.0, 0.0, 0.0))
+    shaper = ReferenceShaper(moving, limits)
+    shaper.follow(moving, 0.0)
+    stop = shaper.stopping_point(1.0)
+    assert stop.payload_position_m[0] == pytest.approx(0.5)
+    shaper.brake(1.0, stop)
+    braked = shaper.update(stop, DT_S)
+    assert 1.0 - 1.0 * DT_S - 1e-9 <= braked.velocity_mps[0] < 1.0  # at most 1 m/s²
+    elsewhere = FormationReference((3.0, 0.0, 1.0), 0.0, (0.0, 0.0))
+    speeds = [shaper.update(elsewhere, DT_S * k).velocity_mps[0] for k in range(2, 200)]
+    steps = -np.diff([braked.velocity_mps[0], *speeds])
+    assert steps.max() <= 0.3 * DT_S + 1e-12  # the flight rates' 0.3 m/s², not 1 m/s²
+    assert speeds[-1] == pytest.approx(0.3)
