@@ -27,7 +27,7 @@ the centralized MPC plans the whole 12 + 12N-state, the decentralized one runs N
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from enum import Enum
 
@@ -47,7 +47,7 @@ from controllers.formation_params import FormationParams
 from controllers.linearization import discretize, formation_jacobians, payload_jacobians
 from controllers.model import PayloadModel
 from controllers.params import Clock, MpcSettings, ReferenceLead, StateBound
-from controllers.preview import Kinematics, moved_like, sampled_stages, stage_targets
+from controllers.preview import Kinematics, Preview, moved_like, stage_targets
 from controllers.qp.base import OcpQp, QpBackend, QpStatus
 from controllers.qp.registry import make_backend
 from controllers.vectors import cross3, rotate_zyx
@@ -433,10 +433,10 @@ class CentralizedMpc:
         state: FloatArray,
         reference: FormationReference,
         now_s: float,
-        preview: Sequence[FormationReference] = (),
+        preview: Preview | None = None,
     ) -> Plan:
         """One tick: u* for ``state`` (12 + 12N,, paper order) tracking ``reference`` now
-        and, when given, ``preview``'s references at the stages 1 … N ahead."""
+        and, when given, ``preview``'s references at the stages ahead."""
         started = self._clock()
         try:
             eq = formation_equilibrium(self.params, reference)
@@ -484,17 +484,17 @@ class CentralizedMpc:
         x_eq: FloatArray,
         u_eq: FloatArray,
         reference: FormationReference,
-        preview: Sequence[FormationReference],
+        preview: Preview | None,
     ) -> tuple[FloatArray, FloatArray] | None:
         if not preview:
             return None
-        sampled = _sampled_equilibria(self.params, preview)
+        sampled = _stage_equilibria(self.params, preview)
         return stage_targets(
             x_eq,
             u_eq,
             reference,
             {k: (e.x, e.u) for k, e in sampled.items()},
-            len(preview),
+            self.settings.horizon,
             self._kinematics,
             self.settings.dt_s,
         )
@@ -503,14 +503,11 @@ class CentralizedMpc:
         return _empty_plan(self._layout.n_states, self._layout.n_inputs, self.settings, now_s)
 
 
-def _sampled_equilibria(
-    params: FormationParams, preview: Sequence[FormationReference]
-) -> dict[int, FormationEquilibrium]:
-    """The equilibria of the preview's stages ``sampled_stages`` picks (stage k is
-    ``preview[k - 1]``)."""
+def _stage_equilibria(params: FormationParams, preview: Preview) -> dict[int, FormationEquilibrium]:
+    """The equilibrium of each stage's reference in ``preview``."""
     return {
-        k: formation_equilibrium(params, preview[k - 1], remember=False)
-        for k in sampled_stages(len(preview))
+        k: formation_equilibrium(params, reference, remember=False)
+        for k, reference in preview.items()
     }
 
 
@@ -585,6 +582,8 @@ class _Agent:
         self._jacobians = NumericFunction(jacobians)
         self.mpc = LinearMpc(AGENT_STATES, AGENT_INPUTS, settings, a_pattern, b_pattern, backend)
         self.u_lb, self.u_ub = _input_bounds(settings, 1)
+        self.kinematics = Kinematics(((P_I, V_I), (P_P, V_P)), ((PAYLOAD_YAW, i),))
+        """Where x_i keeps its bodies' motion (``controllers.preview``)."""
 
     def external_force(self, lin: AgentEquilibrium) -> FloatArray:
         """f_ext [N] that makes ``lin`` a fixed point of this agent's model (accelerating
@@ -656,20 +655,20 @@ class DecentralizedMpc:
         self,
         eq: FormationEquilibrium,
         reference: FormationReference,
-        preview: Sequence[FormationReference],
+        preview: Preview | None,
     ) -> list[tuple[FloatArray, FloatArray] | None]:
         """Each agent's per-stage targets from ``preview`` (None each without one)."""
         if not preview:
             return [None] * len(self.agents)
-        sampled = _sampled_equilibria(self.params, preview)
+        sampled = _stage_equilibria(self.params, preview)
         return [
             stage_targets(
                 eq.agent_state(agent.i),
                 eq.agent_input(agent.i),
                 reference,
                 {k: (e.agent_state(agent.i), e.agent_input(agent.i)) for k, e in sampled.items()},
-                len(preview),
-                Kinematics(((P_I, V_I), (P_P, V_P)), ((PAYLOAD_YAW, agent.i),)),
+                self.settings.horizon,
+                agent.kinematics,
                 self.settings.dt_s,
             )
             for agent in self.agents
@@ -699,15 +698,15 @@ class DecentralizedMpc:
         state: FloatArray,
         reference: FormationReference,
         now_s: float,
-        preview: Sequence[FormationReference] = (),
+        preview: Preview | None = None,
     ) -> Plan:
         """One tick for every agent; ``state`` is the formation's (each agent takes its
         part). The agents regulate to ``reference`` moved by the settings'
         ``reference_lead`` and, when given, track ``preview``'s references at the stages
-        1 … N ahead (moved the same way)."""
+        ahead (moved the same way)."""
         started = self._clock()
         led = led_reference(reference, state, self.settings.reference_lead)
-        preview = moved_like(preview, reference, led)
+        preview = moved_like(preview, reference, led) if preview else None
         reference = led
         try:
             eq = formation_equilibrium(self.params, reference)

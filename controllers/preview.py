@@ -25,6 +25,9 @@ import numpy as np
 from controllers.formation_equilibria import FormationReference
 from geometry.arrays import FloatArray
 
+Preview = Mapping[int, FormationReference]
+"""The reference at some of the stages k = 1 … N ahead (``sampled_stages``), N among them."""
+
 # The equilibrium of every fifth stage: their departure from the reference carried on is
 # smooth over a few stages (100 ms), and a tick need not compute thirty equilibria. Every
 # stage's (stride 1) and every fifth's flew the paper's sequence and the benchmarks' paths
@@ -131,23 +134,19 @@ def _consistent_velocities(states: FloatArray, kinematics: Kinematics, dt_s: flo
     return out
 
 
-def moved_like(
-    preview: Sequence[FormationReference], before: FormationReference, after: FormationReference
-) -> tuple[FormationReference, ...]:
+def moved_like(preview: Preview, before: FormationReference, after: FormationReference) -> Preview:
     """``preview`` moved as ``before`` was to give ``after`` (the integral's or the
     reference lead's shift of position and payload yaw)."""
     offset = np.subtract(after.payload_position_m, before.payload_position_m)
     turn = after.payload_yaw_rad - before.payload_yaw_rad
     if not offset.any() and turn == 0.0:
-        return tuple(preview)
-    moved = []
-    for stage in preview:
+        return preview
+    moved = {}
+    for k, stage in preview.items():
         x, y, z = np.add(stage.payload_position_m, offset)
-        moved.append(
-            replace(
-                stage,
-                payload_position_m=(float(x), float(y), float(z)),
-                payload_yaw_rad=stage.payload_yaw_rad + turn,
-            )
+        moved[k] = replace(
+            stage,
+            payload_position_m=(float(x), float(y), float(z)),
+            payload_yaw_rad=stage.payload_yaw_rad + turn,
         )
-    return tuple(moved)
+    return moved

@@ -24,7 +24,7 @@ from controllers.formation_params import FormationParams
 from controllers.integral_action import ReferenceIntegrator
 from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
 from controllers.params import Clock, MpcSettings
-from controllers.preview import moved_like
+from controllers.preview import Preview, moved_like, sampled_stages
 from controllers.rate_filter import RateCrossover, RateFilter
 from controllers.uav_pd import UavPdGains, uav_pd_control
 from geometry.arrays import FloatArray
@@ -782,7 +782,7 @@ class FlightCore:
         now_s: float,
         x: FloatArray,
         reference: FormationReference,
-        preview: Sequence[FormationReference] = (),
+        preview: Preview | None = None,
     ) -> tuple[tuple[UavCommand, ...], Plan]:
         controller = self.controllers[self.controller]
         # The estimate is the state the mocap latency ago; the MPC plans from now on.
@@ -796,7 +796,7 @@ class FlightCore:
             self._rate_crossover.reset()
             self._mpc_state = x
         shifted = self._integral.shifted(reference, x, now_s)
-        ahead = moved_like(preview, reference, shifted)
+        ahead = moved_like(preview, reference, shifted) if preview else None
         plan = controller.step(self._mpc_state, shifted, now_s, ahead)
         self._mpc_reference = shifted
         self.mpc_was_prepared = controller.last_step_was_prepared
@@ -893,15 +893,16 @@ class FlightCore:
             reference, preview = along
         else:
             reference = self._shaper.update(target, now_s)
-            preview = self._shaper.preview(target, now_s, stages, dt_s) if stages else ()
-        commands, plan = self._mpc(now_s, x, reference, preview if stages else ())
+            preview = self._shaper.preview(target, now_s, stages, dt_s)
+        commands, plan = self._mpc(now_s, x, reference, preview)
         return commands, plan, reference
 
-    def _horizon(self) -> tuple[int, float]:
-        """How many stages ahead the MPC is given the reference (0: the preview is off),
-        and its step [s]."""
+    def _horizon(self) -> tuple[tuple[int, ...], float]:
+        """The stages ahead at which the MPC is given the reference (none: the preview is
+        off), and its step [s]."""
         settings = self.controllers[self.controller].settings
-        return (settings.horizon if self.settings.preview else 0), settings.dt_s
+        stages = sampled_stages(settings.horizon) if self.settings.preview else ()
+        return stages, settings.dt_s
 
     def _land(
         self, now_s: float, estimate: Estimate, events: list[Event]

@@ -136,9 +136,9 @@ class PathRunner:
         setpoint: Setpoint | None,
         shaper: ReferenceShaper,
         now_s: float,
-        stages: int,
+        stages: Sequence[int],
         dt_s: float,
-    ) -> tuple[FormationReference, tuple[FormationReference, ...]] | None:
+    ) -> tuple[FormationReference, dict[int, FormationReference]] | None:
         """The reference now and at ``stages`` steps of ``dt_s`` ahead while ``setpoint``'s
         path is flown; None once it is (or without one: the shaper flies the setpoint)."""
         if setpoint is None or setpoint.path is None:
@@ -158,7 +158,5 @@ class PathRunner:
             return None
         reference = plan.reference(t_s, self.feed_acceleration)
         shaper.follow(reference, now_s)
-        ahead = tuple(
-            plan.reference(t_s + k * dt_s, self.feed_acceleration) for k in range(1, stages + 1)
-        )
+        ahead = {k: plan.reference(t_s + k * dt_s, self.feed_acceleration) for k in stages}
         return reference, ahead

@@ -6,6 +6,7 @@ carries its velocity, turn rates and cone-angle rate so the MPC regulates to a m
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -115,16 +116,23 @@ class ReferenceShaper:
         self._last_s = now_s
 
     def preview(
-        self, target: FormationReference, now_s: float, steps: int, step_s: float
-    ) -> tuple[FormationReference, ...]:
-        """The references ``steps`` steps of ``step_s`` after ``now_s`` (the MPC's stages
-        ahead), were the target to stay ``target``; this shaper is left as it is. Empty
-        when the reference rests on the target: every stage would be the reference."""
-        if self.current == target.at_rest():
-            return ()
+        self, target: FormationReference, now_s: float, stages: Sequence[int], step_s: float
+    ) -> dict[int, FormationReference]:
+        """The references at ``stages`` steps of ``step_s`` after ``now_s`` (the MPC's
+        stages ahead), were the target to stay ``target``; this shaper is left as it is.
+        Empty when the reference rests on the target: every stage would be the
+        reference."""
+        if not stages or self.current == target.at_rest():
+            return {}
         ahead = ReferenceShaper(self.current, self.limits, self.feed_acceleration)
         ahead._last_s, ahead._braking = now_s, self._braking
-        return tuple(ahead.update(target, now_s + k * step_s) for k in range(1, steps + 1))
+        wanted = set(stages)
+        references = {}
+        for k in range(1, max(stages) + 1):
+            reference = ahead.update(target, now_s + k * step_s)
+            if k in wanted:
+                references[k] = reference
+        return references
 
     def update(self, target: FormationReference, now_s: float) -> FormationReference:
         """The reference at ``now_s``, moved toward ``target``."""

@@ -13,7 +13,7 @@ from controllers.formation_equilibria import FormationReference, formation_equil
 from controllers.formation_params import FormationParams
 from controllers.mpc import CentralizedMpc, DecentralizedMpc
 from controllers.params import MpcSettings, ReferenceLead
-from controllers.preview import Kinematics, carried_on, moved_like, stage_targets
+from controllers.preview import Kinematics, carried_on, moved_like, sampled_stages, stage_targets
 from geometry.state import P_B, P_I, PAYLOAD_YAW, V_B
 from supervisor.app.config import load_config
 from tests.conftest import CONFIGS
@@ -129,11 +129,11 @@ def test_a_stop_ahead_becomes_targets_whose_velocities_agree_with_their_position
 def test_a_preview_moves_with_the_reference() -> None:
     before = FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))
     after = dataclasses.replace(before, payload_position_m=(0.1, -0.2, 1.0), payload_yaw_rad=0.05)
-    preview = [dataclasses.replace(before, payload_position_m=(0.5, 0.0, 1.0))]
-    (moved,) = moved_like(preview, before, after)
+    preview = {30: dataclasses.replace(before, payload_position_m=(0.5, 0.0, 1.0))}
+    moved = moved_like(preview, before, after)[30]
     assert moved.payload_position_m == pytest.approx((0.6, -0.2, 1.0))
     assert moved.payload_yaw_rad == pytest.approx(0.05)
-    assert moved_like(preview, before, before) == tuple(preview)
+    assert moved_like(preview, before, before) == preview
 
 
 def mpc_settings(controller: str) -> MpcSettings:
@@ -150,7 +150,7 @@ def test_a_preview_of_the_reference_carried_on_changes_no_input(
     without = make(lab_params, mpc_settings(controller), clock=time.perf_counter)
     state = formation_equilibrium(lab_params, ACCELERATING).x
     state[P_B] += (0.05, -0.03, 0.02)  # something to correct
-    preview = [moving(ACCELERATING, k * DT_S) for k in range(1, HORIZON + 1)]
+    preview = {k: moving(ACCELERATING, k * DT_S) for k in sampled_stages(HORIZON)}
     planned = with_preview.step(state, ACCELERATING, 0.0, preview)
     plain = without.step(state, ACCELERATING, 0.0)
     np.testing.assert_allclose(planned.u, plain.u, atol=1e-7)
@@ -165,7 +165,7 @@ def test_with_a_preview_the_plan_moves_before_the_reference_does(
     make = CentralizedMpc if controller == "centralized" else DecentralizedMpc
     here = FormationReference((0.0, 0.0, 1.0), 0.0, (0.0, 0.0))
     there = dataclasses.replace(here, payload_position_m=(0.3, 0.0, 1.0))
-    preview = [here] * 9 + [there] * (HORIZON - 9)
+    preview = {k: here if k < 10 else there for k in sampled_stages(HORIZON)}
     state = formation_equilibrium(lab_params, here).x
     mpc = make(lab_params, mpc_settings(controller), clock=time.perf_counter)
     ahead = mpc.step(state, here, 0.0, preview)
