@@ -135,13 +135,22 @@ def arena_problem(eq: FormationEquilibrium, arena: Arena) -> str | None:
         **{f"UAV {i}": eq.uav_position(i) for i in vehicles},
     }
     for name, point in points.items():
-        if not arena.contains(point):
-            where = ", ".join(f"{v:.2f}" for v in point)
-            return (
-                f"{name} would be at ({where}) m, outside the arena "
-                f"{list(arena.min_m)}..{list(arena.max_m)} with a {arena.margin_m} m margin"
-            )
+        outside = point_outside(name, point, arena)
+        if outside is not None:
+            return outside
     return None
+
+
+def point_outside(name: str, point: np.ndarray, arena: Arena) -> str | None:
+    """That ``name`` at ``point`` [m] would be outside ``arena`` with its margin, and
+    where (None: inside)."""
+    if arena.contains(point):
+        return None
+    where = ", ".join(f"{v:.2f}" for v in point)
+    return (
+        f"{name} would be at ({where}) m, outside the arena "
+        f"{list(arena.min_m)}..{list(arena.max_m)} with a {arena.margin_m} m margin"
+    )
 
 
 def validate_setpoints(

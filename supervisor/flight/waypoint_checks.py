@@ -16,7 +16,13 @@ import numpy as np
 
 from controllers.formation_params import FormationParams
 from supervisor.flight.feasibility import SetpointBounds
-from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
+from supervisor.flight.setpoints import (
+    Arena,
+    Setpoint,
+    SetpointError,
+    point_outside,
+    validate_setpoint,
+)
 from supervisor.flight.waypoint import Waypoint
 
 
@@ -33,19 +39,11 @@ def validate_waypoints(
         theta_l_rad = point.theta_l_rad if point.theta_l_rad is not None else theta_l_rad
         try:
             if yaw_rad is None or theta_l_rad is None:
-                _check_centre(point, arena)
+                outside = point_outside("bar centre", np.asarray(point.bar_position_m), arena)
+                if outside is not None:
+                    raise SetpointError(outside)
             else:
                 setpoint = Setpoint(point.bar_position_m, yaw_rad, None, theta_l_rad, hold_s=0.0)
                 validate_setpoint(setpoint, params, arena, bounds)
         except SetpointError as error:
             raise SetpointError(f"waypoint {index}: {error}") from None
-
-
-def _check_centre(point: Waypoint, arena: Arena) -> None:
-    """Raise ``SetpointError`` when the bar's centre at ``point`` is outside ``arena``."""
-    if not arena.contains(np.asarray(point.bar_position_m)):
-        where = ", ".join(f"{v:.2f}" for v in point.bar_position_m)
-        raise SetpointError(
-            f"bar centre would be at ({where}) m, outside the arena "
-            f"{list(arena.min_m)}..{list(arena.max_m)} with a {arena.margin_m} m margin"
-        )

@@ -20,13 +20,12 @@ class PathTracking:
     def __init__(self) -> None:
         self._squared_errors_m2: list[float] = []
         self._overshoot_m: float | None = None
-        self._last: PathPlan | None = None
+        self._ending: tuple[PathPlan, FloatArray] | None = None  # a path and its last direction
 
     def update(self, progress: tuple[PathPlan, float] | None, bar_position_m: FloatArray) -> None:
         """``progress``: the path flown now (or last) and the time since it began, as
         ``FlightCore.path_progress`` gives it; ``bar_position_m`` the bar's true centre."""
         if progress is None:
-            self._last = None
             return
         plan, t_s = progress
         timed = plan.timed
@@ -35,9 +34,10 @@ class PathTracking:
             if float(np.linalg.norm(sample.velocity_mps)) > _MOVING_MPS:
                 error = bar_position_m - sample.position_m
                 self._squared_errors_m2.append(float(error @ error))
-            self._last = plan
             return
-        past = float((bar_position_m - timed.positions_m[-1]) @ _final_direction(plan))
+        if self._ending is None or self._ending[0] is not plan:
+            self._ending = plan, _final_direction(plan)
+        past = float((bar_position_m - timed.positions_m[-1]) @ self._ending[1])
         self._overshoot_m = max(self._overshoot_m or 0.0, past)
 
     @property

@@ -54,6 +54,7 @@ from supervisor.app.sim_assembly import plant_params_from_config
 from supervisor.flight.operator_requests import MAX_WAYPOINTS_PER_PATH
 from supervisor.flight.setpoints import Arena, Setpoint, SetpointError, validate_setpoint
 from supervisor.flight.waypoint import Waypoint
+from supervisor.flight.waypoint_checks import validate_waypoints
 
 
 class _Strict(BaseModel):
@@ -266,14 +267,11 @@ def check_setpoints(scenario: Scenario, config: Config) -> None:
     for number, step in enumerate(scenario.step, start=1):
         if step.action is not None:
             continue
-        points = (
-            [step.setpoint()]
-            if step.path is None
-            else [Setpoint(w.bar_position_m, w.bar_yaw_rad or 0.0) for w in step.waypoints()]
-        )
         try:
-            for point in points:
-                validate_setpoint(point, params, arena, bounds)
+            if step.path is None:
+                validate_setpoint(step.setpoint(), params, arena, bounds)
+            else:
+                validate_waypoints(step.waypoints(), params, arena, bounds)
         except SetpointError as error:
             raise ConfigError(
                 f"scenario {scenario.name}, step {number}: cannot be flown in setup "

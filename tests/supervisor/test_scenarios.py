@@ -99,6 +99,17 @@ def test_a_scenario_with_a_setpoint_no_vehicle_can_hold_is_refused_before_it_fli
         run_scenario(config, load_scenario(str(path)))
 
 
+def test_a_path_step_is_checked_at_its_own_theta_l_before_it_flies(tmp_path: Path) -> None:
+    path = tmp_path / "steep_path.toml"
+    path.write_text(
+        'name = "steep path"\nstart = "hover"\n[[step]]\npath = [[0.5, 0, 1.2], [0.5, 0.5, 1.2]]\n'
+        "speed_mps = 1\naccel_mps2 = 1\ntheta_l_deg = 86\n"
+    )
+    refusal = r"step 1: .*waypoint 0: θ_l 86\.0° exceeds the maximum 75\.0°"
+    with pytest.raises(ConfigError, match=refusal):
+        run_scenario(load_config(CONFIGS / "sim.toml"), load_scenario(str(path)))
+
+
 def test_simulate_refuses_a_scenario_beyond_the_setup_s_thrust_naming_it(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
