@@ -60,6 +60,8 @@ LEAD = "mpc.decentralized.reference_lead_s=[0.6, 0.2]"
 SATURATION_MARGIN = 1e-6
 TICK_S = 0.02
 INTEGRAL_GAIN = 0.4
+# The cases about the integral action measure it alone, without the force observer.
+OBSERVER_OFF = "mpc.force_observer_s=0"
 
 
 @dataclass
@@ -196,6 +198,7 @@ def latency_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
 
 
 STEADY_S = 5.0
+SETTLE_S = 10.0  # a flight's first seconds left out of its settled mean
 HELD = {
     "name": "held setpoint",
     "start": "hover",
@@ -210,11 +213,12 @@ def offset_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     scenario = shortened(_scenario(HELD), seconds)
     heavy, integral = "sim.bar_mass_scale=1.5", f"mpc.integral_gain_per_s={INTEGRAL_GAIN}"
     variants = {
-        "nominal bar": [],
+        "nominal bar": ["mpc.integral_gain_per_s=0"],
         "nominal bar, integral": [integral],
-        "bar +50 %": [heavy],
+        "bar +50 %": [heavy, "mpc.integral_gain_per_s=0"],
         "bar +50 %, integral": [heavy, integral],
     }
+    variants = {label: [*settings, OBSERVER_OFF] for label, settings in variants.items()}
     return _flights(scenario, variants)
 
 
@@ -222,7 +226,10 @@ def paper_integral_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     """The paper's sequence, nominal, without and with the integral action: is tracking
     worse with it?"""
     scenario = shortened(load_scenario("paper"), seconds)
-    variants = {"nominal": [], "integral": [f"mpc.integral_gain_per_s={INTEGRAL_GAIN}"]}
+    variants = {
+        "nominal": ["mpc.integral_gain_per_s=0", OBSERVER_OFF],
+        "integral": [f"mpc.integral_gain_per_s={INTEGRAL_GAIN}", OBSERVER_OFF],
+    }
     return _flights(scenario, variants)
 
 
@@ -320,8 +327,8 @@ def default_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
 
 def push_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     """From hover, a steady 1 N push along x on the bar from 2 s on, the setpoint held 30 s
-    (``steady mm``: the bar's mean position error over the last 5 s), without and with the
-    integral action."""
+    (``steady mm``: the bar's mean position error over the last 5 s), with neither remedy,
+    the integral action alone, and the force observer (as shipped)."""
     scenario = _scenario(
         {
             "name": "push 1 N",
@@ -330,7 +337,11 @@ def push_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
             "step": [{"action": "hover", "hold_s": 30.0}],
         }
     )
-    variants = {"no integral": [], "integral": [f"mpc.integral_gain_per_s={INTEGRAL_GAIN}"]}
+    variants = {
+        "neither": ["mpc.integral_gain_per_s=0", OBSERVER_OFF],
+        "integral": [f"mpc.integral_gain_per_s={INTEGRAL_GAIN}", OBSERVER_OFF],
+        "force observer": [],
+    }
     return _flights(shortened(scenario, seconds), variants)
 
 
@@ -436,32 +447,51 @@ def paths_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     return table
 
 
-BEFORE_OFFSET_FREE = ["mpc.integral_gain_per_s=0", "mpc.delay_s=0"]
+BEFORE_OFFSET_FREE = ["mpc.integral_gain_per_s=0", "mpc.delay_s=0", "mpc.force_observer_s=0"]
 
 
 def shipped_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
     """Issue 33's checks of the shipped settings, against the settings before them (no
-    integral, no delay compensation) in the same run: the paper's sequence nominal and
-    with 45 ms of mocap latency, a bar 50 % heavier hovering 120 s, a 1 N push on the bar
-    held 30 s, and the paper's sequence with the bar's CoM 5 cm off. ``RMS mm``: the bar's
-    3D error RMS; ``mean mm``: the norm of its mean; ``x std mm`` as in ``default``."""
+    integral, no delay compensation, no force observer) in the same run: the paper's
+    sequence nominal and with 45 ms of mocap latency, a bar 50 % heavier hovering 120 s,
+    steady pushes of 1 N and 3 N on the bar held 30 s, a 2 m/s wind with gusts (std 0.5 m/s
+    across, 0.2 m/s up; drag 0.3 N s/m on every body) for 60 s, UAV 1 20 % heavier than
+    configured for 30 s, and the paper's sequence with the bar's CoM 5 cm off. ``RMS mm``:
+    the bar's 3D error RMS; ``mean mm``: the norm of its mean; ``settled mm``: the norm of
+    its mean from 10 s on; ``x std mm`` as in ``default``."""
     hover = {
         "name": "hover 120 s",
         "start": "hover",
         "step": [{"action": "hover", "hold_s": 120.0}],
     }
-    push = {
-        "name": "push 1 N",
-        "start": "hover",
-        "load": [{"body": "bar", "force_n": [1.0, 0.0, 0.0], "start_s": 2.0}],
-        "step": [{"action": "hover", "hold_s": 30.0}],
-    }
+
+    def push(force_n: float) -> Scenario:
+        return _scenario(
+            {
+                "name": f"push {force_n:g} N",
+                "start": "hover",
+                "load": [{"body": "bar", "force_n": [force_n, 0.0, 0.0], "start_s": 2.0}],
+                "step": [{"action": "hover", "hold_s": 30.0}],
+            }
+        )
+
+    def hovering(seconds: float) -> Scenario:
+        return _scenario({**hover, "step": [{"action": "hover", "hold_s": seconds}]})
+
+    wind = [
+        "sim.drag_linear_n_s_per_m=0.3",
+        "sim.wind_mean_mps=[2, 0, 0]",
+        "sim.wind_gust_std_mps=[0.5, 0.5, 0.2]",
+    ]
     paper = load_scenario("paper")
     flights = {
         "paper's sequence": (paper, []),
         "paper's, 45 ms latency": (paper, ["sim.mocap.latency_s=0.045"]),
         "bar +50 %, 120 s hover": (_scenario(hover), ["sim.bar_mass_scale=1.5"]),
-        "1 N push, 30 s": (_scenario(push), []),
+        "1 N push, 30 s": (push(1.0), []),
+        "3 N push, 30 s": (push(3.0), []),
+        "2 m/s wind, gusts, 60 s": (hovering(60.0), wind),
+        "UAV 1 +20 %, 30 s hover": (hovering(30.0), ["sim.uav_mass_scale=[1.2, 1.0]"]),
         "paper's sequence, CoM 5 cm off": (paper, ["sim.bar_com_shift_m=0.05"]),
     }
     table: dict[str, dict[str, Figures]] = {}
@@ -477,6 +507,8 @@ def shipped_case(seconds: float | None) -> dict[str, dict[str, Figures]]:
                 figures.extra["mean mm"] = 1e3 * float(np.linalg.norm(errors.mean(axis=0)))
                 steady = errors[-round(STEADY_S / TICK_S) :]
                 figures.extra["steady mm"] = 1e3 * float(np.linalg.norm(steady.mean(axis=0)))
+                settled = errors[round(SETTLE_S / TICK_S) :]
+                figures.extra["settled mm"] = 1e3 * float(np.linalg.norm(settled.mean(axis=0)))
                 table.setdefault(controller, {})[f"{label}, {variant}"] = figures
                 print(f"  flown: {controller}, {label}, {variant}", file=sys.stderr, flush=True)
     return table

@@ -9,7 +9,9 @@ prediction from the delayed state answers motions that are ``delay_s`` old: from
 ``DelayPredictor`` keeps the inputs sent and their times, and integrates the controllers'
 nonlinear model (``controllers.formation_model``; (5)–(8) for the bar) from the estimate,
 taken as the state ``delay_s`` ago, across the delay with the inputs that were in force
-then (zero-order hold, RK4). Time is an argument; it holds no clock.
+then (zero-order hold, RK4), under the external forces ``forces`` (zero until the
+disturbance-force observer sets them, ``controllers.force_observer``). Time is an
+argument; it holds no clock.
 """
 
 from __future__ import annotations
@@ -32,16 +34,20 @@ MAX_STEP_S = 0.005
 
 
 def _rk4_step(model: FormationModel) -> ca.Function:
-    """``(x, u, h) -> x(t + h)``: one classical RK4 step of the formation's model."""
+    """``(x, u, d, h) -> x(t + h)``: one classical RK4 step of the formation's model under
+    the external forces d."""
     x = ca.SX.sym("x", model.layout.n_states)
     u = ca.SX.sym("u", model.layout.n_inputs)
+    d = ca.SX.sym("d", model.n_forces)
     h = ca.SX.sym("h")
-    f = model.dynamics
-    k1 = f(x, u)
-    k2 = f(x + h / 2 * k1, u)
-    k3 = f(x + h / 2 * k2, u)
-    k4 = f(x + h * k3, u)
-    return ca.Function("formation_rk4", [x, u, h], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+    f = model.forced_dynamics
+    k1 = f(x, u, d)
+    k2 = f(x + h / 2 * k1, u, d)
+    k3 = f(x + h / 2 * k2, u, d)
+    k4 = f(x + h * k3, u, d)
+    return ca.Function(
+        "formation_rk4_forced", [x, u, d, h], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)]
+    )
 
 
 # How long inputs are kept beyond the delay: what ``advance`` may integrate over behind
@@ -63,7 +69,10 @@ class DelayPredictor:
             raise ValueError(f"the delay to predict across must be finite and >= 0, got {delay_s}")
         self.delay_s = delay_s
         self.layout = params.layout
-        self._step = NumericFunction(_rk4_step(FormationModel(params)))
+        model = FormationModel(params)
+        self._step = NumericFunction(_rk4_step(model))
+        self.forces: FloatArray = np.zeros(model.n_forces)
+        """d = (f_b, τ_b, f_1, …, f_N): the external loads the model carries."""
         self._sent: deque[tuple[float, FloatArray]] = deque()
 
     def reset(self) -> None:
@@ -108,7 +117,7 @@ class DelayPredictor:
             substeps = max(1, math.ceil(span / MAX_STEP_S - 1e-9))
             h = span / substeps
             for _ in range(substeps):
-                state = self._step(state, u, np.array([h]))[0].ravel().copy()
+                state = self._step(state, u, self.forces, np.array([h]))[0].ravel().copy()
             t = end
         if not np.all(np.isfinite(state)):
             return np.array(x, dtype=float)

@@ -99,15 +99,53 @@ class FormationLimits:
 
 
 @dataclass(frozen=True)
+class ExternalForces:
+    """Constant external loads in the world frame: the force ``payload_n`` [N] at the
+    payload's CoM and the torque ``payload_torque_nm`` [N m] on it, ``uavs_n[i-1]`` [N] on
+    UAV i (empty: none on any UAV). What the disturbance-force observer estimates
+    (``controllers.force_observer``); hashable, so that equilibria under the same loads
+    are computed once a tick."""
+
+    payload_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    payload_torque_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    uavs_n: tuple[tuple[float, float, float], ...] = ()
+
+    @classmethod
+    def from_vector(cls, d: FloatArray) -> ExternalForces:
+        """From d = (f_b, τ_b, f_1, …, f_N) (6 + 3N,), ``FormationModel.forced_dynamics``'s."""
+        values = [float(v) for v in d]
+        triples = [(values[k], values[k + 1], values[k + 2]) for k in range(0, len(values), 3)]
+        return cls(triples[0], triples[1], tuple(triples[2:]))
+
+    def vector(self, n_vehicles: int) -> FloatArray:
+        """d = (f_b, τ_b, f_1, …, f_N) (6 + 3N,)."""
+        d = np.zeros(6 + 3 * n_vehicles)
+        d[0:3] = self.payload_n
+        d[3:6] = self.payload_torque_nm
+        for i, force in enumerate(self.uavs_n):
+            d[6 + 3 * i : 9 + 3 * i] = force
+        return d
+
+    def on_uav(self, k: int) -> tuple[float, float, float]:
+        """The force on UAV ``k + 1``."""
+        return self.uavs_n[k] if self.uavs_n else (0.0, 0.0, 0.0)
+
+
+NO_FORCES = ExternalForces()
+
+
+@dataclass(frozen=True)
 class FormationEquilibrium:
     """A fixed point of ``FormationModel`` and what it implies, per cable/UAV i = 1..N.
 
     ``x`` (12 + 12N,) and ``u`` (4N,) as in ``geometry.formation``; ``cable_angles_rad``
     from the vertical; ``tilts_rad`` of each UAV's thrust from the vertical;
-    ``attachments_m`` the world positions e_i; ``payload_force_n[i-1]`` the horizontal
-    pull of the rest of the payload on attachment i (−H_i, the decentralized model's
-    ``f_ext``); ``payload_mass_share_kg[i-1]`` = V_i / g, the vertical load of cable i
-    (the generalization of (13)). The arrays of the tuples are read-only.
+    ``attachments_m`` the world positions e_i; ``payload_force_n[i-1]`` the force of the
+    rest of the payload on attachment i as a point mass V_i / g accelerating with it (the
+    decentralized model's ``f_ext``): the horizontal pull −H_i, and the share V_i / (g m)
+    of an external force on the payload; ``payload_mass_share_kg[i-1]`` = V_i / g, the
+    vertical load of cable i (the generalization of (13)). The arrays of the tuples are
+    read-only.
     """
 
     x: FloatArray
@@ -192,6 +230,8 @@ class _CableLoads:
     vertical_n: FloatArray
     tan_angle: FloatArray
     tan_angle_per_cone_rad: FloatArray
+    balance_point_m: tuple[float, float]  # in the payload frame (``_balance_point``)
+    accelerating_n: FloatArray  # the loads balanced about the CoM: what shares m a
 
 
 def _check_reference(reference: FormationReference, n: int) -> None:
@@ -218,11 +258,50 @@ def _check_reference(reference: FormationReference, n: int) -> None:
         )
 
 
+# The most a payload torque may move the point the cables' loads balance about, as a share
+# of the nearest attachment's reach: beyond, a cable would carry next to nothing.
+_MAX_BALANCE_SHIFT = 0.5
+
+
+def _balance_point(
+    params: FormationParams, reference: FormationReference, forces: ExternalForces
+) -> tuple[float, float]:
+    """Where, in the payload's frame [m], the cables' loads balance: the horizontal point at
+    which the effective weight m (g + a_z) − f_b,z gives the moment of the payload torque's
+    horizontal part (a torque τ is the weight moved by τ × e_z / W). The CoM (0, 0) without
+    one; a bar's only along the bar ((5g): it has no moment about its axis); at most
+    ``_MAX_BALANCE_SHIFT`` of the nearest attachment's reach."""
+    tx, ty, _ = forces.payload_torque_nm
+    payload = params.payload
+    weight = payload.mass_kg * (params.gravity_mps2 + reference.acceleration_mps2[2])
+    weight -= forces.payload_n[2]
+    if (tx == 0.0 and ty == 0.0) or weight <= 0.0:
+        return 0.0, 0.0
+    cos_b, sin_b = math.cos(reference.payload_yaw_rad), math.sin(reference.payload_yaw_rad)
+    dx, dy = ty / weight, -tx / weight
+    shift = np.array((cos_b * dx + sin_b * dy, -sin_b * dx + cos_b * dy))
+    a = np.array(payload.attachments_m, dtype=float)[:, :2]
+    if payload.is_bar:
+        axis = (a[-1] - a[0]) / np.linalg.norm(a[-1] - a[0])
+        shift = axis * float(axis @ shift)
+    reach = np.hypot(a[:, 0], a[:, 1])
+    off_axis = reach[reach > BAR_TOLERANCE_M]
+    largest = _MAX_BALANCE_SHIFT * float(off_axis.min()) if off_axis.size else 0.0
+    size = float(np.linalg.norm(shift))
+    if size > largest:
+        shift *= largest / size
+    return float(shift[0]), float(shift[1])
+
+
 @lru_cache(maxsize=8)
-def _cable_loads(params: FormationParams, cone_angle_rad: float) -> _CableLoads:
+def _cable_loads(
+    params: FormationParams, cone_angle_rad: float, balance_point_m: tuple[float, float]
+) -> _CableLoads:
     """V, tan θ_i and their cone-angle derivative, in the payload frame (yaw-free, so a
-    held or turning reference reuses them tick after tick; the arrays are read-only)."""
+    held or turning reference reuses them tick after tick; the arrays are read-only), with
+    the loads balancing about ``balance_point_m`` (``_balance_point``) rather than the CoM."""
     a = np.array(params.payload.attachments_m, dtype=float)
+    a[:, :2] -= balance_point_m
     reach = np.hypot(a[:, 0], a[:, 1])  # |ρ_i|
     off_axis = reach > BAR_TOLERANCE_M
     t = math.tan(cone_angle_rad)
@@ -267,10 +346,18 @@ def _cable_loads(params: FormationParams, cone_angle_rad: float) -> _CableLoads:
             "near its edge for the least-norm load share)"
         )
     scale = m1 * reach * inverse_depth
+    # A horizontal m a shared as the loads balanced about the CoM has no moment about it.
+    accelerating = (
+        _cable_loads(params, cone_angle_rad, (0.0, 0.0)).vertical_n
+        if any(balance_point_m)
+        else vertical
+    )
     loads = _CableLoads(
         vertical_n=vertical,
         tan_angle=t * scale,
         tan_angle_per_cone_rad=scale * inverse_depth / math.cos(cone_angle_rad) ** 2,
+        balance_point_m=balance_point_m,
+        accelerating_n=accelerating,
     )
     for array in (loads.vertical_n, loads.tan_angle, loads.tan_angle_per_cone_rad):
         array.setflags(write=False)
@@ -283,6 +370,7 @@ def formation_equilibrium(
     limits: FormationLimits | None = None,
     *,
     remember: bool = True,
+    forces: ExternalForces = NO_FORCES,
 ) -> FormationEquilibrium:
     """The equilibrium (x_eq, u_eq) for ``reference``, in closed form (one least-norm
     solve of at most three equations for the vertical loads).
@@ -295,11 +383,17 @@ def formation_equilibrium(
     controller, the record), so recent answers are kept: callers get their own x and u.
     ``remember=False`` neither reads nor keeps them (a horizon of references asked once
     each would push out those asked again).
+
+    ``forces`` (none by default) makes it the fixed point of the model under them
+    (``FormationModel.forced_dynamics``): the payload still where the reference puts it,
+    the cables carrying the payload's m (a + g) less its force, each UAV's thrust its own
+    m_i (a + g) and its cable's pull less its force.
     """
     _check_reference(reference, params.n_vehicles)
+    _check_forces(forces, params.n_vehicles)
     if not remember:
-        return _equilibrium(params, reference, limits)
-    cached = _cached_equilibrium(params, reference, limits)
+        return _equilibrium(params, reference, limits, forces)
+    cached = _cached_equilibrium(params, reference, limits, forces)
     return replace(cached, x=cached.x.copy(), u=cached.u.copy())
 
 
@@ -316,15 +410,30 @@ class _Vehicle:
     payload_force_n: tuple[float, float, float]
 
 
+def _check_forces(forces: ExternalForces, n: int) -> None:
+    if forces.uavs_n and len(forces.uavs_n) != n:
+        raise EquilibriumError(
+            f"a formation of {n} UAVs takes {n} UAV forces, got {len(forces.uavs_n)}"
+        )
+    values = (
+        *forces.payload_n,
+        *forces.payload_torque_nm,
+        *(v for force in forces.uavs_n for v in force),
+    )
+    if not all(math.isfinite(v) for v in values):
+        raise EquilibriumError("external forces must be finite")
+
+
 def _vehicle(
     params: FormationParams,
     reference: FormationReference,
     loads: _CableLoads,
     k: int,
     limits: FormationLimits | None,
+    forces: ExternalForces,
 ) -> _Vehicle:
-    """UAV ``k + 1``'s part of the equilibrium for ``reference``: alone, since each
-    cable's loads are known (``_cable_loads``)."""
+    """UAV ``k + 1``'s part of the equilibrium for ``reference`` under ``forces``: alone,
+    since each cable's loads are known (``_cable_loads``)."""
     g = params.gravity_mps2
     psi_b, psi_b_rate = reference.payload_yaw_rad, reference.payload_yaw_rate_radps
     cos_b, sin_b = math.cos(psi_b), math.sin(psi_b)
@@ -333,19 +442,29 @@ def _vehicle(
     ax, ay, az = params.payload.attachments_m[k]
     cable, uav = params.cable_lengths_m[k], params.uavs[k]
     rho_x, rho_y = cos_b * ax - sin_b * ay, sin_b * ax + cos_b * ay  # R(ψ_b) a_i, level
-    reach = math.hypot(rho_x, rho_y)
-    out_x, out_y = (rho_x / reach, rho_y / reach) if reach > BAR_TOLERANCE_M else (0.0, 0.0)
+    # The cable leans away from the vertical through the point its loads balance about.
+    cx, cy = loads.balance_point_m
+    lean_x, lean_y = rho_x - (cos_b * cx - sin_b * cy), rho_y - (sin_b * cx + cos_b * cy)
+    reach = math.hypot(lean_x, lean_y)
+    out_x, out_y = (lean_x / reach, lean_y / reach) if reach > BAR_TOLERANCE_M else (0.0, 0.0)
     vertical, tan_angle = float(loads.vertical_n[k]), float(loads.tan_angle[k])
     static_angle = math.atan(tan_angle)
     sin_a, cos_a = math.sin(static_angle), math.cos(static_angle)
     # The cable's pull on the payload: the static one scaled by the effective gravity's
-    # vertical part, and its share V_i / g of the payload's horizontal m a.
-    acc_x, acc_y, acc_z = reference.acceleration_mps2
+    # vertical part, and its share of the payload's horizontal m a (V_i / g, the load
+    # balanced about the CoM). A force on the payload takes its share off: the cables
+    # carry m (a − f_b / m + g).
+    payload_mass = params.payload.mass_kg
+    acc_x, acc_y, acc_z = (
+        a - f / payload_mass
+        for a, f in zip(reference.acceleration_mps2, forces.payload_n, strict=True)
+    )
     lift = 1.0 + acc_z / g
     horizontal = lift * vertical * tan_angle
+    accelerating = float(loads.accelerating_n[k])
     pull = (
-        horizontal * out_x + vertical * acc_x / g,
-        horizontal * out_y + vertical * acc_y / g,
+        horizontal * out_x + accelerating * acc_x / g,
+        horizontal * out_y + accelerating * acc_y / g,
         lift * vertical,
     )
     tension = math.hypot(*pull)
@@ -353,7 +472,12 @@ def _vehicle(
     angle = math.acos(n_z)
     end = (bx + rho_x, by + rho_y, bz + az)
     m = uav.mass_kg
-    thrust_vector = (m * acc_x + pull[0], m * acc_y + pull[1], m * (g + acc_z) + pull[2])
+    uav_acc, uav_force = reference.acceleration_mps2, forces.on_uav(k)
+    thrust_vector = (
+        m * uav_acc[0] + pull[0] - uav_force[0],
+        m * uav_acc[1] + pull[1] - uav_force[1],
+        m * (g + uav_acc[2]) + pull[2] - uav_force[2],
+    )
     thrust = math.hypot(*thrust_vector)
     tilt = math.atan2(math.hypot(thrust_vector[0], thrust_vector[1]), thrust_vector[2])
     if limits is not None:
@@ -383,7 +507,12 @@ def _vehicle(
         yaw_rate * math.sin(roll) * cos_pitch,
         yaw_rate * math.cos(roll) * cos_pitch,
     )
-    payload_force = (-horizontal * out_x, -horizontal * out_y, 0.0)
+    share = vertical / g
+    payload_force = (
+        share * uav_acc[0] - pull[0],
+        share * uav_acc[1] - pull[1],
+        share * (g + uav_acc[2]) - pull[2],
+    )
     return _Vehicle(block, thrust, tension, angle, tilt, end, payload_force)
 
 
@@ -401,10 +530,15 @@ def _equilibrium(
     params: FormationParams,
     reference: FormationReference,
     limits: FormationLimits | None,
+    forces: ExternalForces,
 ) -> FormationEquilibrium:
     layout = params.layout
-    loads = _cable_loads(params, reference.cone_angle_rad)
-    vehicles = [_vehicle(params, reference, loads, k, limits) for k in range(params.n_vehicles)]
+    loads = _cable_loads(
+        params, reference.cone_angle_rad, _balance_point(params, reference, forces)
+    )
+    vehicles = [
+        _vehicle(params, reference, loads, k, limits, forces) for k in range(params.n_vehicles)
+    ]
     x = np.zeros(layout.n_states)
     u = np.zeros(layout.n_inputs)
     x[P_B], x[V_B], x[TH_B], x[W_B] = _payload_motion(reference)
@@ -412,9 +546,9 @@ def _equilibrium(
         x[layout.uav_block(i)] = vehicle.block
         u[layout.thrust_index(i)] = vehicle.thrust_n
     ends = tuple(np.array(v.attachment_m) for v in vehicles)
-    forces = tuple(np.array(v.payload_force_n) for v in vehicles)
+    rest_of_payload = tuple(np.array(v.payload_force_n) for v in vehicles)
     acceleration = np.array(reference.acceleration_mps2, dtype=float)
-    for array in (*ends, *forces, acceleration):
+    for array in (*ends, *rest_of_payload, acceleration):
         array.setflags(write=False)
     g = params.gravity_mps2
     return FormationEquilibrium(
@@ -425,7 +559,7 @@ def _equilibrium(
         cable_angles_rad=tuple(v.cable_angle_rad for v in vehicles),
         tilts_rad=tuple(v.tilt_rad for v in vehicles),
         attachments_m=ends,
-        payload_force_n=forces,
+        payload_force_n=rest_of_payload,
         payload_mass_share_kg=tuple(float(v) / g for v in loads.vertical_n),
         acceleration_mps2=acceleration,
     )
@@ -439,14 +573,17 @@ def agent_equilibrium(
     reference: FormationReference,
     i: int,
     limits: FormationLimits | None = None,
+    forces: ExternalForces = NO_FORCES,
 ) -> AgentEquilibrium:
-    """Agent ``i``'s part of ``formation_equilibrium(params, reference, limits)``, the
-    same numbers without computing the other vehicles' (an agent's tick at any N); raises
-    ``EquilibriumError`` as that does for this UAV and for the payload."""
+    """Agent ``i``'s part of ``formation_equilibrium(params, reference, limits,
+    forces=forces)``, the same numbers without computing the other vehicles' (an agent's
+    tick at any N); raises ``EquilibriumError`` as that does for this UAV and for the
+    payload."""
     _check_reference(reference, params.n_vehicles)
+    _check_forces(forces, params.n_vehicles)
     if not 1 <= i <= params.n_vehicles:
         raise EquilibriumError(f"UAVs are numbered 1 to {params.n_vehicles}, got {i}")
-    return _cached_agent_equilibrium(params, reference, i, limits)
+    return _cached_agent_equilibrium(params, reference, i, limits, forces)
 
 
 @lru_cache(maxsize=8)
@@ -455,9 +592,12 @@ def _cached_agent_equilibrium(
     reference: FormationReference,
     i: int,
     limits: FormationLimits | None,
+    forces: ExternalForces,
 ) -> AgentEquilibrium:
-    loads = _cable_loads(params, reference.cone_angle_rad)
-    vehicle = _vehicle(params, reference, loads, i - 1, limits)
+    loads = _cable_loads(
+        params, reference.cone_angle_rad, _balance_point(params, reference, forces)
+    )
+    vehicle = _vehicle(params, reference, loads, i - 1, limits, forces)
     p_b, v_b, _, w_b = _payload_motion(reference)
     u_i = np.zeros(4)
     u_i[0] = vehicle.thrust_n

@@ -11,6 +11,13 @@ with J_w = R J Rᵀ and q_j = R a_j. A bar (``PayloadParams.is_bar``) follows (5
 ω̇ = J_b⁻¹ Σ_j q_j × T_j n_j, its spin about its own axis left out.
 
 State layout: ``geometry.formation``.
+
+``forced_dynamics`` adds constant external loads d = (f_b, τ_b, f_1, …, f_N) (6 + 3N,),
+world frame: the force f_b [N] at the payload's CoM, the torque τ_b [N m] on it, f_i [N]
+on UAV i. Each force enters its body's v̇ as f/m and the constraint's λ_i as
+n_i·(f_i/m_i − f_b/m_b); the torque enters ω̇_b as K τ_b and λ_i as −g_i·K τ_b (a bar
+takes only its part across the bar: (5g) has no spin about its axis). The
+disturbance-force observer (``controllers.force_observer``) estimates them.
 """
 
 from __future__ import annotations
@@ -61,25 +68,39 @@ class FormationModel:
         return FormationLayout(self.params.n_vehicles)
 
     @cached_property
-    def _symbols(self) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
+    def n_forces(self) -> int:
+        """The size of d: the payload's force and torque and each UAV's force, 6 + 3N."""
+        return 6 + 3 * self.layout.n_vehicles
+
+    @cached_property
+    def _symbols(self) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX, ca.SX]:
         x = ca.SX.sym("x", self.layout.n_states)
         u = ca.SX.sym("u", self.layout.n_inputs)
+        d = ca.SX.sym("d", self.n_forces)
         kinematics = self._kinematics(x)
-        tensions = self._tension_expr(x, u, kinematics)
-        return x, u, self._xdot_expr(x, u, kinematics, tensions), tensions
+        tensions = self._tension_expr(x, u, d, kinematics)
+        return x, u, d, self._xdot_expr(x, u, d, kinematics, tensions), tensions
+
+    @cached_property
+    def forced_dynamics(self) -> ca.Function:
+        """ẋ = f(x, u, d): ``dynamics`` with the constant external loads d (6 + 3N,)."""
+        x, u, d, xdot, _ = self._symbols
+        return ca.Function("formation_fd", [x, u, d], [xdot], ["x", "u", "d"], ["xdot"])
 
     @cached_property
     def dynamics(self) -> ca.Function:
         """ẋ = f(x, u): (5a)–(5f) per UAV and for the payload's translation, the rigid-body
         (or (5g)) rotation, with the tensions M⁻¹λ."""
-        x, u, xdot, _ = self._symbols
-        return ca.Function("formation_f", [x, u], [xdot], ["x", "u"], ["xdot"])
+        x, u, d, xdot, _ = self._symbols
+        free = ca.substitute(xdot, d, ca.SX.zeros(self.n_forces))
+        return ca.Function("formation_f", [x, u], [free], ["x", "u"], ["xdot"])
 
     @cached_property
     def tensions(self) -> ca.Function:
-        """T = M⁻¹λ [N], shape (N,)."""
-        x, u, _, tensions = self._symbols
-        return ca.Function("formation_tensions", [x, u], [tensions], ["x", "u"], ["T"])
+        """T = M⁻¹λ [N], shape (N,), with no external forces."""
+        x, u, d, _, tensions = self._symbols
+        free = ca.substitute(tensions, d, ca.SX.zeros(self.n_forces))
+        return ca.Function("formation_tensions", [x, u], [free], ["x", "u"], ["T"])
 
     def _kinematics(self, x: ca.SX) -> _PayloadKinematics:
         prm, layout = self.params, self.layout
@@ -108,11 +129,22 @@ class FormationModel:
             bias = -gain @ ca.cross(w_b, J_w @ w_b)
         return _PayloadKinematics(q, n, r_dot, arm, gain, bias)
 
-    def _tension_expr(self, x: ca.SX, u: ca.SX, kin: _PayloadKinematics) -> ca.SX:
+    def _payload_torque(self, d: ca.SX, kin: _PayloadKinematics) -> ca.SX:
+        """τ_b of d; a bar's without its part along the bar."""
+        torque = d[3:6]
+        if not self.params.payload.is_bar:
+            return torque
+        axis = kin.q[-1] - kin.q[0]
+        axis = axis / ca.norm_2(axis)
+        return torque - axis * ca.dot(axis, torque)
+
+    def _tension_expr(self, x: ca.SX, u: ca.SX, d: ca.SX, kin: _PayloadKinematics) -> ca.SX:
         """Differentiate each (7) twice, insert the dynamics, solve M T = λ (docs/model.md)."""
         prm, layout = self.params, self.layout
         n_cables = layout.n_vehicles
         w_b = x[W_B]
+        f_b = d[0:3]
+        spin_up = kin.gain @ self._payload_torque(d, kin)
         M = ca.SX(n_cables, n_cables)
         lam = ca.SX(n_cables, 1)
         for i in range(n_cables):
@@ -123,6 +155,10 @@ class FormationModel:
                 - ca.dot(kin.n[i], ca.cross(w_b, ca.cross(w_b, kin.q[i])))
                 - ca.dot(kin.arm[i], kin.bias)
                 + ca.dot(kin.r_dot[i], kin.r_dot[i]) / prm.cable_lengths_m[i]
+                + ca.dot(
+                    kin.n[i], d[6 + 3 * i : 9 + 3 * i] / uav.mass_kg - f_b / prm.payload.mass_kg
+                )
+                - ca.dot(kin.arm[i], spin_up)
             )
             for j in range(n_cables):
                 M[i, j] = (
@@ -132,7 +168,9 @@ class FormationModel:
                 )
         return ca.solve(M, lam)
 
-    def _xdot_expr(self, x: ca.SX, u: ca.SX, kin: _PayloadKinematics, tensions: ca.SX) -> ca.SX:
+    def _xdot_expr(
+        self, x: ca.SX, u: ca.SX, d: ca.SX, kin: _PayloadKinematics, tensions: ca.SX
+    ) -> ca.SX:
         prm, layout = self.params, self.layout
         g = prm.gravity_mps2
         cables = range(layout.n_vehicles)
@@ -140,9 +178,9 @@ class FormationModel:
         torque = sum((tensions[j] * kin.arm[j] for j in cables), ca.SX.zeros(3))
         parts = [
             x[V_B],
-            pull / prm.payload.mass_kg - g * E_Z,
+            (pull + d[0:3]) / prm.payload.mass_kg - g * E_Z,
             inertial_rates_to_euler_rates(x[TH_B]) @ x[W_B],
-            kin.gain @ torque + kin.bias,
+            kin.gain @ (torque + self._payload_torque(d, kin)) + kin.bias,
         ]
         for i in layout.vehicles:
             uav = prm.uavs[i - 1]
@@ -152,7 +190,11 @@ class FormationModel:
             w = x[w_i]
             parts += [
                 x[v_i],
-                (thrust * rotation_zyx(x[th_i]) @ E_Z - tensions[i - 1] * kin.n[i - 1])
+                (
+                    thrust * rotation_zyx(x[th_i]) @ E_Z
+                    - tensions[i - 1] * kin.n[i - 1]
+                    + d[3 + 3 * i : 6 + 3 * i]
+                )
                 / uav.mass_kg
                 - g * E_Z,
                 body_rates_to_euler_rates(x[th_i]) @ w,

@@ -36,7 +36,9 @@ import numpy as np
 
 from controllers.codegen import NumericFunction
 from controllers.formation_equilibria import (
+    NO_FORCES,
     AgentEquilibrium,
+    ExternalForces,
     FormationEquilibrium,
     FormationReference,
     formation_equilibrium,
@@ -434,12 +436,14 @@ class CentralizedMpc:
         reference: FormationReference,
         now_s: float,
         preview: Preview | None = None,
+        forces: ExternalForces = NO_FORCES,
     ) -> Plan:
         """One tick: u* for ``state`` (12 + 12N,, paper order) tracking ``reference`` now
-        and, when given, ``preview``'s references at the stages ahead."""
+        and, when given, ``preview``'s references at the stages ahead, its equilibria
+        those under the external ``forces`` (``controllers.force_observer``)."""
         started = self._clock()
         try:
-            eq = formation_equilibrium(self.params, reference)
+            eq = formation_equilibrium(self.params, reference, forces=forces)
         except ValueError as error:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_BAD_STATE, self._no_plan(now_s), str(error)
@@ -452,7 +456,7 @@ class CentralizedMpc:
         try:
             A, B = self._preparation.models(state, reference)[0]
             dx0 = wrap_angles(state - eq.x, self._layout.yaw_indices)
-            targets = self._targets(eq.x, eq.u, reference, preview)
+            targets = self._targets(eq.x, eq.u, reference, preview, forces)
             qp = self._mpc.qp(A, B, dx0, self._u_lb - eq.u, self._u_ub - eq.u, eq.x, targets)
             solution = self._mpc.backend.solve(qp)
         except Exception as error:
@@ -485,10 +489,11 @@ class CentralizedMpc:
         u_eq: FloatArray,
         reference: FormationReference,
         preview: Preview | None,
+        forces: ExternalForces,
     ) -> tuple[FloatArray, FloatArray] | None:
         if not preview:
             return None
-        sampled = _stage_equilibria(self.params, preview)
+        sampled = _stage_equilibria(self.params, preview, forces)
         return stage_targets(
             x_eq,
             u_eq,
@@ -503,10 +508,12 @@ class CentralizedMpc:
         return _empty_plan(self._layout.n_states, self._layout.n_inputs, self.settings, now_s)
 
 
-def _stage_equilibria(params: FormationParams, preview: Preview) -> dict[int, FormationEquilibrium]:
-    """The equilibrium of each stage's reference in ``preview``."""
+def _stage_equilibria(
+    params: FormationParams, preview: Preview, forces: ExternalForces
+) -> dict[int, FormationEquilibrium]:
+    """The equilibrium of each stage's reference in ``preview`` under ``forces``."""
     return {
-        k: formation_equilibrium(params, reference, remember=False)
+        k: formation_equilibrium(params, reference, remember=False, forces=forces)
         for k, reference in preview.items()
     }
 
@@ -656,11 +663,12 @@ class DecentralizedMpc:
         eq: FormationEquilibrium,
         reference: FormationReference,
         preview: Preview | None,
+        forces: ExternalForces,
     ) -> list[tuple[FloatArray, FloatArray] | None]:
         """Each agent's per-stage targets from ``preview`` (None each without one)."""
         if not preview:
             return [None] * len(self.agents)
-        sampled = _stage_equilibria(self.params, preview)
+        sampled = _stage_equilibria(self.params, preview, forces)
         return [
             stage_targets(
                 eq.agent_state(agent.i),
@@ -699,17 +707,20 @@ class DecentralizedMpc:
         reference: FormationReference,
         now_s: float,
         preview: Preview | None = None,
+        forces: ExternalForces = NO_FORCES,
     ) -> Plan:
         """One tick for every agent; ``state`` is the formation's (each agent takes its
         part). The agents regulate to ``reference`` moved by the settings'
         ``reference_lead`` and, when given, track ``preview``'s references at the stages
-        ahead (moved the same way)."""
+        ahead (moved the same way), their equilibria those under the external ``forces``:
+        each agent's f_ext carries its cable's share of the payload's, its input the
+        thrust against its own UAV's."""
         started = self._clock()
         led = led_reference(reference, state, self.settings.reference_lead)
         preview = moved_like(preview, reference, led) if preview else None
         reference = led
         try:
-            eq = formation_equilibrium(self.params, reference)
+            eq = formation_equilibrium(self.params, reference, forces=forces)
         except ValueError as error:
             stacked = AGENT_STATES * self._layout.n_vehicles
             empty = _empty_plan(stacked, self._layout.n_inputs, self.settings, now_s)
@@ -722,7 +733,7 @@ class DecentralizedMpc:
             )
         try:
             models = self._preparation.models(state, reference)
-            targets = self._targets(eq, reference, preview)
+            targets = self._targets(eq, reference, preview, forces)
             results = [
                 agent.solve(
                     agent_state(state, self.params, agent.i), eq.agent(agent.i), model, target

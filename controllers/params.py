@@ -96,3 +96,8 @@ class MpcSettings:
     """The gain of the integral action on the held reference's error [1/s]
     (``controllers.integral_action``); 0 is the paper's MPC, which leaves model errors as
     steady offsets."""
+    force_observer_s: float = 0.0
+    """The time constant [s] of the disturbance-force observer
+    (``controllers.force_observer``); 0 leaves the forces out, as the paper does."""
+    force_observer_max_n: float = 5.0
+    """The most force [N] the observer may put on any one body."""

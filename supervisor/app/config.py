@@ -295,6 +295,10 @@ class MpcSection(_Section):
     rate_crossover_s: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
     # The integral action on the held reference's error (controllers/integral_action.py).
     integral_gain_per_s: Annotated[float, Field(ge=0.0, le=5.0, allow_inf_nan=False)] = 0.0
+    # The disturbance-force observer's time constant, 0 = off (controllers/force_observer.py).
+    force_observer_s: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = 0.0
+    # The most force it may put on any one body [N].
+    force_observer_max_n: Annotated[float, Field(gt=0.0, le=50.0, allow_inf_nan=False)] = 5.0
     centralized: CentralizedWeights
     decentralized: DecentralizedWeights
 
@@ -327,6 +331,8 @@ class MpcSection(_Section):
             prepared_yaw_tolerance_rad=self.prepared_yaw_tolerance_rad,
             delay_s=self.delay_s,
             integral_gain_per_s=self.integral_gain_per_s,
+            force_observer_s=self.force_observer_s,
+            force_observer_max_n=self.force_observer_max_n,
             rate_filter_weight=self.rate_filter_weight,
             rate_crossover_s=self.rate_crossover_s,
             reference_lead=ReferenceLead(*self.decentralized.reference_lead_s)

@@ -19,6 +19,7 @@ from enum import StrEnum
 import numpy as np
 
 from controllers.delay import DelayPredictor
+from controllers.force_observer import ForceObserver
 from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from controllers.formation_params import FormationParams
 from controllers.integral_action import ReferenceIntegrator
@@ -195,7 +196,14 @@ class FlightCore:
         self._rate_filter = RateFilter(self._delay, centralized.rate_filter_weight)
         self._rate_crossover = RateCrossover(self._layout, centralized.rate_crossover_s)
         self._mpc_state: FloatArray | None = None  # the state the last MPC step started from
-        self._integral = ReferenceIntegrator(self._layout, centralized.integral_gain_per_s)
+        self._integral = ReferenceIntegrator(
+            self._layout,
+            centralized.integral_gain_per_s,
+            positions=centralized.force_observer_s == 0.0,
+        )
+        self._forces = ForceObserver(
+            params, self._delay, centralized.force_observer_s, centralized.force_observer_max_n
+        )
         self._blend_from: FloatArray | None = None
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
@@ -660,6 +668,7 @@ class FlightCore:
             self._rate_filter.reset()
             self._rate_crossover.reset()
             self._integral.reset()
+            self._forces.reset()
 
     def _enter_phase(self, phase: Phase) -> None:
         self.phase = next_phase(self.phase, phase)
@@ -790,14 +799,17 @@ class FlightCore:
             measured_s = now_s - self._delay.delay_s
             corrected = self._rate_crossover.corrected(x, measured_s)
             filtered = self._rate_filter.filtered(corrected, measured_s)
+            forces = self._forces.update(filtered, measured_s)
             self._mpc_state = self._delay.predict(filtered, now_s)
         else:
             self._rate_filter.reset()
             self._rate_crossover.reset()
+            self._forces.pause()
+            forces = self._forces.forces
             self._mpc_state = x
         shifted = self._integral.shifted(reference, x, now_s)
         ahead = moved_like(preview, reference, shifted) if preview else None
-        plan = controller.step(self._mpc_state, shifted, now_s, ahead)
+        plan = controller.step(self._mpc_state, shifted, now_s, ahead, forces)
         self._mpc_reference = shifted
         self.mpc_was_prepared = controller.last_step_was_prepared
         return self._mpc_commands(plan), plan

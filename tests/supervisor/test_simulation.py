@@ -220,9 +220,9 @@ def test_short_slack_episodes_repeated_abort_a_flight_in_closed_loop(
     path = tmp_path / "pushes.toml"
     path.write_text(pushes_down_on_uav1(6))
     params = sim_config.system.to_params()
-    # Without the delay compensation and the integral, which catch some of these pushes
-    # before a cable goes 5 cm slack: the monitor is what is tested here.
-    uncompensated = ["mpc.delay_s=0", "mpc.integral_gain_per_s=0"]
+    # Without the delay compensation, the integral and the force observer, which catch
+    # some of these pushes before a cable goes 5 cm slack: the monitor is tested here.
+    uncompensated = ["mpc.delay_s=0", "mpc.integral_gain_per_s=0", "mpc.force_observer_s=0"]
     window = load_config(CONFIGS / "sim.toml", uncompensated)
     without = load_config(CONFIGS / "sim.toml", [*uncompensated, "safety.slack_in_window_s=10.0"])
     outcomes = {}
@@ -246,6 +246,7 @@ PAPERS = [
     "control.preview=false",
     "mpc.delay_s=0",
     "mpc.integral_gain_per_s=0",
+    "mpc.force_observer_s=0",
 ]
 
 

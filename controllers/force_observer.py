@@ -1,0 +1,154 @@
+"""A disturbance-force observer: the constant external loads on the payload and each UAV.
+
+Both MPCs regulate to the equilibrium their model computes for the reference. A load
+the model leaves out — a push or wind on a body, a payload or a UAV heavier than
+configured, a payload whose CoM is off its configured point — makes that equilibrium a
+wrong one, and the quadratic cost then balances the missing force against a position
+error (issue 33: a 1 N push on the bar held it 1.4 m off). ``ForceObserver`` estimates
+the loads d = (f_b, τ_b, f_1, …, f_N) in the world frame — the force f_b [N] at the
+payload's CoM, the torque τ_b [N m] on it, each UAV's force f_i [N] — so that the
+equilibrium includes them (``formation_equilibrium(..., forces=)``): offset-free for
+constant loads, not a reference shift.
+
+Each estimate is compared with the model's prediction from the one before: the state
+carried across the interval h by the model (``DelayPredictor.advance``, under the inputs
+sent and the loads estimated so far). A load error δd changes the bodies' velocities
+(v_b, ω_b, v_i) by G δd, G = h ∂(v̇, ω̇)/∂d (the constrained model: a force on one body
+moves the others through the cables). The velocity error e updates the estimate by the
+least-norm δd with G δd = e, taken with the gain h / (τ + h): a first-order estimate with
+the time constant τ (``mpc.force_observer_s``). Forces along a cable pulling its two ends
+apart move nothing, so G is singular there; the least-norm update leaves those parts at
+zero. Each body's force is bounded (``max_force_n``), and the payload's torque
+(``MAX_TORQUE_NM``), so a wrong model cannot ask for an unbounded one. Time is an
+argument; it holds no clock.
+"""
+
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+import numpy as np
+
+from controllers.codegen import NumericFunction
+from controllers.delay import HISTORY_S, DelayPredictor
+from controllers.formation_equilibria import NO_FORCES, ExternalForces
+from controllers.formation_model import FormationModel
+from controllers.formation_params import FormationParams
+from geometry.arrays import FloatArray
+from geometry.state import V_B, W_B
+
+# Singular values of G below this share of the largest are the cables' internal forces.
+_RCOND = 0.05
+# The most torque [N m] it may put on the payload: a payload's CoM 0.25 m off its configured
+# point at 0.4 kg (the equilibrium moves the cables' balance point at most halfway to an
+# attachment, ``formation_equilibria._balance_point``).
+MAX_TORQUE_NM = 1.0
+
+
+def _velocity_sensitivity(model: FormationModel, velocity_rows: list[int]) -> ca.Function:
+    """``x -> ∂v̇/∂d``: the bodies' accelerations per newton of each external force (they
+    enter linearly, so neither the input nor the forces matter)."""
+    x = ca.SX.sym("x", model.layout.n_states)
+    u = ca.SX.sym("u", model.layout.n_inputs)
+    d = ca.SX.sym("d", model.n_forces)
+    xdot = model.forced_dynamics(x, u, d)
+    jacobian = ca.jacobian(xdot[velocity_rows], d)
+    free = ca.substitute(jacobian, ca.vertcat(u, d), ca.SX.zeros(u.numel() + d.numel()))
+    return ca.Function("force_sensitivity", [x], [free])
+
+
+def velocity_indices(params: FormationParams) -> list[int]:
+    """Where the state keeps the bodies' velocities: the payload's v_b and ω_b, then each
+    UAV's v_i."""
+    layout = params.layout
+    every = list(range(layout.n_states))
+    rows = every[V_B] + every[W_B]
+    for i in layout.vehicles:
+        rows += every[layout.uav_slices(i)[1]]
+    return rows
+
+
+class ForceObserver:
+    """The external forces on the payload and each UAV, estimated with the time constant
+    ``time_constant_s`` (0: off, the forces stay zero) and bounded to ``max_force_n`` per
+    body. It sets the forces ``predictor`` carries, so that the delay compensation and the
+    next one-step prediction include them."""
+
+    def __init__(
+        self,
+        params: FormationParams,
+        predictor: DelayPredictor,
+        time_constant_s: float,
+        max_force_n: float,
+    ) -> None:
+        if not (math.isfinite(time_constant_s) and time_constant_s >= 0.0):
+            raise ValueError(
+                f"the force observer's time constant must be finite and >= 0, got {time_constant_s}"
+            )
+        if not (math.isfinite(max_force_n) and max_force_n > 0.0):
+            raise ValueError(
+                f"the force observer's bound must be finite and > 0, got {max_force_n}"
+            )
+        self.time_constant_s = time_constant_s
+        self.max_force_n = max_force_n
+        self._n_vehicles = params.n_vehicles
+        self._predictor = predictor
+        self._rows = velocity_indices(params)
+        self._sensitivity = NumericFunction(
+            _velocity_sensitivity(FormationModel(params), self._rows)
+        )
+        self._d = np.zeros(6 + 3 * params.n_vehicles)
+        self._last: tuple[float, FloatArray] | None = None
+
+    @property
+    def forces(self) -> ExternalForces:
+        """The forces estimated so far."""
+        if not np.any(self._d):
+            return NO_FORCES
+        return ExternalForces.from_vector(self._d)
+
+    def reset(self) -> None:
+        """Start from no forces (a new flight)."""
+        self._d[:] = 0.0
+        self._predictor.forces = self._d.copy()
+        self._last = None
+
+    def pause(self) -> None:
+        """Keep the forces, but compare the next estimate with none (the model did not
+        describe what happened in between: on the ground, a UAV left to its PX4)."""
+        self._last = None
+
+    def update(self, x: FloatArray, t_s: float) -> ExternalForces:
+        """Fold in the estimate ``x`` (12 + 12N,) of the state at ``t_s`` [s]: its velocities
+        against the model's prediction from the last estimate. The first estimate, one more
+        than ``HISTORY_S`` after the last and a non-finite one only restart the comparison."""
+        if self.time_constant_s == 0.0:
+            return NO_FORCES
+        state = np.array(x, dtype=float)
+        last, self._last = self._last, None
+        if not np.all(np.isfinite(state)):
+            return self.forces
+        self._last = (t_s, state)
+        if last is None or not 0.0 < t_s - last[0] <= HISTORY_S:
+            return self.forces
+        h = t_s - last[0]
+        predicted = self._predictor.advance(last[1], last[0], t_s)
+        error = state[self._rows] - predicted[self._rows]
+        sensitivity = h * self._sensitivity(last[1])[0]
+        # Each row in its body's own scale (the bar's small inertia would otherwise make
+        # the UAVs' columns look singular beside its turn rate's).
+        scale = np.abs(sensitivity).max(axis=1)
+        scale[scale == 0.0] = 1.0
+        step = np.linalg.lstsq(sensitivity / scale[:, None], error / scale, rcond=_RCOND)[0]
+        self._d += h / (self.time_constant_s + h) * step
+        self._bound()
+        self._predictor.forces = self._d.copy()
+        return self.forces
+
+    def _bound(self) -> None:
+        for k in range(0, self._d.size, 3):
+            largest = MAX_TORQUE_NM if k == 3 else self.max_force_n
+            size = float(np.linalg.norm(self._d[k : k + 3]))
+            if size > largest:
+                self._d[k : k + 3] *= largest / size
