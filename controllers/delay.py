@@ -89,6 +89,18 @@ class DelayPredictor:
         while len(self._sent) > 1 and self._sent[1][0] <= oldest:
             self._sent.popleft()
 
+    def input_at(self, t_s: float) -> FloatArray | None:
+        """The input (4N,) in force at ``t_s`` [s] (the oldest kept stands for any time
+        before it); None when none was sent."""
+        if not self._sent:
+            return None
+        in_force = self._sent[0][1]
+        for t_k, u in self._sent:
+            if t_k > t_s:
+                break
+            in_force = u
+        return in_force.copy()
+
     def predict(self, x: FloatArray, now_s: float) -> FloatArray:
         """``x`` (12 + 12N,), the estimate at ``now_s`` taken as the state ``delay_s`` earlier,
         carried to ``now_s`` by the model under the inputs sent. Unchanged (a copy) when

@@ -10,16 +10,19 @@ payload's CoM, the torque τ_b [N m] on it, each UAV's force f_i [N] — so that
 equilibrium includes them (``formation_equilibrium(..., forces=)``): offset-free for
 constant loads, not a reference shift.
 
-Each estimate is compared with the model's prediction from the one before: the state
-carried across the interval h by the model (``DelayPredictor.advance``, under the inputs
-sent and the loads estimated so far). A load error δd changes the bodies' velocities
-(v_b, ω_b, v_i) by G δd, G = h ∂(v̇, ω̇)/∂d (the constrained model: a force on one body
-moves the others through the cables). The velocity error e updates the estimate by the
-least-norm δd with G δd = e, taken with the gain h / (τ + h): a first-order estimate with
-the time constant τ (``mpc.force_observer_s``). Forces along a cable pulling its two ends
-apart move nothing, so G is singular there; the least-norm update leaves those parts at
-zero. Each body's force is bounded (``max_force_n``), and the payload's torque
-(``MAX_TORQUE_NM``), so a wrong model cannot ask for an unbounded one. Time is an
+Each estimate's velocities (v_b, ω_b, v_i) are compared with the model's prediction from
+the one before: the velocities then plus h times the model's rates of change at the
+midpoint of the two measured states, under the input in force then
+(``DelayPredictor.input_at``) and the loads estimated so far. The attitudes come from the
+measurements, not from integrating the torques sent: a PX4 flying body rates applies its
+own. A load error δd changes the velocities by G δd, G = h ∂(v̇, ω̇)/∂d (the constrained
+model: a force on one body moves the others through the cables). The velocity error e
+updates the estimate by the least-norm δd with G δd = e, each row in its body's own
+scale, taken with the gain h / (τ + h): a first-order estimate with the time constant τ
+(``mpc.force_observer_s``). Forces along a cable pulling its two ends apart move nothing,
+so G is singular there; the least-norm update leaves those parts at zero. Each body's
+force is bounded (``max_force_n``), and the payload's torque (``MAX_TORQUE_NM``), so a
+wrong model cannot ask for an unbounded one. Time is an
 argument; it holds no clock.
 """
 
@@ -46,16 +49,14 @@ _RCOND = 0.05
 MAX_TORQUE_NM = 1.0
 
 
-def _velocity_sensitivity(model: FormationModel, velocity_rows: list[int]) -> ca.Function:
-    """``x -> ∂v̇/∂d``: the bodies' accelerations per newton of each external force (they
-    enter linearly, so neither the input nor the forces matter)."""
+def _velocity_rates(model: FormationModel, velocity_rows: list[int]) -> ca.Function:
+    """``(x, u, d) -> (v̇, ∂v̇/∂d)``: the bodies' accelerations and their change per unit of
+    each load (the loads enter linearly: the sensitivity holds for any u and d)."""
     x = ca.SX.sym("x", model.layout.n_states)
     u = ca.SX.sym("u", model.layout.n_inputs)
     d = ca.SX.sym("d", model.n_forces)
-    xdot = model.forced_dynamics(x, u, d)
-    jacobian = ca.jacobian(xdot[velocity_rows], d)
-    free = ca.substitute(jacobian, ca.vertcat(u, d), ca.SX.zeros(u.numel() + d.numel()))
-    return ca.Function("force_sensitivity", [x], [free])
+    rates = model.forced_dynamics(x, u, d)[velocity_rows]
+    return ca.Function("force_observer_rates", [x, u, d], [rates, ca.jacobian(rates, d)])
 
 
 def velocity_indices(params: FormationParams) -> list[int]:
@@ -72,8 +73,8 @@ def velocity_indices(params: FormationParams) -> list[int]:
 class ForceObserver:
     """The external forces on the payload and each UAV, estimated with the time constant
     ``time_constant_s`` (0: off, the forces stay zero) and bounded to ``max_force_n`` per
-    body. It sets the forces ``predictor`` carries, so that the delay compensation and the
-    next one-step prediction include them."""
+    body. It reads the inputs sent from ``predictor`` and sets the loads it carries, so
+    that the delay compensation includes them."""
 
     def __init__(
         self,
@@ -95,9 +96,8 @@ class ForceObserver:
         self._n_vehicles = params.n_vehicles
         self._predictor = predictor
         self._rows = velocity_indices(params)
-        self._sensitivity = NumericFunction(
-            _velocity_sensitivity(FormationModel(params), self._rows)
-        )
+        self._yaws = list(params.layout.yaw_indices)
+        self._rates = NumericFunction(_velocity_rates(FormationModel(params), self._rows))
         self._d = np.zeros(6 + 3 * params.n_vehicles)
         self._last: tuple[float, FloatArray] | None = None
 
@@ -119,10 +119,11 @@ class ForceObserver:
         describe what happened in between: on the ground, a UAV left to its PX4)."""
         self._last = None
 
-    def update(self, x: FloatArray, t_s: float) -> ExternalForces:
+    def update(self, x: FloatArray, t_s: float, slower: float = 1.0) -> ExternalForces:
         """Fold in the estimate ``x`` (12 + 12N,) of the state at ``t_s`` [s]: its velocities
-        against the model's prediction from the last estimate. The first estimate, one more
-        than ``HISTORY_S`` after the last and a non-finite one only restart the comparison."""
+        against the model's prediction from the last estimate, learnt with the time
+        constant ``slower`` × ``time_constant_s``. The first estimate, one more than
+        ``HISTORY_S`` after the last and a non-finite one only restart the comparison."""
         if self.time_constant_s == 0.0:
             return NO_FORCES
         state = np.array(x, dtype=float)
@@ -133,15 +134,21 @@ class ForceObserver:
         if last is None or not 0.0 < t_s - last[0] <= HISTORY_S:
             return self.forces
         h = t_s - last[0]
-        predicted = self._predictor.advance(last[1], last[0], t_s)
-        error = state[self._rows] - predicted[self._rows]
-        sensitivity = h * self._sensitivity(last[1])[0]
+        u = self._predictor.input_at(last[0] + h / 2)
+        if u is None:
+            return self.forces
+        change = state - last[1]
+        change[self._yaws] = np.remainder(change[self._yaws] + np.pi, 2 * np.pi) - np.pi
+        rates, sensitivity = self._rates(last[1] + change / 2, u, self._d)
+        rows = self._rows
+        error = change[rows] - h * rates.ravel()
+        sensitivity = h * sensitivity
         # Each row in its body's own scale (the bar's small inertia would otherwise make
         # the UAVs' columns look singular beside its turn rate's).
         scale = np.abs(sensitivity).max(axis=1)
         scale[scale == 0.0] = 1.0
         step = np.linalg.lstsq(sensitivity / scale[:, None], error / scale, rcond=_RCOND)[0]
-        self._d += h / (self.time_constant_s + h) * step
+        self._d += h / (slower * self.time_constant_s + h) * step
         self._bound()
         self._predictor.forces = self._d.copy()
         return self.forces

@@ -88,6 +88,17 @@ def test_nothing_to_predict_leaves_the_estimate_as_it_is(lab_params: FormationPa
     assert np.array_equal(none_sent.predict(bad, 1.0), bad, equal_nan=True)
 
 
+def test_the_input_in_force_is_the_last_sent_before(lab_params: FormationParams) -> None:
+    predictor = DelayPredictor(lab_params, 0.03)
+    assert predictor.input_at(1.0) is None
+    n = lab_params.layout.n_inputs
+    for k in range(3):
+        predictor.sent(1.0 + 0.02 * k, np.full(n, float(k)))
+    in_force = [predictor.input_at(t) for t in (0.5, 1.0, 1.03, 9.0)]
+    # The oldest kept stands for earlier times.
+    assert [None if u is None else u[0] for u in in_force] == [0.0, 0.0, 1.0, 2.0]
+
+
 @pytest.mark.parametrize("delay", [-0.01, math.inf, math.nan])
 def test_a_delay_that_is_no_duration_is_refused(delay: float, lab_params: FormationParams) -> None:
     with pytest.raises(ValueError, match="delay"):

@@ -39,7 +39,11 @@ LEVEL_GEOMETRIES = {
 
 def random_loads(params: FormationParams, seed: int, torque: bool = True) -> ExternalForces:
     rng = np.random.default_rng(seed)
-    triple = lambda scale: tuple(float(v) for v in rng.uniform(-scale, scale, 3))  # noqa: E731
+
+    def triple(scale: float) -> tuple[float, float, float]:
+        x, y, z = (float(v) for v in rng.uniform(-scale, scale, 3))
+        return x, y, z
+
     return ExternalForces(
         payload_n=triple(1.0),
         payload_torque_nm=triple(0.05) if torque else (0.0, 0.0, 0.0),

@@ -19,6 +19,7 @@ from controllers.formation_equilibria import (
 )
 from controllers.formation_model import FormationModel
 from controllers.formation_params import FormationParams
+from geometry.arrays import FloatArray
 from tests.conftest import symmetric_params, uneven_params
 from tests.controllers.test_formation_equilibria import plate_params
 
@@ -102,8 +103,15 @@ def test_the_estimate_explains_what_the_plant_does(
     at_rest = np.asarray(model.forced_dynamics(held.x, held.u, estimated)).ravel()[rows]
     free = np.asarray(model.dynamics(held.x, held.u)).ravel()[rows]
     assert np.abs(at_rest).max() < 0.01 * np.abs(free).max()
-    net = lambda d: d[0:3] + d[6:].reshape(-1, 3).sum(axis=0)  # noqa: E731
-    np.testing.assert_allclose(net(estimated), net(truth.vector(params.n_vehicles)), atol=0.02)
+    np.testing.assert_allclose(
+        net_force(estimated), net_force(truth.vector(params.n_vehicles)), atol=0.02
+    )
+
+
+def net_force(d: FloatArray) -> FloatArray:
+    """The loads' net force [N]: the payload's and every UAV's."""
+    total: FloatArray = d[0:3] + d[6:].reshape(-1, 3).sum(axis=0)
+    return total
 
 
 def test_it_settles_with_its_time_constant() -> None:
