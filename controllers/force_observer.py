@@ -108,6 +108,16 @@ class ForceObserver:
             return NO_FORCES
         return ExternalForces.from_vector(self._d)
 
+    def at_bound(self) -> list[str]:
+        """The bodies whose load the bound holds ("bar", "bar torque", "uav1", …): the model
+        is further off than the observer may make up for."""
+        names = ["bar", "bar torque", *(f"uav{i}" for i in range(1, self._n_vehicles + 1))]
+        return [
+            name
+            for k, name in zip(range(0, self._d.size, 3), names, strict=True)
+            if np.linalg.norm(self._d[k : k + 3]) >= self._largest(k) * (1.0 - 1e-9)
+        ]
+
     def reset(self) -> None:
         """Start from no forces (a new flight)."""
         self._d[:] = 0.0
@@ -153,9 +163,12 @@ class ForceObserver:
         self._predictor.forces = self._d.copy()
         return self.forces
 
+    def _largest(self, k: int) -> float:
+        return MAX_TORQUE_NM if k == 3 else self.max_force_n
+
     def _bound(self) -> None:
         for k in range(0, self._d.size, 3):
-            largest = MAX_TORQUE_NM if k == 3 else self.max_force_n
+            largest = self._largest(k)
             size = float(np.linalg.norm(self._d[k : k + 3]))
             if size > largest:
                 self._d[k : k + 3] *= largest / size

@@ -55,6 +55,12 @@ STATUS_JSON: dict[str, Any] = {
     "setpoints": {"active": None, "queued": []},
     "path": None,
     "plan": {"status": None, "solve_ms": None, "thrust_n": None},
+    "loads": {
+        "bar_force_n": [0.0, 0.0, 0.0],
+        "bar_torque_nm": [0.0, 0.0, 0.0],
+        "uav_forces_n": [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
+        "at_bound": [],
+    },
     "faults": [],
     "notices": [],
     "last_flight": None,

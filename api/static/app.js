@@ -529,6 +529,15 @@ function renderModeLook(t) {
   if (document.body.dataset.flight !== flight) document.body.dataset.flight = flight;
 }
 
+// The force observer's loads in one line: their sizes, and any held at its bound.
+function loadsText(loads) {
+  if (!loads) return "observer off";
+  const size = (v) => fmt(Math.hypot(...v.map((c) => c ?? 0)), 2);
+  const uavs = loads.uav_forces_n.map(size).join(" / ");
+  const bound = loads.at_bound.length ? ` — at bound: ${loads.at_bound.join(", ")}` : "";
+  return `bar ${size(loads.bar_force_n)} N, ${size(loads.bar_torque_nm)} N m; UAVs ${uavs} N${bound}`;
+}
+
 function render(t) {
   setText("mode", t.mode);
   trackLastFlight(t);
@@ -562,6 +571,7 @@ function render(t) {
   setText("bar-position", vec(t.bar.position));
   setText("bar-yaw", deg(t.bar.yaw));
   setText("bar-error", t.bar.error_m === null ? "–" : `${fmt(t.bar.error_m, 3)} m`);
+  setText("loads", loadsText(t.loads));
   t.uavs.forEach((uav, i) => {
     const n = i + 1;
     greyed(`.link${n}-value`, !uav.connected);

@@ -203,9 +203,10 @@ class FlightCore:
             centralized.integral_gain_per_s,
             positions=centralized.force_observer_s == 0.0,
         )
-        self._forces = ForceObserver(
+        self.force_observer = ForceObserver(
             params, self._delay, centralized.force_observer_s, centralized.force_observer_max_n
         )
+        """The external loads both MPCs' equilibria carry (``controllers.force_observer``)."""
         self._blend_from: FloatArray | None = None
         self._blend_tick = 0
         self._last_estimate: Estimate | None = None
@@ -670,7 +671,7 @@ class FlightCore:
             self._rate_filter.reset()
             self._rate_crossover.reset()
             self._integral.reset()
-            self._forces.reset()
+            self.force_observer.reset()
 
     def _enter_phase(self, phase: Phase) -> None:
         self.phase = next_phase(self.phase, phase)
@@ -807,13 +808,15 @@ class FlightCore:
             # learning only while holding, 10.1 / 16.5 so; a 4 m line 29 / 46 against 35 /
             # 54 mm moving RMSE; benchmarks.robustness).
             held = reference == reference.at_rest() and not preview
-            forces = self._forces.update(filtered, measured_s, MOVING_SLOWER if not held else 1.0)
+            forces = self.force_observer.update(
+                filtered, measured_s, MOVING_SLOWER if not held else 1.0
+            )
             self._mpc_state = self._delay.predict(filtered, now_s)
         else:
             self._rate_filter.reset()
             self._rate_crossover.reset()
-            self._forces.pause()
-            forces = self._forces.forces
+            self.force_observer.pause()
+            forces = self.force_observer.forces
             self._mpc_state = x
         shifted = self._integral.shifted(reference, x, now_s)
         ahead = moved_like(preview, reference, shifted) if preview else None

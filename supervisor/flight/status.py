@@ -114,6 +114,19 @@ class ReferenceStatus(_StatusPart):
     ]
 
 
+class LoadsStatus(_StatusPart):
+    """The constant external loads the force observer estimates, world frame (what the
+    MPCs' equilibria carry: a push, wind, a mass or a CoM unlike the configured)."""
+
+    bar_force_n: Annotated[Vector3, Field(description="on the payload's centre (x, y, z) [N]")]
+    bar_torque_nm: Annotated[Vector3, Field(description="on the payload [N m]")]
+    uav_forces_n: Annotated[list[Vector3], Field(description="on each UAV [N], UAV 1's first")]
+    at_bound: Annotated[
+        list[str],
+        Field(description='the bodies whose load is at the observer\'s bound ("bar", "uav2", ...)'),
+    ]
+
+
 class MocapStatus(_StatusPart):
     """The motion capture: the source, and the estimate fused from it."""
 
@@ -256,6 +269,10 @@ class FlightStatus(_StatusPart):
         PathStatus | None, Field(description="the active setpoint's path (null: it has none)")
     ]
     plan: PlanSummary
+    loads: Annotated[
+        LoadsStatus | None,
+        Field(description="the estimated external loads (null: the force observer is off)"),
+    ]
     faults: Annotated[list[str], Field(description="what the safety monitors saw last tick")]
     notices: Annotated[list[RecentNotice], Field(description="recent notices, oldest first")]
     last_flight: Annotated[

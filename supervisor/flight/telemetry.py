@@ -29,6 +29,7 @@ from supervisor.flight.status import (
     FlightStatus,
     LastFlight,
     LiveViewPort,
+    LoadsStatus,
     MocapStatus,
     PathStatus,
     PlanSummary,
@@ -186,6 +187,20 @@ def _path(core: FlightCore, now_s: float) -> PathStatus | None:
     )
 
 
+def _loads(core: FlightCore) -> LoadsStatus | None:
+    """The force observer's estimate (None when it is off)."""
+    observer = core.force_observer
+    if observer.time_constant_s == 0.0:
+        return None
+    loads = observer.forces
+    return LoadsStatus(
+        bar_force_n=list(loads.payload_n),
+        bar_torque_nm=list(loads.payload_torque_nm),
+        uav_forces_n=[list(loads.on_uav(k)) for k in range(core.params.n_vehicles)],
+        at_bound=observer.at_bound(),
+    )
+
+
 def build_telemetry(
     core: FlightCore,
     estimate: Estimate | None,
@@ -220,6 +235,7 @@ def build_telemetry(
         setpoints=_setpoints(core),
         path=_path(core, now_s),
         plan=_plan(last_tick),
+        loads=_loads(core),
         faults=[f.message for f in last_tick.faults] if last_tick is not None else [],
         notices=[
             RecentNotice(age_s=now_s - t_s, message=str(notice)) for t_s, notice in core.notices

@@ -69,12 +69,16 @@ hold_s = 1.0
 """
 
 
-def hovering(setup: str, folder: Path) -> ClosedLoop:
-    """The closed-loop simulator of ``setup`` hovering under the MPC, before its first tick."""
+def hovering(
+    setup: str, folder: Path, extra: str = "", overrides: tuple[str, ...] = ()
+) -> ClosedLoop:
+    """The closed-loop simulator of ``setup`` hovering under the MPC, before its first tick
+    (``extra``: more of the scenario, e.g. a load)."""
     path = folder / "hover.toml"
-    path.write_text(HOVER_SCENARIO)
+    path.write_text(HOVER_SCENARIO + extra)
     scenario = load_scenario(str(path))
-    loop = ClosedLoop(scenario_config(load_config(CONFIGS / setup), scenario), "centralized", 1)
+    config = load_config(CONFIGS / setup, list(overrides))
+    loop = ClosedLoop(scenario_config(config, scenario), "centralized", 1)
     loop.place(scenario)
     loop.advance_plant(0.2)
     loop.core.start_in_hover(loop.estimate(), loop.now_s, loop.resting_heights())
@@ -150,6 +154,38 @@ def test_a_path_flown_is_in_the_status_with_its_points_and_how_long_since_it_beg
     assert begun == sorted(begun) and 0.9 < begun[-1] <= 1.0, elapsed
     received = CHANNEL_MESSAGE.validate_json(TelemetryMessage(status=status).model_dump_json())
     assert isinstance(received, TelemetryMessage) and received.status == status
+
+
+PUSH = """
+[[load]]
+body = "bar"
+force_n = [1.5, 0.0, 0.0]
+"""
+
+
+def test_the_loads_the_observer_estimates_are_in_the_status(tmp_path: Path) -> None:
+    """Hovering with a steady 1.5 N push on the bar: after 3 s the status's loads carry
+    it (the split with the UAVs below is not unique, so the net force is what is checked),
+    none at the observer's bound, and survive the channel; with the observer off they are
+    null."""
+    loop = hovering("sim.toml", tmp_path, PUSH)
+    scenario = load_scenario(str(tmp_path / "hover.toml"))
+    for load in scenario.load:
+        loop.plant.add_load(load.external_load())
+    for _ in range(150):
+        result = loop.decide()
+        loop.apply(result)
+        loop.driver.finish(result)
+        loop.advance_plant(loop.now_s + 0.02)
+    status = in_flight(loop, result)
+    assert status.loads is not None and status.loads.at_bound == []
+    bodies = [status.loads.bar_force_n, *status.loads.uav_forces_n]
+    net = np.sum([[c if c is not None else math.nan for c in body] for body in bodies], axis=0)
+    assert net == pytest.approx([1.5, 0.0, 0.0], abs=0.3)
+    received = CHANNEL_MESSAGE.validate_json(TelemetryMessage(status=status).model_dump_json())
+    assert isinstance(received, TelemetryMessage) and received.status == status
+    off = hovering("sim.toml", tmp_path, PUSH, ("mpc.force_observer_s=0",))
+    assert in_flight(off, off.decide()).loads is None
 
 
 def test_what_is_not_known_is_null_never_nan() -> None:
