@@ -198,11 +198,7 @@ class FlightCore:
         self._rate_filter = RateFilter(self._delay, centralized.rate_filter_weight)
         self._rate_crossover = RateCrossover(self._layout, centralized.rate_crossover_s)
         self._mpc_state: FloatArray | None = None  # the state the last MPC step started from
-        self._integral = ReferenceIntegrator(
-            self._layout,
-            centralized.integral_gain_per_s,
-            positions=centralized.force_observer_s == 0.0,
-        )
+        self._integral = ReferenceIntegrator(self._layout, centralized.integral_gain_per_s)
         self.force_observer = ForceObserver(
             params, self._delay, centralized.force_observer_s, centralized.force_observer_max_n
         )

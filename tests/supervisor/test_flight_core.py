@@ -206,7 +206,7 @@ def test_a_bar_held_low_raises_the_thrust_only_with_the_integral_action(gain: fl
     answer is the same every tick without the integral; with it the reference it is given
     climbs by gain × 5 cm per second, and the thrust with it."""
     # A solve late on a busy machine would fly the shifted plan: this test is about the law.
-    # The force observer off: with it the integral keeps only the yaws.
+    # The force observer off: it would take up the missing force first.
     overrides = [
         f"mpc.integral_gain_per_s={gain}",
         "mpc.late_after_s=10.0",
