@@ -21,9 +21,9 @@ updates the estimate by the least-norm δd with G δd = e, each row in its body'
 scale, taken with the gain h / (τ + h): a first-order estimate with the time constant τ
 (``mpc.force_observer_s``). Forces along a cable pulling its two ends apart move nothing,
 so G is singular there; the least-norm update leaves those parts at zero. Each body's
-force is bounded (``max_force_n``), and the payload's torque (``MAX_TORQUE_NM``), so a
-wrong model cannot ask for an unbounded one. Time is an
-argument; it holds no clock.
+force is bounded (``max_force_n``), the payload's torque (``MAX_TORQUE_NM``), and its
+upward force to half its weight (the cables must still carry it), so a wrong model cannot
+ask for an unbounded or a slack equilibrium. Time is an argument; it holds no clock.
 """
 
 from __future__ import annotations
@@ -47,6 +47,8 @@ _RCOND = 0.05
 # point at 0.4 kg (the equilibrium moves the cables' balance point at most halfway to an
 # attachment, ``formation_equilibria._balance_point``).
 MAX_TORQUE_NM = 1.0
+# The most of the payload's weight an upward force on it may take off its cables.
+MAX_LIFT_SHARE = 0.5
 
 
 def _velocity_rates(model: FormationModel, velocity_rows: list[int]) -> ca.Function:
@@ -94,6 +96,7 @@ class ForceObserver:
         self.time_constant_s = time_constant_s
         self.max_force_n = max_force_n
         self._n_vehicles = params.n_vehicles
+        self._largest_lift_n = MAX_LIFT_SHARE * params.payload.mass_kg * params.gravity_mps2
         self._predictor = predictor
         self._rows = velocity_indices(params)
         self._yaws = list(params.layout.yaw_indices)
@@ -150,8 +153,7 @@ class ForceObserver:
         change = state - last[1]
         change[self._yaws] = np.remainder(change[self._yaws] + np.pi, 2 * np.pi) - np.pi
         rates, sensitivity = self._rates(last[1] + change / 2, u, self._d)
-        rows = self._rows
-        error = change[rows] - h * rates.ravel()
+        error = change[self._rows] - h * rates.ravel()
         sensitivity = h * sensitivity
         # Each row in its body's own scale (the bar's small inertia would otherwise make
         # the UAVs' columns look singular beside its turn rate's).
@@ -172,3 +174,4 @@ class ForceObserver:
             size = float(np.linalg.norm(self._d[k : k + 3]))
             if size > largest:
                 self._d[k : k + 3] *= largest / size
+        self._d[2] = min(self._d[2], self._largest_lift_n)

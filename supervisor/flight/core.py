@@ -799,10 +799,8 @@ class FlightCore:
             corrected = self._rate_crossover.corrected(x, measured_s)
             filtered = self._rate_filter.filtered(corrected, measured_s)
             # In a move it learns four times slower: what the model misses of the
-            # transients is no constant load, but the loads it learnt holding may not hold
-            # in the new geometry (the paper's sequence: 20.6 / 25.1 mm x-error std
-            # learning only while holding, 10.1 / 16.5 so; a 4 m line 29 / 46 against 35 /
-            # 54 mm moving RMSE; benchmarks.robustness).
+            # transients is no constant load, yet the loads learnt holding change with the
+            # geometry (docs/results.md, the force observer's "Slower in moves").
             held = reference == reference.at_rest() and not preview
             forces = self.force_observer.update(
                 filtered, measured_s, MOVING_SLOWER if not held else 1.0

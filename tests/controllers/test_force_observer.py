@@ -140,6 +140,11 @@ def test_the_estimate_is_bounded_and_bad_input_ignored() -> None:
     d = observer.forces.vector(2)
     assert all(np.linalg.norm(d[k : k + 3]) <= 5.0 + 1e-12 for k in (0, 6, 9))
     assert np.linalg.norm(d[3:6]) <= MAX_TORQUE_NM + 1e-12
+    lifted, lifted_predictor = make(params, tau_s=0.05)
+    upward = ExternalForces(payload_n=(0.0, 0.0, 3.0))  # three quarters of the bar's weight
+    fly_held(params, upward, lifted, lifted_predictor, 2.0)
+    weight_n = params.payload.mass_kg * params.gravity_mps2
+    assert lifted.forces.payload_n[2] <= 0.5 * weight_n + 1e-12
     before = observer.forces
     x = formation_equilibrium(params, HOLD).x
     x[4] = math.nan
