@@ -261,6 +261,21 @@ def _check_reference(reference: FormationReference, n: int) -> None:
 # The most a payload torque may move the point the cables' loads balance about, as a share
 # of the nearest attachment's reach: beyond, a cable would carry next to nothing.
 _MAX_BALANCE_SHIFT = 0.5
+# The balance point is rounded to this [m], so that a tick's equilibria (its preview's
+# stages) share their cable loads: 0.1 mm of a 0.4 kg bar's weight is 0.4 mN m.
+_BALANCE_POINT_STEP_M = 1e-4
+
+
+@lru_cache(maxsize=8)
+def _balance_geometry(params: FormationParams) -> tuple[FloatArray | None, float]:
+    """A bar's axis in its frame (None for other payloads), and the farthest the balance
+    point may move [m]."""
+    a = np.array(params.payload.attachments_m, dtype=float)[:, :2]
+    axis = (a[-1] - a[0]) / np.linalg.norm(a[-1] - a[0]) if params.payload.is_bar else None
+    reach = np.hypot(a[:, 0], a[:, 1])
+    off_axis = reach[reach > BAR_TOLERANCE_M]
+    largest = _MAX_BALANCE_SHIFT * float(off_axis.min()) if off_axis.size else 0.0
+    return axis, largest
 
 
 def _balance_point(
@@ -279,18 +294,16 @@ def _balance_point(
         return 0.0, 0.0
     cos_b, sin_b = math.cos(reference.payload_yaw_rad), math.sin(reference.payload_yaw_rad)
     dx, dy = ty / weight, -tx / weight
-    shift = np.array((cos_b * dx + sin_b * dy, -sin_b * dx + cos_b * dy))
-    a = np.array(payload.attachments_m, dtype=float)[:, :2]
-    if payload.is_bar:
-        axis = (a[-1] - a[0]) / np.linalg.norm(a[-1] - a[0])
-        shift = axis * float(axis @ shift)
-    reach = np.hypot(a[:, 0], a[:, 1])
-    off_axis = reach[reach > BAR_TOLERANCE_M]
-    largest = _MAX_BALANCE_SHIFT * float(off_axis.min()) if off_axis.size else 0.0
-    size = float(np.linalg.norm(shift))
+    shift_x, shift_y = cos_b * dx + sin_b * dy, -sin_b * dx + cos_b * dy
+    axis, largest = _balance_geometry(params)
+    if axis is not None:
+        along = float(axis[0]) * shift_x + float(axis[1]) * shift_y
+        shift_x, shift_y = along * float(axis[0]), along * float(axis[1])
+    size = math.hypot(shift_x, shift_y)
     if size > largest:
-        shift *= largest / size
-    return float(shift[0]), float(shift[1])
+        shift_x, shift_y = shift_x * largest / size, shift_y * largest / size
+    step = _BALANCE_POINT_STEP_M
+    return round(shift_x / step) * step, round(shift_y / step) * step
 
 
 @lru_cache(maxsize=8)

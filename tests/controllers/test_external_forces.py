@@ -37,7 +37,7 @@ LEVEL_GEOMETRIES = {
 }
 
 
-def random_loads(params: FormationParams, seed: int, torque: bool = True) -> ExternalForces:
+def random_loads(params: FormationParams, seed: int) -> ExternalForces:
     rng = np.random.default_rng(seed)
 
     def triple(scale: float) -> tuple[float, float, float]:
@@ -46,7 +46,7 @@ def random_loads(params: FormationParams, seed: int, torque: bool = True) -> Ext
 
     return ExternalForces(
         payload_n=triple(1.0),
-        payload_torque_nm=triple(0.05) if torque else (0.0, 0.0, 0.0),
+        payload_torque_nm=triple(0.05),
         uavs_n=tuple(triple(2.0) for _ in range(params.n_vehicles)),
     )
 
@@ -58,17 +58,25 @@ def reference(params: FormationParams, yaw: float, cone_deg: float) -> Formation
     )
 
 
-def horizontal_torque(params: FormationParams, loads: ExternalForces, yaw: float) -> ExternalForces:
-    """``loads`` with the payload torque's vertical part removed (no level equilibrium
-    balances it), and for a bar its part along the bar too ((5g) has no spin about it)."""
-    torque = np.array(loads.payload_torque_nm)
-    torque[2] = 0.0
+def horizontal_torque(
+    params: FormationParams, loads: ExternalForces, yaw: float, seed: int
+) -> ExternalForces:
+    """``loads`` with a payload torque that has a level equilibrium: horizontal (none
+    balances one about the vertical), for a bar across it ((5g) has no spin about its
+    axis), and moving the cables' balance point to a whole number of the equilibrium's
+    0.1 mm steps (it rounds the point to them), within 1 cm."""
+    rng = np.random.default_rng(seed)
+    point = np.append(rng.integers(-100, 101, 2) * 1e-4, 0.0)  # in the payload's frame [m]
     if params.payload.is_bar:
         a = np.array(params.payload.attachments_m)
-        axis = rotation_from_euler_zyx(0.0, 0.0, yaw) @ (a[-1] - a[0])
-        axis /= np.linalg.norm(axis)
-        torque -= axis * float(axis @ torque)
-    return dataclasses.replace(loads, payload_torque_nm=(torque[0], torque[1], torque[2]))
+        axis = (a[-1] - a[0]) / np.linalg.norm(a[-1] - a[0])
+        point = axis * round(float(axis @ point) / 1e-4) * 1e-4
+    weight = params.payload.mass_kg * params.gravity_mps2 - loads.payload_n[2]
+    shift = rotation_from_euler_zyx(0.0, 0.0, yaw) @ point
+    torque = weight * np.cross((0.0, 0.0, 1.0), shift)  # the weight moved by the shift
+    return dataclasses.replace(
+        loads, payload_torque_nm=(float(torque[0]), float(torque[1]), float(torque[2]))
+    )
 
 
 @pytest.mark.parametrize("params", LEVEL_GEOMETRIES.values(), ids=LEVEL_GEOMETRIES.keys())
@@ -80,7 +88,7 @@ def test_equilibria_under_loads_are_fixed_points_of_the_forced_model(
     model = FormationModel(params)
     worst = 0.0
     for seed, yaw, cone_deg in itertools.product(range(3), (0.0, 0.8, -2.5), (0.0, 25.0, 50.0)):
-        loads = horizontal_torque(params, random_loads(params, seed), yaw)
+        loads = horizontal_torque(params, random_loads(params, seed), yaw, seed)
         target = reference(params, yaw, cone_deg)
         eq = formation_equilibrium(params, target, forces=loads)
         d = loads.vector(params.n_vehicles)
