@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from controllers.delay import DelayPredictor
-from controllers.force_observer import MAX_TORQUE_NM, ForceObserver
+from controllers.force_observer import MAX_TORQUE_NM, ForceObserver, velocity_indices
 from controllers.formation_equilibria import (
     NO_FORCES,
     ExternalForces,
@@ -50,19 +50,13 @@ def fly_held(
     # At rest but for the balance point's 0.1 mm rounding under a payload torque.
     assert np.abs(xdot).max() < 1e-3
     rng = np.random.default_rng(5)
-    velocities = observer_rows(params)
+    velocities = velocity_indices(params)
     for k in range(round(seconds / TICK_S)):
         t = k * TICK_S
         predictor.sent(t, held.u)
         measured = held.x.copy()
         measured[velocities] += rng.normal(0.0, noise_mps, len(velocities))
         observer.update(measured, t)
-
-
-def observer_rows(params: FormationParams) -> list[int]:
-    from controllers.force_observer import velocity_indices
-
-    return velocity_indices(params)
 
 
 def make(params: FormationParams, tau_s: float = 0.3) -> tuple[ForceObserver, DelayPredictor]:
@@ -99,7 +93,7 @@ def test_the_estimate_explains_what_the_plant_does(
     reference = FormationReference((0.0, 0.0, 1.0), 0.3, (0.3,) * params.n_vehicles)
     held = formation_equilibrium(params, reference, forces=truth)
     model = FormationModel(params)
-    rows = observer_rows(params)
+    rows = velocity_indices(params)
     estimated = observer.forces.vector(params.n_vehicles)
     at_rest = np.asarray(model.forced_dynamics(held.x, held.u, estimated)).ravel()[rows]
     free = np.asarray(model.dynamics(held.x, held.u)).ravel()[rows]
