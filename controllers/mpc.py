@@ -629,9 +629,16 @@ class _Agent:
         return u_pred, solution.x + x_eq, solution.iterations
 
 
+PeerInputs = Callable[[int, float], FloatArray | None]
+"""Agent i's planned inputs from now (one row per stage ahead), as it told its peers; None
+when it is not heard."""
+
+
 class DecentralizedMpc:
     """N independent 18-state MPCs of Section V; each sees only its UAV and its cable's
-    attachment. ``clock`` times each step (see ``Clock``)."""
+    attachment. ``clock`` times each step (see ``Clock``). An agent's own process solves
+    only ``own`` (None: every agent); the others' rows of the plan are their plans as
+    ``peer_inputs`` gives them, else their equilibrium's."""
 
     def __init__(
         self,
@@ -640,15 +647,17 @@ class DecentralizedMpc:
         backend: str | None = None,
         *,
         clock: Clock,
+        own: tuple[int, ...] | None = None,
+        peer_inputs: PeerInputs | None = None,
     ) -> None:
         self.params = params
         self.settings = settings
         self._clock = clock
         self._layout = params.layout
+        self._peer_inputs = peer_inputs
         shares = hanging_mass_shares_kg(params)
-        self.agents = tuple(
-            _Agent(params, settings, i, shares[i - 1], backend) for i in self._layout.vehicles
-        )
+        solved = self._layout.vehicles if own is None else own
+        self.agents = tuple(_Agent(params, settings, i, shares[i - 1], backend) for i in solved)
         self._plans = _PlanKeeper()
         self._preparation = _ModelPreparation(
             self._layout, settings, self._linearize, tuple(agent.mpc for agent in self.agents)
@@ -745,14 +754,19 @@ class DecentralizedMpc:
         failures = [r for r in results if isinstance(r, str)]
         if failures:
             return self._plans.fallback(now_s, PlanStatus.SHIFTED_FAILED, hold, "; ".join(failures))
-        solved = [r for r in results if not isinstance(r, str)]
+        solved = {
+            agent.i: r
+            for agent, r in zip(self.agents, results, strict=True)
+            if not isinstance(r, str)
+        }
         elapsed = self._clock() - started
         if elapsed > self.settings.late_after_s:
             return self._plans.fallback(
                 now_s, PlanStatus.SHIFTED_LATE, hold, f"tick took {elapsed * 1e3:.1f} ms"
             )
-        u_pred = np.hstack([u for u, _, _ in solved])
-        x_pred = np.hstack([x for _, x, _ in solved])
+        parts = [solved.get(i) or self._peer_part(eq, i, now_s) for i in self._layout.vehicles]
+        u_pred = np.hstack([u for u, _, _ in parts])
+        x_pred = np.hstack([x for _, x, _ in parts])
         plan = Plan(
             u_pred[0].copy(),
             u_pred,
@@ -760,6 +774,21 @@ class DecentralizedMpc:
             PlanStatus.OPTIMAL,
             now_s,
             elapsed,
-            sum(iterations for _, _, iterations in solved),
+            sum(iterations for _, _, iterations in solved.values()),
         )
         return self._plans.accept(plan)
+
+    def _peer_part(
+        self, eq: FormationEquilibrium, i: int, now_s: float
+    ) -> tuple[FloatArray, FloatArray, int]:
+        """Agent i's rows of the plan, solved in its own process: its inputs as it planned
+        them (else its equilibrium's), its states at its equilibrium."""
+        N = self.settings.horizon
+        u_eq = eq.agent_input(i)
+        planned = self._peer_inputs(i, now_s) if self._peer_inputs is not None else None
+        u = np.tile(u_eq, (N, 1))
+        if planned is not None and planned.shape[1:] == u_eq.shape and len(planned):
+            k = min(len(planned), N)
+            u[:k] = planned[:k]
+            u[k:] = planned[k - 1]
+        return u, np.tile(eq.agent_state(i), (N + 1, 1)), 0

@@ -7,6 +7,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from controllers.mpc import PeerInputs
 from controllers.params import Clock
 from mocap.client import QtmClient
 from mocap.fusion import FusionConfig, MocapFusion
@@ -59,17 +60,25 @@ def core_settings_from_config(config: Config) -> CoreSettings:
 
 
 def flight_core_from_config(
-    config: Config, controller: str = "centralized", *, clock: Clock
+    config: Config,
+    controller: str = "centralized",
+    *,
+    clock: Clock,
+    agent: int | None = None,
+    peer_inputs: PeerInputs | None = None,
 ) -> FlightCore:
-    """The tick core with both MPCs built for the configured system, timed on ``clock``."""
+    """The tick core with both MPCs built for the configured system, timed on ``clock``;
+    for ``agent``, its decentralized MPC alone (``FlightCore``'s ``agent``)."""
     return FlightCore(
         config.system.to_params(),
         {name: config.mpc_settings(name) for name in CONTROLLERS},
         arena_from_config(config),
-        controller,
+        "decentralized" if agent is not None else controller,
         settings=core_settings_from_config(config),
         safety=safety_limits_from_config(config),
         clock=clock,
+        agent=agent,
+        peer_inputs=peer_inputs,
     )
 
 

@@ -23,7 +23,7 @@ from controllers.force_observer import ForceObserver
 from controllers.formation_equilibria import FormationReference, formation_equilibrium
 from controllers.formation_params import FormationParams
 from controllers.integral_action import ReferenceIntegrator
-from controllers.mpc import CentralizedMpc, DecentralizedMpc, Plan
+from controllers.mpc import CentralizedMpc, DecentralizedMpc, PeerInputs, Plan
 from controllers.params import Clock, MpcSettings
 from controllers.preview import Preview, moved_like, sampled_stages
 from controllers.rate_filter import RateCrossover, RateFilter
@@ -109,6 +109,7 @@ class NoticeKind(StrEnum):
     BLIND = "blind"  # the mocap was lost: the vehicles were handed to PX4's own landing
     PROCESS = "process"  # serve restarted the flight process (it had died)
     LOG = "log"  # the flight log stopped by itself (a write error); the flight goes on
+    GROUND = "ground"  # an agent lost its ground station: it holds, then lands
 
 
 @dataclass(frozen=True)
@@ -155,17 +156,34 @@ class FlightCore:
         safety: SafetyLimits | None = None,
         *,
         clock: Clock,
+        agent: int | None = None,
+        peer_inputs: PeerInputs | None = None,
     ) -> None:
         if controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}")
+        if agent is not None and controller != "decentralized":
+            raise ValueError("an agent flies its own vehicle: the decentralized MPC only")
         self.params = params
         self._layout = params.layout
         self.settings = settings or CoreSettings()
         self.arena = arena
+        self.agent = agent
+        """The vehicle whose agent this core is (None: it flies every vehicle): its MPC
+        solves that vehicle's problem alone, the others' plans are their agents'
+        (``peer_inputs``)."""
+        decentralized = DecentralizedMpc(
+            params,
+            mpc_settings["decentralized"],
+            clock=clock,
+            own=None if agent is None else (agent,),
+            peer_inputs=peer_inputs,
+        )
         self.controllers: dict[str, CentralizedMpc | DecentralizedMpc] = {
-            "centralized": CentralizedMpc(params, mpc_settings["centralized"], clock=clock),
-            "decentralized": DecentralizedMpc(params, mpc_settings["decentralized"], clock=clock),
+            "decentralized": decentralized
         }
+        if agent is None:
+            centralized_mpc = CentralizedMpc(params, mpc_settings["centralized"], clock=clock)
+            self.controllers["centralized"] = centralized_mpc
         self._clock = clock
         self.controller = controller
         self.modes = FlightModes()
@@ -279,6 +297,13 @@ class FlightCore:
         if name not in CONTROLLERS:
             return Transition(
                 False, self.modes.mode, f"controller must be one of {', '.join(CONTROLLERS)}"
+            )
+        if name not in self.controllers:
+            return Transition(
+                False,
+                self.modes.mode,
+                "the agents fly one vehicle each: only the decentralized MPC (the centralized "
+                "one needs one computer flying all: agents.enabled = false)",
             )
         if name != self.controller:
             self.controllers[name].reset()
@@ -564,7 +589,8 @@ class FlightCore:
     ) -> list[Notice]:
         """Carry out the one response the faults call for (``chosen_response``)."""
         response = chosen_response(faults)
-        if response is Response.CENTRALIZE and self.controller == "decentralized":
+        centralizable = "centralized" in self.controllers
+        if response is Response.CENTRALIZE and self.controller == "decentralized" and centralizable:
             self.set_controller("centralized", now_s)
             swing = next(f for f in faults if f.response is Response.CENTRALIZE)
             return [Notice(NoticeKind.SWING, f"{swing.message}; switched to the centralized MPC")]

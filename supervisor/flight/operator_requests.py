@@ -246,7 +246,7 @@ def handle_request(core: FlightCore, request: Request, now_s: float) -> Reply:
         data = {"controller": core.controller, "mode": core.modes.mode.value}
         if transition.accepted:
             return Reply(outcome=Outcome.OK, data=data)
-        return Reply(outcome=Outcome.INVALID, reason=transition.reason, data=data)
+        return Reply(outcome=Outcome.REFUSED, reason=transition.reason, data=data)
     if isinstance(request, QueueRequest):
         try:
             core.queue_setpoints([entry.to_setpoint() for entry in request.setpoints])

@@ -193,6 +193,10 @@ class SetpointQueue:
                 f"the queue holds at most {self.capacity} setpoints ({len(self._queued)} queued)"
             )
 
+    def drop_queued(self) -> None:
+        """Drop the queued setpoints; the active one is flown on."""
+        self._queued.clear()
+
     def clear(self) -> None:
         """Drop the queued setpoints and the active one."""
         self._queued.clear()
