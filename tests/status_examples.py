@@ -77,6 +77,7 @@ STATUS_JSON: dict[str, Any] = {
     "log": None,
     "log_stopped": None,
     "live_view": None,
+    "agents": None,
     "stale": False,
     "processes": {},
     "world": {"embedded": False},

@@ -52,7 +52,8 @@ ROOMS = {
     "logs": {"flight"},
     "ipc": {"flight"},
     "runtime": {"flight", "vehicles", "ipc", "logs"},
-    "app": {"flight", "vehicles", "mavlink", "ipc", "runtime", "logs"},
+    "agents": {"flight", "vehicles"},
+    "app": {"flight", "vehicles", "mavlink", "ipc", "runtime", "logs", "agents"},
     "simulate": {"flight", "logs", "runtime", "app"},
     "cli": {"flight", "logs", "runtime", "app", "simulate", "ipc"},
 }

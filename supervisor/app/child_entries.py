@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from supervisor.app.api_process import ApiStart
     from supervisor.app.config import Config
     from supervisor.app.flight_main import FlightStart
+    from supervisor.app.ground_main import GroundStart
 
 LinkSockets = tuple[socket.socket, ...]
 SigningKeys = dict[int, bytes] | None
@@ -52,6 +53,13 @@ def flight_main(
     from supervisor.app.flight_main import run_flight_process
 
     run_flight_process(setup.load(), start, world, parent)
+
+
+def ground_main(setup: Setup, start: GroundStart, parent: Connection) -> None:
+    ignore_ctrl_c()
+    from supervisor.app.ground_main import run_ground_process
+
+    run_ground_process(setup.load(), start, parent)
 
 
 def relay_main(

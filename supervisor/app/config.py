@@ -53,6 +53,7 @@ PositiveVec3 = Annotated[list[PositiveFloat], Field(min_length=3, max_length=3)]
 __all__ = ["CONFIG_DIR", "TOKEN_ENV", "Config", "ConfigError", "load_config"]
 
 LOOPBACK = "127.0.0.1"
+ZENOH_ENDPOINT = r"^(tcp|tls|udp|quic)/[^\s/]+:\d{1,5}$"
 
 
 def host_port(address: str) -> tuple[str, int]:
@@ -703,6 +704,38 @@ class FoxgloveSection(_Section):
         return "127.0.0.1" if listens_beyond_loopback(api_host) else api_host
 
 
+class AgentsSection(_Section):
+    """The decentralized agents as processes of their own, one per vehicle, over Zenoh
+    (docs/agents.md): ``serve`` is then their ground station."""
+
+    enabled: bool = False
+    spawn: bool = True
+    """``serve`` starts the agents on this computer (the embedded simulator's way); false
+    when each runs elsewhere (``uavbar-supervisor agent --vehicle I`` on its own computer)."""
+    ground_endpoint: Annotated[str, Field(pattern=ZENOH_ENDPOINT)] = "tcp/127.0.0.1:0"
+    """Where the ground station listens; port 0: a free one (only with ``spawn``)."""
+    agent_endpoints: list[Annotated[str, Field(pattern=ZENOH_ENDPOINT)]] | None = None
+    """Where each agent listens, UAV 1's first (its peers connect there). Unset: loopback,
+    free ports (only with ``spawn``)."""
+    fleet: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,32}$")] = "lab"
+    """The fleet's name in every key expression: two fleets on one network never mix."""
+    ground_loss_hold_s: PositiveFloat = 3.0
+    """Without the ground station, the agents hold the last setpoint this long, then land."""
+    peer_timeout_s: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = 0.25
+    """A peer (or the ground station) silent this long is lost."""
+    share_plans: bool = True
+    """Each agent tells its peers its planned inputs every tick and predicts their vehicles
+    with them (false: with their equilibrium's): docs/agents.md, what it buys."""
+    command_timeout_s: PositiveFloat = 8.0
+    """The longest an operator request waits for every agent's answer (arming takes ~2 s)."""
+
+    @model_validator(mode="after")
+    def _ports_named_when_elsewhere(self) -> AgentsSection:
+        if not self.spawn and self.ground_endpoint.endswith(":0"):
+            raise ValueError("ground_endpoint: name its port when the agents run elsewhere")
+        return self
+
+
 class Config(_Section):
     """One complete setup."""
 
@@ -718,6 +751,7 @@ class Config(_Section):
     safety: SafetySection = SafetySection()
     control: ControlSection = ControlSection()
     sim: SimSection = SimSection()
+    agents: AgentsSection = AgentsSection()
 
     @model_validator(mode="before")
     @classmethod
@@ -751,6 +785,7 @@ class Config(_Section):
             "vehicles.ports": v.ports,
             "vehicles.system_ids": v.system_ids,
             "vehicles.addresses": v.addresses,
+            "agents.agent_endpoints": self.agents.agent_endpoints,
             "vehicles.thrust_max_n": v.thrust_max_n if isinstance(v.thrust_max_n, list) else None,
             "vehicles.torque_max_nm": (
                 v.torque_max_nm if isinstance(v.torque_max_nm, list) else None

@@ -28,6 +28,7 @@ from typing import Any
 
 from api.server import bind
 from px4_mavlink.transport import bind_udp
+from supervisor.app.agent_spawn import SpawnedAgents, fleet_endpoints
 from supervisor.app.api_process import GO, READY, ApiStart, api_tls
 from supervisor.app.child_entries import (
     LinkSockets,
@@ -35,12 +36,14 @@ from supervisor.app.child_entries import (
     SigningKeys,
     api_main,
     flight_main,
+    ground_main,
     relay_main,
     world_main,
 )
 from supervisor.app.children import SPAWN, Child, Lifeline, start_deaf_to_ctrl_c, stop_child
 from supervisor.app.config import TOKEN_ENV, Config, ConfigError
 from supervisor.app.flight_main import FlightStart
+from supervisor.app.ground_main import GroundStart
 from supervisor.app.relay_main import relay_addresses
 from supervisor.app.signing_keys import load_signing_keys, signing_keys_path
 from supervisor.flight.status import ProcessStatus
@@ -166,6 +169,8 @@ class Service:
         self._spare: tuple[BaseProcess, Lifeline, multiprocessing.connection.Connection] | None
         self._spare = None
         self._api_ready = asyncio.Event()
+        self.agents = SpawnedAgents()
+        self._ground_endpoint = ""
 
     @property
     def port(self) -> int:
@@ -193,19 +198,43 @@ class Service:
             self.world_addresses = started
             world = Child("world", lambda _: (process, lifeline), restartable=False)
             self._watch(world)
-        self.link_sockets = _bind_link_sockets(config, self.world_addresses)
-        if relay_addresses(config, self.world_addresses) is not None:
-            self._watch(Child("relay", self._start_relay, restartable=True))
-        else:
-            log.info("mocap relay: vehicle addresses unknown, the flight process forwards mocap")
         self._flight_listener = listen_unix(self.rendezvous.flight)
-        self._watch(Child("flight", self._start_flight, restartable=True))
+        if config.agents.enabled:
+            self._start_fleet()
+        else:
+            self._start_flight_and_relay()
         self._watch(Child("api", self._start_api, restartable=True))
         try:
             async with asyncio.timeout(API_START_TIMEOUT_S):
                 await self._api_ready.wait()
         except TimeoutError:
             raise RuntimeError("the API process did not start") from None
+
+    def _start_flight_and_relay(self) -> None:
+        config = self.config
+        self.link_sockets = _bind_link_sockets(config, self.world_addresses)
+        if relay_addresses(config, self.world_addresses) is not None:
+            self._watch(Child("relay", self._start_relay, restartable=True))
+        else:
+            log.info("mocap relay: vehicle addresses unknown, the flight process forwards mocap")
+        self._watch(Child("flight", self._start_flight, restartable=True))
+
+    def _start_fleet(self) -> None:
+        """The agents' ground station in the flight process's place (and the agents
+        themselves with ``agents.spawn``): each agent owns its vehicle's link and forwards
+        its mocap, so neither links nor relay are serve's."""
+        ground, endpoints = fleet_endpoints(self.config)
+        self._ground_endpoint = ground
+        self._watch(Child("ground", self._start_ground, restartable=True))
+        if self.config.agents.spawn:
+            self.agents.start(
+                self.setup, self.config, self.token, ground, endpoints, self.world_addresses
+            )
+
+    def _start_ground(self, _: str | None) -> tuple[BaseProcess, Lifeline]:
+        assert self._flight_listener is not None
+        start = GroundStart(self._flight_listener, self.token, self._ground_endpoint)
+        return _spawn("uavbar-ground", ground_main, self.setup, start)
 
     def _watch(self, child: Child) -> None:
         child.on_exit = self._ended
@@ -214,7 +243,12 @@ class Service:
         self.publish_table()
 
     def _ended(self, child: Child, how: str) -> None:
-        if child.name == "flight":
+        if child.name == "ground":
+            log.error(
+                "the ground station died (%s): the agents hold, then land; starting it again",
+                how,
+            )
+        elif child.name == "flight":
             log.error(
                 "the flight process died (%s): nothing commands the vehicles now, each PX4's "
                 "offboard-loss failsafe takes over; starting it again (it flies nothing until "
@@ -313,6 +347,7 @@ class Service:
             child.stopped = True
         order = [
             ("flight", LANDING_TIMEOUT_S + 10.0),
+            ("ground", LANDING_TIMEOUT_S + 10.0),
             ("relay", 5.0),
             ("world", 10.0),
             ("api", 5.0),
@@ -320,6 +355,8 @@ class Service:
         for name, timeout_s in order:
             if name in self.children:
                 await stop_child(self.children[name], timeout_s)
+            if name == "ground":  # landed by it: then the agents stop
+                await asyncio.to_thread(self.agents.stop)
         await asyncio.to_thread(self._stop_spare)
         if self._table_pipe is not None:
             asyncio.get_running_loop().remove_reader(self._table_pipe.fileno())

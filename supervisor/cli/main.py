@@ -190,6 +190,29 @@ def _serve(args: argparse.Namespace) -> int:
     return run_serve(_setup_path(args), args.overrides)
 
 
+def _agent(args: argparse.Namespace) -> int:
+    import os
+
+    from supervisor.app.agent_main import AgentStart, run_agent_process
+    from supervisor.app.config import TOKEN_ENV, ConfigError
+
+    config = _config(args)
+    n = config.system.n_vehicles
+    if not 1 <= args.vehicle <= n:
+        raise ConfigError(f"--vehicle: 1 … {n} (this setup's UAVs), got {args.vehicle}")
+    token = config.api.token or os.environ.get(TOKEN_ENV)
+    if not token:
+        raise ConfigError(
+            f"an agent takes commands only with its ground station's token: set {TOKEN_ENV} "
+            "or api.token to serve's"
+        )
+    endpoints = config.agents.agent_endpoints
+    listen = args.listen or ([endpoints[args.vehicle - 1]] if endpoints else [])
+    connect = args.connect or [config.agents.ground_endpoint]
+    _logging()
+    return run_agent_process(config, AgentStart(args.vehicle, tuple(listen), tuple(connect), token))
+
+
 def _sitl(args: argparse.Namespace) -> int:
     from supervisor.app.world_process import run_sitl
 
@@ -354,6 +377,30 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         "  uavbar-supervisor serve --config kth_sml --set 'vehicles.bind_host=\"192.168.1.20\"'",
     )
     serve.set_defaults(handler=_serve)
+    agent = commands.add_parser(
+        "agent",
+        help="one vehicle's agent: its link, its decentralized MPC, over Zenoh",
+        description="One vehicle's agent (docs/agents.md): its MAVLink link, its own QTM "
+        "client and decentralized MPC, its safety monitors; commands come from the ground "
+        "station (serve with agents.enabled) over Zenoh, with the API token (UAVBAR_TOKEN). "
+        "SIGTERM or Ctrl-C lands its vehicle's part first.",
+        epilog="example:\n  UAVBAR_TOKEN=... uavbar-supervisor agent --vehicle 2 --config lab "
+        "--connect tcp/192.168.1.20:7447 --listen tcp/192.168.1.32:7448",
+    )
+    agent.add_argument("--vehicle", type=int, required=True, metavar="I", help="its UAV (1 … N)")
+    agent.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="a Zenoh endpoint to join (repeatable; default: agents.ground_endpoint)",
+    )
+    agent.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="where its peers reach it (default: its agents.agent_endpoints entry)",
+    )
+    agent.set_defaults(handler=_agent)
     sitl = commands.add_parser(
         "sitl",
         help="the simulated world alone, in real time: plant, a PX4 per UAV, a QTM server",

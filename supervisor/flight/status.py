@@ -245,6 +245,22 @@ class LiveViewPort(_StatusPart):
 UavCount = Field(min_length=MIN_VEHICLES, max_length=MAX_VEHICLES)
 
 
+class AgentStatus(_StatusPart):
+    """One vehicle's agent, as its ground station hears it (docs/agents.md)."""
+
+    vehicle: Annotated[StrictInt, Field(ge=1, le=MAX_VEHICLES, description="its UAV (1 … N)")]
+    alive: Annotated[StrictBool, Field(description="heard within agents.peer_timeout_s")]
+    host: Annotated[str, Field(description="the computer it runs on")] = ""
+    pid: Annotated[StrictInt | None, Field(description="its process id (null: never heard)")]
+    mode: Annotated[Mode | None, Field(description="its own flight mode (null: never heard)")]
+    link_latency_ms: Annotated[
+        MaybeReal, Field(description="the ground station's last Zenoh round trip to it [ms]")
+    ]
+    last_message_age_s: Annotated[
+        MaybeReal, Field(description="since its last message [s] (null: never heard)")
+    ]
+
+
 class FlightStatus(_StatusPart):
     """The flight process's status at ``time_s``: the mode, the N vehicles (2 … 8, UAV 1's
     first in every list), the bar, the mocap, the setpoints and the path flown, the last
@@ -286,6 +302,10 @@ class FlightStatus(_StatusPart):
         str | None, Field(description="why the last flight's log stopped by itself")
     ]
     live_view: Annotated[LiveViewPort | None, Field(description="null: no live view")]
+    agents: Annotated[
+        list[AgentStatus] | None,
+        Field(description="each vehicle's agent process (null: one flight process flies all)"),
+    ]
 
     @model_validator(mode="after")
     def _one_per_vehicle(self) -> Self:

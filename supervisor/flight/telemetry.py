@@ -246,6 +246,7 @@ def build_telemetry(
         log=shell.log_path,
         log_stopped=shell.log_stopped,
         live_view=LiveViewPort(sdk_port=live_view) if live_view is not None else None,
+        agents=None,
     )
 
 

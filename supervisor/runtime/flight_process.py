@@ -14,7 +14,6 @@ disarmed; when the control loop stops, setpoints stop.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import gc
 import logging
 import math
@@ -36,14 +35,10 @@ from supervisor.flight.operator_requests import (
     Outcome,
     Reply,
     Request,
-    SetpointsQuery,
     handle_request,
 )
 from supervisor.flight.status import FlightStatus
 from supervisor.flight.telemetry import MocapView, ShellView, build_telemetry
-from supervisor.ipc.channel import Channel, ChannelClosedError, ChannelServer
-from supervisor.ipc.messages import ReplyMessage, TelemetryMessage
-from supervisor.ipc.server import HELLO_TIMEOUT_S, Admission, admit, refusal, serve_requests
 from supervisor.logs.best_effort import BestEffortLog, write_error_words
 from supervisor.logs.flight_log import (
     LogFormat,
@@ -52,6 +47,7 @@ from supervisor.logs.flight_log import (
     new_log_path,
 )
 from supervisor.logs.free_space import FreeSpaceFloor
+from supervisor.runtime.operator_front import OperatorFront
 from supervisor.runtime.phase_lock import MocapPhaseLock
 from supervisor.runtime.scheduler import DeadlineTicker, TickTiming, TimingStats
 from supervisor.runtime.tick_driver import TickDriver
@@ -67,8 +63,6 @@ from supervisor.vehicles.sequences import (
 
 log = logging.getLogger(__name__)
 
-TELEMETRY_PERIOD_S = 0.04
-TELEMETRY_BACKLOG_BYTES = 1 << 20
 LANDING_TIMEOUT_S = 90.0
 FULL_COLLECTION_TICKS = 250  # a full garbage collection every 5 s, between two ticks
 # A gap between two ticks this long (three periods): the process, or the whole computer,
@@ -96,6 +90,10 @@ class FlightSettings:
     # COM_OF_LOSS_T, COM_OBL_RC_ACT), read back from each vehicle at every arm.
     failsafe_parameters: Mapping[str, float] = field(default_factory=dict)
     min_free_log_mb: float = 0.0  # arming is refused with less free in the log folder
+    own_vehicles: tuple[int, ...] | None = None
+    """The vehicles this process commands (an agent: its own; None: every one). Another's
+    link is its agent's report (``supervisor.agents.peer_vehicle``), its parameters that
+    agent's to check."""
 
 
 class FlightProcess:
@@ -114,6 +112,9 @@ class FlightProcess:
         proof_of_life_s: float = PROOF_OF_LIFE_S,
     ) -> None:
         self.settings = settings
+        self.on_tick: Callable[[TickResult], Mapping[str, float]] | None = None
+        """Called after each tick's send (an agent tells its peers); what it returns is
+        logged with the tick."""
         self.mocap = mocap
         self.links = links
         self.log_folder = log_folder
@@ -134,7 +135,6 @@ class FlightProcess:
         self._stopping = asyncio.Event()
         self._on_ground = asyncio.Event()
         self._sequences: set[asyncio.Task[None]] = set()
-        self._telemetry_channels: set[Channel] = set()
         self._mocap_rate = (0, clock(), 0.0)  # frames, since, rate
         self._frames_since_tick = 0
         self._last_tick_s = math.inf  # the start of the last tick (none yet)
@@ -147,12 +147,13 @@ class FlightProcess:
         return self.driver.core
 
     # ---- lifecycle ------------------------------------------------------------------------
-    async def run(self, listener: socket.socket, token: str) -> None:
-        """Fly until ``stop``, answering every connection to ``listener`` that presents
-        ``token`` (or asks only to abort) meanwhile."""
+    async def run(self, listener: socket.socket | None, token: str) -> None:
+        """Fly until ``stop``, answering every connection to ``listener`` (if any) that
+        presents ``token`` (or asks only to abort) meanwhile."""
         self.core.await_vehicles(self.clock())
-        server = ChannelServer()
-        await server.start(listener, Channel, lambda c: self._connection(c, token))
+        front = OperatorFront(token, self.handle, self.telemetry, self.clock)
+        if listener is not None:
+            await front.start(listener)
         try:
             async with asyncio.TaskGroup() as group:
                 control = group.create_task(self._control_loop(), name="control-loop")
@@ -162,7 +163,7 @@ class FlightProcess:
                 control.cancel()
                 watch.cancel()
         finally:
-            await server.close()
+            await front.close()
             self.streaming = False
             self._close_log()
 
@@ -172,50 +173,6 @@ class FlightProcess:
         while self._log_space is not None:
             self._log_problem = await asyncio.to_thread(self._log_space.problem)
             await asyncio.sleep(LOG_SPACE_PERIOD_S)
-
-    async def _connection(self, channel: Channel, token: str) -> None:
-        """One connection: its hello, then its requests (and, for the API's commands
-        connection, the telemetry stream) until it closes."""
-        try:
-            async with asyncio.timeout(HELLO_TIMEOUT_S):
-                hello = await channel.receive()
-            admission = admit(hello, token)
-            if isinstance(admission, str):
-                channel.send(
-                    ReplyMessage(id=0, reply=Reply(outcome=Outcome.REFUSED, reason=admission))
-                )
-                await channel.drain()
-                log.warning("connection refused: %s", admission)
-                return
-            log.info("%s connection opened", admission.role)
-            publisher = None
-            if admission.role == "commands":
-                publisher = asyncio.create_task(self._publish(channel))
-                self._telemetry_channels.add(channel)
-            try:
-                await serve_requests(channel, lambda r: self._admitted(admission, r))
-            finally:
-                if publisher is not None:
-                    publisher.cancel()
-                self._telemetry_channels.discard(channel)
-                log.info("%s connection closed", admission.role)
-        except (ChannelClosedError, TimeoutError):
-            return
-
-    async def _admitted(self, admission: Admission, request: Request) -> Reply:
-        refused = refusal(admission, request)
-        if refused is not None:
-            return Reply(outcome=Outcome.REFUSED, reason=refused)
-        reply = await self.handle(request)
-        if reply.ok and not isinstance(request, SetpointsQuery):
-            # The status the request left, ahead of its reply on the API's commands
-            # connection: a status read, or a ``wait_s``, after the reply never sees the
-            # state before it (a query changes nothing).
-            status = TelemetryMessage(status=self.telemetry())
-            for channel in self._telemetry_channels:
-                with contextlib.suppress(ChannelClosedError):
-                    channel.send(status)
-        return reply
 
     def stop(self) -> None:
         """Land (if airborne), disarm, then return from ``run``."""
@@ -326,8 +283,10 @@ class FlightProcess:
             log.info("mode %s → %s", before.value, result.mode.value)
         self._react(before, result.mode)
         self._notice_self_disarm(started)
+        figures = self.on_tick(result) if self.on_tick is not None else {}
         self.driver.finish(  # logs, then the next tick's model while no frame waits
             result,
+            **figures,
             compute_total_ms=compute_s * 1e3,
             latency_ms=latency_ms,
             mocap_wait_ms=wait_ms,
@@ -457,6 +416,13 @@ class FlightProcess:
             self.core.notices.append((self.clock(), Notice(NoticeKind.VEHICLE, text)))
         self.streaming = False
 
+    def own_links(self) -> tuple[VehicleLink, ...]:
+        """The links of the vehicles this process commands."""
+        own = self.settings.own_vehicles
+        if own is None:
+            return self.links
+        return tuple(link for i, link in enumerate(self.links, start=1) if i in own)
+
     # ---- requests ---------------------------------------------------------------------------
     async def handle(self, request: Request) -> Reply:
         """Apply one operator request (the connections call this); returns the reply."""
@@ -500,7 +466,9 @@ class FlightProcess:
                 data={"mode": self.core.modes.mode.value},
             )
         expected = self.settings.failsafe_parameters
-        failures = await check_failsafe_parameters(self.links, expected) if expected else []
+        own = self.own_links()
+        numbers = self.settings.own_vehicles
+        failures = await check_failsafe_parameters(own, expected, numbers) if expected else []
         if not failures:
             self.streaming = True  # idle setpoints: PX4's proof of life before offboard
             failures = await arm_for_offboard(self.links, self.proof_of_life_s)
@@ -600,15 +568,3 @@ class FlightProcess:
             self.clock(),
             self._log_problem,
         )
-
-    async def _publish(self, channel: Channel) -> None:
-        ticker = DeadlineTicker(TELEMETRY_PERIOD_S, clock=self.clock)
-        try:
-            async for _ in ticker:
-                if channel.buffered_bytes < TELEMETRY_BACKLOG_BYTES:  # a stuck reader: skip
-                    try:
-                        channel.send(TelemetryMessage(status=self.telemetry()))
-                    except ChannelClosedError:
-                        return
-        finally:
-            ticker.close()

@@ -107,14 +107,18 @@ async def _check_one(index: int, link: VehicleLink, expected: Mapping[str, float
 
 
 async def check_failsafe_parameters(
-    links: tuple[VehicleLink, ...], expected: Mapping[str, float]
+    links: tuple[VehicleLink, ...],
+    expected: Mapping[str, float],
+    vehicles: tuple[int, ...] | None = None,
 ) -> list[str]:
     """Read every parameter of ``expected`` on every vehicle (all at once) and name each one
     that differs or cannot be read, e.g. "vehicle 1: COM_OBL_RC_ACT is 0, expected 4". An
     empty list: all as expected. Which parameters and values matter is the caller's choice
-    (the failsafes a flight relies on: COM_OF_LOSS_T, COM_OBL_RC_ACT, …)."""
+    (the failsafes a flight relies on: COM_OF_LOSS_T, COM_OBL_RC_ACT, …). ``vehicles``
+    numbers the links (None: 1, 2, …)."""
+    numbers = vehicles or tuple(range(1, len(links) + 1))
     results = await asyncio.gather(
-        *(_check_one(i, link, expected) for i, link in enumerate(links, start=1))
+        *(_check_one(i, link, expected) for i, link in zip(numbers, links, strict=True))
     )
     return [problem for problems in results for problem in problems]
 

@@ -91,6 +91,10 @@ def test_overrides_are_toml_literals() -> None:
         ("control.abort_rates.yaw_deg_s=0", "control.abort_rates.yaw_deg_s", "greater than 0"),
         ("control.rate_lookahead_steps=31", "(top level)", "must not exceed mpc.horizon"),
         ("control.pd.kp=-1", "control.pd.kp", "greater than 0"),
+        ("agents.ground_endpoint='127.0.0.1:7447'", "agents.ground_endpoint", "match pattern"),
+        ("agents.spawn=false", "agents", "name its port"),
+        ("agents.agent_endpoints=['tcp/127.0.0.1:7448']", "(top level)", "one per UAV (2)"),
+        ("agents.fleet='a b'", "agents.fleet", "match pattern"),
     ],
 )
 def test_bad_values_name_their_key(override: str, key: str, reason: str) -> None:

@@ -1,0 +1,1 @@
+"""The decentralized agents over Zenoh: messages, peers, liveness, the ground station."""
