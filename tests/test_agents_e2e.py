@@ -5,9 +5,14 @@ only by Zenoh (docs/agents.md) — flown over HTTP, then one agent killed in hov
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import functools
 import os
 import signal
+import socket
 import subprocess
+import sys
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from pathlib import Path
 
 import pytest
@@ -19,7 +24,7 @@ from supervisor.flight.phases import Phase
 from supervisor.flight.status import Status
 from supervisor.logs.flight_log import read_flight_log
 from supervisor.logs.report import summarize
-from tests.test_service import TOKEN, ready
+from tests.test_service import TOKEN, reached, ready
 
 pytestmark = pytest.mark.slow
 
@@ -119,10 +124,36 @@ def assert_joined_only_by_zenoh(service: RunningService, agent_pids: list[int]) 
         assert not strangers, f"agent {pid} has connections (local, remote) {strangers}"
 
 
+def _agents_said(folder: Path) -> list[str]:
+    return [
+        f"--- {log.name} ---\n{log.read_text()[-6000:]}"
+        for log in sorted(folder.glob("agent*.log"))
+    ]
+
+
+def agents_logs_noted(
+    test: Callable[[Path], Awaitable[None]],
+) -> Callable[[Path], Awaitable[None]]:
+    """The test's failure carries what the agents said (their output is their own, in the
+    test's ``tmp_path``)."""
+
+    @functools.wraps(test)
+    async def noted(tmp_path: Path) -> None:
+        try:
+            await test(tmp_path)
+        except BaseException as error:
+            for note in _agents_said(tmp_path):
+                error.add_note(note)
+            raise
+
+    return noted
+
+
 def agents_alive(status: Status) -> bool:
     return status.agents is not None and all(a.alive for a in status.agents)
 
 
+@agents_logs_noted
 async def test_two_agents_fly_the_papers_sequence_land_then_one_killed_the_other_sets_down(
     tmp_path: Path,
 ) -> None:
@@ -175,3 +206,138 @@ async def test_two_agents_fly_the_papers_sequence_land_then_one_killed_the_other
     killed = flight_truths(service.output)[1]
     assert killed["max_uav_tilt_deg"] < 30.0, killed
     assert killed["max_descent_uav1_mps"] <= 0.5, killed  # what agent 1 flies
+
+
+@contextlib.asynccontextmanager
+async def world_apart(
+    log_folder: Path, overrides: Sequence[str] = ()
+) -> AsyncIterator[tuple[list[str], int]]:
+    """``uavbar-supervisor sitl``: the simulated world as a process of its own, as the
+    arena's vehicles and QTM are (docs/agents.md); its output lines and QTM port."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        qtm_port = probe.getsockname()[1]
+    arguments = ["sitl", "--set", f"mocap.port={qtm_port}", "--set", f'log.folder="{log_folder}"']
+    for override in overrides:
+        arguments += ["--set", override]
+    process = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "supervisor.cli.main",
+        *arguments,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.STDOUT,
+        start_new_session=True,
+    )
+    assert process.stdout is not None
+    output: list[str] = []
+
+    async def read() -> None:
+        assert process.stdout is not None
+        while line := await process.stdout.readline():
+            output.append(line.decode(errors="replace").rstrip())
+
+    reader = asyncio.create_task(read())
+    try:
+        async with asyncio.timeout(60.0):
+            while not any("running in real time" in line for line in output):
+                assert process.returncode is None, "sitl exited:\n" + "\n".join(output)
+                await asyncio.sleep(0.1)
+        yield output, qtm_port
+    finally:
+        if process.returncode is None:
+            process.send_signal(signal.SIGINT)
+            try:
+                async with asyncio.timeout(20.0):
+                    await process.wait()
+            except TimeoutError:
+                process.kill()
+                await process.wait()
+        await reader
+
+
+@agents_logs_noted
+async def test_the_ground_station_killed_in_hover_the_agents_hold_then_land(
+    tmp_path: Path,
+) -> None:
+    """Every process of ``serve`` killed in hover (the world runs apart, as a lab's does):
+    the agents hold the bar for agents.ground_loss_hold_s, then land it together, on their
+    own mocap throughout (no vehicle handed to PX4's blind landing)."""
+    async with world_apart(tmp_path) as (world, qtm_port):
+        lab = [
+            "sim.embedded=false",
+            'mocap.host="127.0.0.1"',
+            f"mocap.port={qtm_port}",
+            'vehicles.addresses=["127.0.0.1:14580", "127.0.0.1:14581"]',
+            'vehicles.bind_host="127.0.0.1"',
+            "agents.ground_loss_hold_s=2.0",
+        ]
+        agent_pids: list[int] = []
+        try:
+            async with (
+                running_service(TOKEN, tmp_path, [*AGENTS, *lab]) as service,
+                service.client() as http,
+            ):
+                status = await service.wait_for(http, agents_alive, 60.0, "both agents heard")
+                assert status.agents is not None
+                agent_pids = [a.pid for a in status.agents if a.pid is not None]
+                await ready(service, http)
+                await service.take_off(http)
+                await asyncio.sleep(2.0)
+                for pid in _descendants(service.process.pid) - set(agent_pids):
+                    os.kill(pid, signal.SIGKILL)
+                await service.process.wait()
+            logs = [tmp_path / f"agent{i}.log" for i in (1, 2)]
+            deadline = asyncio.get_running_loop().time() + 40.0
+            while not all("mode disarming → disarmed" in log.read_text() for log in logs):
+                assert asyncio.get_running_loop().time() < deadline, logs[0].read_text()
+                await asyncio.sleep(0.2)
+        finally:
+            for pid in agent_pids:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGTERM)
+        for log in logs:
+            text = log.read_text()
+            lost = text.index("ground station lost: holding the last setpoint 2 s")
+            landing = text.index("ground station lost for 2 s: landing the payload")
+            assert lost < landing < text.index("mode landing → disarming"), text
+        await asyncio.sleep(1.0)  # the world's truth of the flight, said as it ends
+    assert not [line for line in world if "AUTO.LAND" in line], world  # nobody flew blind
+    truth = flight_truths(world)[0]
+    assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert truth["max_descent_mps"] <= 0.5, truth
+
+
+@agents_logs_noted
+async def test_three_agents_carry_the_plate_and_two_set_it_down_when_one_is_killed(
+    tmp_path: Path,
+) -> None:
+    """``sim_tri``'s plate on three agent processes: a setpoint flown over HTTP; agent 3
+    killed in hover, agents 1 and 2 set the plate down, no faster than 0.5 m/s and tilting
+    less than 30° (the world's truth)."""
+    async with (
+        running_service(TOKEN, tmp_path, AGENTS, setup="sim_tri") as service,
+        service.client() as http,
+    ):
+        status = await service.wait_for(http, agents_alive, 60.0, "three agents heard")
+        assert status.agents is not None and [a.vehicle for a in status.agents] == [1, 2, 3]
+        await ready(service, http)
+        await service.take_off(http)
+        setpoint = {"bar_position": [0.3, 0.2, 1.1], "hold_s": 1.0}
+        assert (await http.post("/api/setpoints", json=setpoint)).status_code == 200
+        await service.wait_for(http, reached(setpoint), 30.0, "the setpoint")
+        await service.wait_for(http, in_mode(Mode.HOVER), 30.0, "the setpoint held")
+        await asyncio.sleep(1.0)
+        os.kill(status.agents[2].pid or 0, signal.SIGKILL)
+        status = await service.wait_for(
+            http, lambda s: s.phase is Phase.SET_DOWN, 5.0, "UAVs 1 and 2 setting it down"
+        )
+        said = " ".join(notices(status))
+        assert "vehicle 3 link lost: UAVs 1, 2 set the payload down" in said, said
+        await service.wait_for(
+            http, in_mode(Mode.DISARMING, Mode.DISARMED), 60.0, "UAVs 1 and 2 landed"
+        )
+        await asyncio.sleep(1.0)
+    truth = flight_truths(service.output)[0]
+    assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert max(truth["max_descent_uav1_mps"], truth["max_descent_uav2_mps"]) <= 0.5, truth

@@ -58,7 +58,7 @@ def vehicle_report(view: VehicleView) -> VehicleReport:
 class AgentNode:
     """Agent ``vehicle`` of ``fleet`` on ``session``; ``peers`` are the others' vehicles as
     this agent sees them. Commands need ``token``; ``share_plans`` says whether its ticks
-    carry its plan and whether it predicts its peers with theirs."""
+    carry its plan."""
 
     def __init__(
         self,
@@ -192,9 +192,15 @@ class AgentNode:
         return self.ground
 
     def publish_tick(
-        self, mode: Mode, own: VehicleView, bar_end_m: FloatArray | None, plan_u: FloatArray
+        self,
+        mode: Mode,
+        own: VehicleView,
+        bar_end_m: FloatArray | None,
+        plan_u: FloatArray,
+        setpoints: tuple[int, int],
     ) -> None:
-        """This tick's message to peers and the ground station."""
+        """This tick's message to peers and the ground station; ``setpoints``: how many it
+        was given and how many it has ended."""
         end = [float(v) for v in bar_end_m] if bar_end_m is not None else None
         if end is not None and not all(math.isfinite(v) for v in end):
             end = None
@@ -207,6 +213,8 @@ class AgentNode:
             own=vehicle_report(own),
             bar_end_m=end,
             plan_u=rows,
+            setpoints_queued=setpoints[0],
+            setpoints_finished=setpoints[1],
         )
         self._ticks_sent += 1
         self._tick_publisher.put(tick.model_dump_json())
@@ -216,15 +224,3 @@ class AgentNode:
             vehicle=self.vehicle, host=self.host, pid=os.getpid(), sent_s=time.time(), status=status
         )
         self._report_publisher.put(report.model_dump_json())
-
-    def peer_inputs(self, i: int, now_s: float) -> FloatArray | None:
-        """Peer ``i``'s planned inputs from ``now_s`` on (``controllers.mpc.PeerInputs``):
-        its last plan, shifted by the ticks since it came; None when not shared or not
-        heard."""
-        peer = self.peers.get(i)
-        tick = peer.latest() if peer is not None else None
-        if tick is None or not self.share_plans or not tick.plan_u:
-            return None
-        shift = max(0, round(peer.age_s() / tick.plan_dt_s)) if peer is not None else 0
-        rows = np.asarray(tick.plan_u, dtype=float)
-        return rows[shift:] if shift < len(rows) else None

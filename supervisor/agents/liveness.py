@@ -8,12 +8,16 @@
   rest (two vehicles: this one lowers its end): ``supervisor.agents.peer_vehicle``.
 - Its own vehicle's link lost: its ticks say so (``AgentTick.own.connected``), and the
   others act as for a lost peer.
+- A peer past its active setpoint: it ends its own too (``behind_the_peers``).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import Enum
+
+from supervisor.agents.messages import AgentTick
 
 
 class GroundAction(Enum):
@@ -38,3 +42,14 @@ class GroundWatch:
         if self.lost_since_s is None:
             return GroundAction.FLY
         return GroundAction.HOLD if now_s - self.lost_since_s < hold_s else GroundAction.LAND
+
+
+def behind_the_peers(queued: int, finished: int, peers: Iterable[AgentTick | None]) -> bool:
+    """Whether a heard peer given the same setpoints (``queued`` of them) has ended more of
+    them than this agent's ``finished``: each agent ends a setpoint when it sees it reached
+    and held, on an estimate of its own, so one may see it a tick before another; the one
+    behind then ends its active setpoint too, and the agents' references never part."""
+    return any(
+        tick is not None and tick.setpoints_queued == queued and tick.setpoints_finished > finished
+        for tick in peers
+    )

@@ -51,6 +51,11 @@ class AgentTick(_AgentMessage):
     """Its planned inputs [N, N m], one row (thrust, τx, τy, τz) per stage from now (empty:
     no plan, or not shared)."""
     plan_dt_s: Finite = 0.02
+    setpoints_queued: Annotated[StrictInt, Field(ge=0)] = 0
+    """How many setpoints it was ever given."""
+    setpoints_finished: Annotated[StrictInt, Field(ge=0)] = 0
+    """How many of them its queue has ended: an agent given the same setpoints that is
+    behind its peers ends its active one too, so that every agent flies the same one."""
 
 
 class AgentReport(_AgentMessage):

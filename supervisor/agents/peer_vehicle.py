@@ -14,6 +14,8 @@ import math
 import time
 from collections.abc import Callable
 
+import numpy as np
+
 from geometry.arrays import FloatArray
 from supervisor.agents.messages import AgentTick
 from supervisor.vehicles.types import UavCommand, VehicleCommandError, VehicleView
@@ -119,3 +121,22 @@ class PeerVehicle:
 
     async def set_parameter(self, name: str, value: float | int) -> None:
         raise VehicleCommandError(f"{name}: vehicle {self.vehicle}'s agent sets its own")
+
+
+class PeerPlans:
+    """The peers' planned inputs as an agent's MPC predicts their vehicles with them
+    (``controllers.mpc.PeerInputs``): each peer's last plan, shifted by the ticks since it
+    came; None when plans are not shared or the peer is not heard."""
+
+    def __init__(self, peers: dict[int, PeerVehicle], shared: bool) -> None:
+        self._peers = peers
+        self._shared = shared
+
+    def __call__(self, i: int, now_s: float) -> FloatArray | None:
+        peer = self._peers.get(i)
+        tick = peer.latest() if peer is not None else None
+        if peer is None or tick is None or not self._shared or not tick.plan_u:
+            return None
+        shift = max(0, round(peer.age_s() / tick.plan_dt_s))
+        rows = np.asarray(tick.plan_u, dtype=float)
+        return rows[shift:] if shift < len(rows) else None

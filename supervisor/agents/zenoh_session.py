@@ -1,9 +1,10 @@
-"""A Zenoh session as every process of a fleet opens it: a peer (no router to run),
-multicast scouting off (who talks to whom is the setup's, never whoever answers on the
-network), listening where its peers connect, connecting to the endpoints it is given and
-retrying them while they are down, over the network link only (no shared memory), and a
-1 s lease, so that a silent link (a cable pulled,
-a network partitioned) ends within a second, and with it every liveliness token over it."""
+"""A Zenoh session as every process of a fleet opens it: a peer (no router to run);
+scouting off, multicast and gossip (who talks to whom is the setup's, never whoever answers
+on the network or whatever a peer heard of); listening where its peers connect,
+connecting to the endpoints it is given and retrying them while they are down; over the
+network link only (no shared memory); and a 1 s lease, so that a silent link (a cable
+pulled, a network partitioned) ends within a second, and with it every liveliness token
+over it."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ def session_config(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Confi
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "false")
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if connect:

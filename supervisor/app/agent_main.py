@@ -10,20 +10,23 @@ station it holds, then lands (``supervisor.agents.liveness``)."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import signal
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
 from controllers.mpc import agent_state
 from geometry.state import P_P
 from supervisor.agents.agent_node import AgentNode
-from supervisor.agents.liveness import GroundAction
-from supervisor.agents.peer_vehicle import PeerVehicle
+from supervisor.agents.liveness import GroundAction, behind_the_peers
+from supervisor.agents.peer_vehicle import PeerPlans, PeerVehicle
 from supervisor.agents.zenoh_session import open_session
 from supervisor.app.assembly import (
     body_names_from_config,
@@ -78,11 +81,20 @@ class AgentTicks:
         end = agent_state(estimate.x, self._params, vehicle)[P_P] if estimate is not None else None
         plan = result.plan
         plan_u = plan.u_pred[:, self._inputs] if plan is not None else np.empty((0, 4))
-        node.publish_tick(result.mode, process.links[vehicle - 1].view(), end, plan_u)
+        queue = process.core.queue
+        setpoints = (queue.queued_total, queue.finished)
+        node.publish_tick(result.mode, process.links[vehicle - 1].view(), end, plan_u, setpoints)
+        self._keep_to_the_peers_setpoint()
         self._watch_ground(result.mode)
         latencies = [peer.new_latency_ms() for peer in node.peers.values()]
         heard = [latency for latency in latencies if math.isfinite(latency)]
         return {"peer_latency_ms": max(heard, default=math.nan)}
+
+    def _keep_to_the_peers_setpoint(self) -> None:
+        queue = self._process.core.queue
+        peers = (peer.latest() for peer in self._node.peers.values())
+        if behind_the_peers(queue.queued_total, queue.finished, peers):
+            queue.finish_active()
 
     def _watch_ground(self, mode: Mode) -> None:
         core, now = self._process.core, self._process.clock()
@@ -98,12 +110,16 @@ class AgentTicks:
             text = (
                 f"ground station lost: holding the last setpoint {self._hold_s:g} s, then landing"
             )
-            core.notices.append((now, Notice(NoticeKind.GROUND, text)))
+            self._notice(text)
         elif action is GroundAction.LAND:
             transition = core.request(Event.LAND, now)
             if transition.accepted:
-                text = f"ground station lost for {self._hold_s:g} s: landing the payload"
-                core.notices.append((now, Notice(NoticeKind.GROUND, text)))
+                self._notice(f"ground station lost for {self._hold_s:g} s: landing the payload")
+
+    def _notice(self, text: str) -> None:
+        """Said in the status (once the ground station hears it again) and in the log."""
+        log.warning("%s", text)
+        self._process.core.notices.append((self._process.clock(), Notice(NoticeKind.GROUND, text)))
 
 
 async def _report(node: AgentNode, process: FlightProcess) -> None:
@@ -128,13 +144,12 @@ async def run_agent(config: Config, start: AgentStart) -> None:
         for j in vehicles
         if j != vehicle
     }
-    session = open_session(start.listen, start.connect)
-    node = AgentNode(session, agents.fleet, vehicle, peers, start.token, agents.share_plans)
+    plans = PeerPlans(peers, agents.share_plans)
+    core = flight_core_from_config(
+        config, clock=time.perf_counter, agent=vehicle, peer_inputs=plans
+    )
     try:
         async with qtm_client_from_config(config, None) as mocap:
-            core = flight_core_from_config(
-                config, clock=time.perf_counter, agent=vehicle, peer_inputs=node.peer_inputs
-            )
             links = tuple(link if j == vehicle else peers[j] for j in vehicles)
             settings = FlightSettings(
                 config.mpc.dt_s,
@@ -152,21 +167,39 @@ async def run_agent(config: Config, start: AgentStart) -> None:
             driver = TickDriver(core, fusion_from_config(config), body_names_from_config(config))
             folder = Path(config.log.folder) / f"agent{vehicle}"
             process = FlightProcess(settings, driver, mocap, links, folder)
-            process.on_tick = AgentTicks(config, node, process).after_tick
-            loop = asyncio.get_running_loop()
-            node.start(loop, process.handle, process.telemetry)
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                loop.add_signal_handler(sig, process.stop)
+            # Real-time from here, set-up done; Zenoh's threads, started next, inherit it:
+            # a peer's ticks and the ground's keep-alives are as punctual as the ticks.
             log.info("agent %d: %s", vehicle, raise_priority())
-            reporter = asyncio.create_task(_report(node, process))
-            try:
-                await process.run(None, start.token)
-            finally:
-                reporter.cancel()
+            with _zenoh_node(start, agents.fleet, peers, agents.share_plans) as node:
+                process.on_tick = AgentTicks(config, node, process).after_tick
+                loop = asyncio.get_running_loop()
+                node.start(loop, process.handle, process.telemetry)
+                for sig in (signal.SIGTERM, signal.SIGINT):
+                    loop.add_signal_handler(sig, process.stop)
+                reporter = asyncio.create_task(_report(node, process))
+                try:
+                    await process.run(None, start.token)
+                finally:
+                    reporter.cancel()
+    finally:
+        await link.close()
+
+
+@contextlib.contextmanager
+def _zenoh_node(
+    start: AgentStart, fleet: str, peers: dict[int, PeerVehicle], share_plans: bool
+) -> Iterator[AgentNode]:
+    """The agent's Zenoh session and side, closed on the way out."""
+    session = open_session(start.listen, start.connect)
+    node = AgentNode(session, fleet, start.vehicle, peers, start.token, share_plans)
+    try:
+        yield node
     finally:
         node.close()
-        session.close()  # type: ignore[no-untyped-call]
-        await link.close()
+        try:
+            session.close()  # type: ignore[no-untyped-call]
+        except zenoh.ZError as error:  # a link cut off: its close waits on nobody
+            log.warning("Zenoh session not closed cleanly: %s", error)
 
 
 def run_agent_process(config: Config, start: AgentStart) -> int:

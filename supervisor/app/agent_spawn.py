@@ -74,18 +74,17 @@ def world_overrides(world: dict[str, Any] | None) -> list[str]:
 
 
 def agent_command(
-    setup: Setup, vehicle: int, ground: str, endpoints: list[str], world: dict[str, Any] | None
+    setup: Setup, vehicle: int, listen: str, connect: list[str], world: dict[str, Any] | None
 ) -> list[str]:
-    """The command line of agent ``vehicle``: serve's setup, the world's addresses, its
-    own endpoint, and the ground station's and its peers' to join."""
+    """The command line of agent ``vehicle``: serve's setup, the world's addresses, where
+    it listens and whom it joins (Zenoh endpoints)."""
     command = [sys.executable, "-m", "supervisor.cli.main", "agent", "--vehicle", str(vehicle)]
     command += ["--config", str(setup.config_path)]
     for override in (*setup.overrides, *world_overrides(world)):
         command += ["--set", override]
-    command += ["--listen", endpoints[vehicle - 1], "--connect", ground]
-    for peer, endpoint in enumerate(endpoints, start=1):
-        if peer != vehicle:
-            command += ["--connect", endpoint]
+    command += ["--listen", listen]
+    for endpoint in connect:
+        command += ["--connect", endpoint]
     return command
 
 
@@ -110,8 +109,10 @@ class SpawnedAgents:
         for vehicle in range(1, config.system.n_vehicles + 1):
             output = folder / f"agent{vehicle}.log"
             with output.open("ab") as sink:
+                peers = [e for i, e in enumerate(endpoints, start=1) if i != vehicle]
+                listen = endpoints[vehicle - 1]
                 process = subprocess.Popen(
-                    agent_command(setup, vehicle, ground, endpoints, world),
+                    agent_command(setup, vehicle, listen, [ground, *peers], world),
                     stdin=subprocess.DEVNULL,
                     stdout=sink,
                     stderr=subprocess.STDOUT,

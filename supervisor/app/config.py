@@ -417,6 +417,9 @@ class SimSection(_Section):
     # true: `serve` starts the simulated world (plant, PX4s, QTM) in its own process and
     # connects to it on loopback; false: it connects to the lab's real QTM and PX4s.
     embedded: bool = False
+    # The address the world listens on (its QTM server, its simulated PX4s): loopback; a
+    # test that puts an agent in a network namespace of its own names one both reach.
+    host: Annotated[str, Field(pattern=r"^\d{1,3}(\.\d{1,3}){3}$")] = "127.0.0.1"
     # The world's flight controllers: "simulated" (our PX4 model, fast, no firmware) or
     # "px4_sitl" (one real PX4 v1.15.4 SITL process per UAV, driven by the plant).
     vehicles: Literal["simulated", "px4_sitl"] = "simulated"

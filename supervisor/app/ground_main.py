@@ -16,13 +16,14 @@ from supervisor.agents.zenoh_session import open_session
 from supervisor.app.config import Config
 from supervisor.flight.operator_requests import ModeRequest
 from supervisor.logs.logging_setup import queued_logging
-from supervisor.runtime.cpu import title_process
+from supervisor.runtime.cpu import raise_priority, title_process
 from supervisor.runtime.flight_process import LANDING_TIMEOUT_S
 from supervisor.runtime.operator_front import OperatorFront
 
 log = logging.getLogger(__name__)
 
 LANDED_POLL_S = 0.1
+GROUND_PRIORITY = 8  # SCHED_FIFO: below the agents' and a flight process's 10
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,9 @@ async def _land_agents(station: GroundStation) -> None:
 
 async def run_ground(config: Config, start: GroundStart, parent: Connection) -> None:
     agents = config.agents
+    # Real-time below the agents, before Zenoh's threads start (they inherit it): a ground
+    # station starved of the CPU for a lease (1 s) would be lost to its agents, who land.
+    log.info("ground station: %s", raise_priority(GROUND_PRIORITY))
     session = open_session([start.endpoint], [])
     station = GroundStation(
         session,

@@ -211,7 +211,7 @@ async def run_world(
     ``priority``, the process takes that real-time priority once the world has started:
     its start (the plant's compilation, PX4's boot) takes seconds of CPU that must not hold
     a core from another ``serve``'s punctual processes."""
-    world = build_world(config, qtm_port, vehicle_local_ports)
+    world = build_world(config, qtm_port, vehicle_local_ports, config.sim.host)
     addresses = await world.start()
     if priority is not None:
         log.info("world process: %s", raise_priority(priority))

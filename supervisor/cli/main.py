@@ -206,9 +206,10 @@ def _agent(args: argparse.Namespace) -> int:
             f"an agent takes commands only with its ground station's token: set {TOKEN_ENV} "
             "or api.token to serve's"
         )
-    endpoints = config.agents.agent_endpoints
-    listen = args.listen or ([endpoints[args.vehicle - 1]] if endpoints else [])
-    connect = args.connect or [config.agents.ground_endpoint]
+    endpoints = config.agents.agent_endpoints or []
+    listen = args.listen or endpoints[args.vehicle - 1 : args.vehicle]
+    peers = [e for i, e in enumerate(endpoints, start=1) if i != args.vehicle]
+    connect = args.connect or [config.agents.ground_endpoint, *peers]
     _logging()
     return run_agent_process(config, AgentStart(args.vehicle, tuple(listen), tuple(connect), token))
 
@@ -392,7 +393,8 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         "--connect",
         action="append",
         metavar="ENDPOINT",
-        help="a Zenoh endpoint to join (repeatable; default: agents.ground_endpoint)",
+        help="a Zenoh endpoint to join (repeatable; default: agents.ground_endpoint and "
+        "the other agents' agent_endpoints)",
     )
     agent.add_argument(
         "--listen",

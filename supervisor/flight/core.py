@@ -998,15 +998,19 @@ class FlightCore:
     ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
         """The connected UAVs lower their attachments (with two UAVs, the other's bar end)
         to the ground at the abort rate, slower (``SET_DOWN_BEHIND_MPS``) while the lost
-        UAV's attachment, with its failsafe landing, is lower; their decentralized agents
-        track the payload lowered so (with the descent as the reference's velocity, so they
-        do not lag), level at the held yaw."""
+        UAV's attachment, with its failsafe landing, is lower, and always in an agent;
+        their decentralized agents track the payload lowered so (with the descent as the
+        reference's velocity, so they do not lag), level at the held yaw."""
         assert self.left_to_px4 is not None
         connected = self._connected_vehicles()
         mine = self._set_down_point(x)
         theirs = self._attachments(x)[self.left_to_px4 - 1]
         behind = mine[2] - theirs[2] > SET_DOWN_LEVEL_M
-        wanted = SET_DOWN_BEHIND_MPS if behind else self.settings.abort_rates.position_mps
+        # An agent cannot tell a lost peer whose end falls with its failsafe from one cut
+        # off and setting its own end down: it always lowers at the slower rate (both ends
+        # at the abort rate took a UAV to 0.51 m/s).
+        slower = behind or self.agent is not None
+        wanted = SET_DOWN_BEHIND_MPS if slower else self.settings.abort_rates.position_mps
         step = self.settings.abort_rates.acceleration_mps2 * self._dt_s
         self._set_down_speed = max(
             self._set_down_speed - step, min(self._set_down_speed + step, wanted)

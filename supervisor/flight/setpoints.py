@@ -174,6 +174,10 @@ class SetpointQueue:
         self._queued: deque[Setpoint] = deque()
         self.active: Setpoint | None = None
         self.timed_out = 0
+        self.queued_total = 0
+        """How many setpoints were ever queued."""
+        self.finished = 0
+        """How many setpoints have ended (held, timed out, or finished from outside)."""
         self._reached_since_s: float | None = None
         self._active_since_s = 0.0
 
@@ -185,6 +189,7 @@ class SetpointQueue:
         """Queue all of them or none (raises ``SetpointError`` when they do not fit)."""
         self.check_room(len(setpoints))
         self._queued.extend(setpoints)
+        self.queued_total += len(setpoints)
 
     def check_room(self, count: int) -> None:
         """Raise ``SetpointQueueFullError`` unless ``count`` more setpoints fit."""
@@ -192,6 +197,13 @@ class SetpointQueue:
             raise SetpointQueueFullError(
                 f"the queue holds at most {self.capacity} setpoints ({len(self._queued)} queued)"
             )
+
+    def finish_active(self) -> None:
+        """End the active setpoint now, as if held (the next one starts at ``update``)."""
+        if self.active is not None:
+            self.active = None
+            self.finished += 1
+            self._reached_since_s = None
 
     def drop_queued(self) -> None:
         """Drop the queued setpoints; the active one is flown on."""
@@ -221,8 +233,7 @@ class SetpointQueue:
             )
             if held or expired:
                 self.timed_out += int(expired and not held)
-                self.active = None
-                self._reached_since_s = None
+                self.finish_active()
         if self.active is None and self._queued:
             self.active = self._queued.popleft()
             self._active_since_s = now_s
