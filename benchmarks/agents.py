@@ -41,6 +41,7 @@ from supervisor.app.agent_spawn import agent_command
 from supervisor.app.child_entries import Setup
 from supervisor.app.config import TOKEN_ENV, load_config
 from supervisor.app.config_files import CONFIG_DIR
+from supervisor.flight.status import Status
 from supervisor.logs.flight_log import read_flight_log
 from supervisor.logs.report import summarize
 
@@ -64,8 +65,10 @@ async def _sample_round_trips(service: RunningService, stop: asyncio.Event) -> l
     trips: list[float] = []
     async with service.client() as http:
         while not stop.is_set():
-            status = await service.status(http)
-            trips += [a.link_latency_ms for a in status.agents or [] if a.link_latency_ms]
+            response = await http.get("/api/status")
+            if response.status_code == 200:  # 503 until the agents are first heard
+                status = Status.model_validate_json(response.content)
+                trips += [a.link_latency_ms for a in status.agents or [] if a.link_latency_ms]
             await asyncio.sleep(STATUS_PERIOD_S)
     return trips
 

@@ -87,6 +87,7 @@ SECOND_LANE_MODULES = {
     "tests/test_wheel.py",
     "tests/test_service_signing.py",
     "tests/test_formation_service.py",
+    "tests/test_agents_faults.py",
 }
 BESIDE_THE_LANES = 3
 # Pure computation on simulated time (the MPCs, closed-loop flights of the plant): never

@@ -24,7 +24,7 @@ from supervisor.flight.phases import Phase
 from supervisor.flight.status import Status
 from supervisor.logs.flight_log import read_flight_log
 from supervisor.logs.report import summarize
-from tests.test_service import TOKEN, reached, ready
+from tests.test_service import TOKEN, ready
 
 pytestmark = pytest.mark.slow
 
@@ -173,7 +173,7 @@ async def test_two_agents_fly_the_papers_sequence_land_then_one_killed_the_other
         await service.take_off(http)
         assert_joined_only_by_zenoh(service, agent_pids)
         for setpoint in PAPER_SETPOINTS:
-            response = await http.post("/api/setpoints", json={**setpoint, "hold_s": 2.0})
+            response = await http.post("/api/setpoints", json={**setpoint, "hold_s": 1.0})
             assert response.status_code == 200, response.text
         await service.wait_for(
             http,
@@ -306,38 +306,3 @@ async def test_the_ground_station_killed_in_hover_the_agents_hold_then_land(
     truth = flight_truths(world)[0]
     assert truth["max_uav_tilt_deg"] < 30.0, truth
     assert truth["max_descent_mps"] <= 0.5, truth
-
-
-@agents_logs_noted
-async def test_three_agents_carry_the_plate_and_two_set_it_down_when_one_is_killed(
-    tmp_path: Path,
-) -> None:
-    """``sim_tri``'s plate on three agent processes: a setpoint flown over HTTP; agent 3
-    killed in hover, agents 1 and 2 set the plate down, no faster than 0.5 m/s and tilting
-    less than 30° (the world's truth)."""
-    async with (
-        running_service(TOKEN, tmp_path, AGENTS, setup="sim_tri") as service,
-        service.client() as http,
-    ):
-        status = await service.wait_for(http, agents_alive, 60.0, "three agents heard")
-        assert status.agents is not None and [a.vehicle for a in status.agents] == [1, 2, 3]
-        await ready(service, http)
-        await service.take_off(http)
-        setpoint = {"bar_position": [0.3, 0.2, 1.1], "hold_s": 1.0}
-        assert (await http.post("/api/setpoints", json=setpoint)).status_code == 200
-        await service.wait_for(http, reached(setpoint), 30.0, "the setpoint")
-        await service.wait_for(http, in_mode(Mode.HOVER), 30.0, "the setpoint held")
-        await asyncio.sleep(1.0)
-        os.kill(status.agents[2].pid or 0, signal.SIGKILL)
-        status = await service.wait_for(
-            http, lambda s: s.phase is Phase.SET_DOWN, 5.0, "UAVs 1 and 2 setting it down"
-        )
-        said = " ".join(notices(status))
-        assert "vehicle 3 link lost: UAVs 1, 2 set the payload down" in said, said
-        await service.wait_for(
-            http, in_mode(Mode.DISARMING, Mode.DISARMED), 60.0, "UAVs 1 and 2 landed"
-        )
-        await asyncio.sleep(1.0)
-    truth = flight_truths(service.output)[0]
-    assert truth["max_uav_tilt_deg"] < 30.0, truth
-    assert max(truth["max_descent_uav1_mps"], truth["max_descent_uav2_mps"]) <= 0.5, truth

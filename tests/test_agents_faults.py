@@ -1,8 +1,10 @@
-"""End to end, the network cut: agent 1 in a network namespace of its own, joined to the
-rest by two veth pairs — one to its vehicle and the mocap (its companion computer's own
-link and camera network, never cut), one to the Zenoh network (cut with ``ip link set DEV
-down``) — and agent 2 and the ground station beside the world. No traffic leaves the
-machine: every address is the test's own, inside namespaces and veths it makes."""
+"""End to end, agents lost: one of three killed under the plate, and one of two cut off.
+
+For the cut, agent 1 runs in a network namespace of its own, joined to the rest by two
+veth pairs — one to its vehicle and the mocap (its companion computer's own link and
+camera network, never cut), one to the Zenoh network (cut with ``ip link set DEV down``) —
+and agent 2 and the ground station beside the world. No traffic leaves the machine: every
+address is the test's own, inside namespaces and veths it makes."""
 
 from __future__ import annotations
 
@@ -19,11 +21,12 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.service import in_mode, running_service
+from benchmarks.service import in_mode, notices, running_service
 from benchmarks.tick import flight_truths
 from supervisor.flight.modes import Mode
-from tests.test_agents_e2e import agents_alive, agents_logs_noted, world_apart
-from tests.test_service import TOKEN, ready
+from supervisor.flight.phases import Phase
+from tests.test_agents_e2e import AGENTS, agents_alive, agents_logs_noted, world_apart
+from tests.test_service import TOKEN, reached, ready
 
 pytestmark = pytest.mark.slow
 
@@ -164,3 +167,38 @@ async def test_one_agent_cut_off_in_hover_every_vehicle_lands_slowly(tmp_path: P
     truth = flight_truths(world)[0]
     assert truth["max_descent_mps"] <= 0.5, truth
     assert truth["max_uav_tilt_deg"] < 30.0, truth
+
+
+@agents_logs_noted
+async def test_three_agents_carry_the_plate_and_two_set_it_down_when_one_is_killed(
+    tmp_path: Path,
+) -> None:
+    """``sim_tri``'s plate on three agent processes: a setpoint flown over HTTP; agent 3
+    killed in hover, agents 1 and 2 set the plate down, no faster than 0.5 m/s and tilting
+    less than 30° (the world's truth)."""
+    async with (
+        running_service(TOKEN, tmp_path, AGENTS, setup="sim_tri") as service,
+        service.client() as http,
+    ):
+        status = await service.wait_for(http, agents_alive, 60.0, "three agents heard")
+        assert status.agents is not None and [a.vehicle for a in status.agents] == [1, 2, 3]
+        await ready(service, http)
+        await service.take_off(http)
+        setpoint = {"bar_position": [0.3, 0.2, 1.1], "hold_s": 1.0}
+        assert (await http.post("/api/setpoints", json=setpoint)).status_code == 200
+        await service.wait_for(http, reached(setpoint), 30.0, "the setpoint")
+        await service.wait_for(http, in_mode(Mode.HOVER), 30.0, "the setpoint held")
+        await asyncio.sleep(1.0)
+        os.kill(status.agents[2].pid or 0, signal.SIGKILL)
+        status = await service.wait_for(
+            http, lambda s: s.phase is Phase.SET_DOWN, 5.0, "UAVs 1 and 2 setting it down"
+        )
+        said = " ".join(notices(status))
+        assert "vehicle 3 link lost: UAVs 1, 2 set the payload down" in said, said
+        await service.wait_for(
+            http, in_mode(Mode.DISARMING, Mode.DISARMED), 60.0, "UAVs 1 and 2 landed"
+        )
+        await asyncio.sleep(1.0)
+    truth = flight_truths(service.output)[0]
+    assert truth["max_uav_tilt_deg"] < 30.0, truth
+    assert max(truth["max_descent_uav1_mps"], truth["max_descent_uav2_mps"]) <= 0.5, truth
