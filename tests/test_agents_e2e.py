@@ -69,57 +69,60 @@ def _unix_peers() -> dict[str, str]:
     return peers
 
 
-def _tcp_connections(pid: int) -> set[tuple[int, int]]:
-    """(local port, remote port) of ``pid``'s established TCP connections."""
+TCP_ESTABLISHED, TCP_LISTEN = "01", "0A"  # /proc/net/tcp's state codes
+
+
+def _tcp_sockets(pid: int, state: str) -> set[tuple[int, int]]:
+    """(local port, remote port) of ``pid``'s TCP sockets in ``state``."""
     mine = _open_files(pid)
-    connections = set()
+    found = set()
     for table in ("/proc/net/tcp", "/proc/net/tcp6"):
         for line in Path(table).read_text().splitlines()[1:]:
             fields = line.split()
-            local, remote, state, inode = fields[1], fields[2], fields[3], fields[9]
-            if state == "01" and f"socket:[{inode}]" in mine:  # ESTABLISHED
-                ports = (int(local.rsplit(":", 1)[1], 16), int(remote.rsplit(":", 1)[1], 16))
-                connections.add(ports)
-    return connections
+            local, remote, inode = fields[1], fields[2], fields[9]
+            if fields[3] == state and f"socket:[{inode}]" in mine:
+                found.add((int(local.rsplit(":", 1)[1], 16), int(remote.rsplit(":", 1)[1], 16)))
+    return found
 
 
-def _zenoh_ports(agent_pid: int) -> set[int]:
-    """The Zenoh ports an agent's command line names (its own, the ground's, its peers')."""
-    words = Path(f"/proc/{agent_pid}/cmdline").read_bytes().split(b"\0")
-    return {
-        int(words[k + 1].rsplit(b":", 1)[1])
-        for k, word in enumerate(words[:-1])
-        if word in (b"--listen", b"--connect")
-    }
+def _listening_ports(pids: Sequence[int]) -> set[int]:
+    return {local for pid in pids for local, _ in _tcp_sockets(pid, TCP_LISTEN)}
 
 
-def assert_joined_only_by_zenoh(service: RunningService, agent_pids: list[int]) -> None:
+# Character devices every Python process opens on its own; no channel between processes.
+UNSHARED_DEVICES = {"/dev/null", "/dev/urandom", "/dev/random"}
+
+
+def assert_joined_only_by_zenoh(service: RunningService, status: Status) -> None:
     """No descriptor of an agent (started by serve, in a session of its own) is one of
     serve's other processes' (nothing inherited: no pipe, socket or file), its Unix sockets
-    lead only to itself, and its TCP connections only to Zenoh ports or the world's QTM
-    server (its MAVLink link is UDP, to its own vehicle)."""
+    lead only to itself, and its TCP connections only to the Zenoh ports the agents and the
+    ground station listen on or to the world's QTM server (its MAVLink link is UDP, to its
+    own vehicle). Ports come from the listening sockets, not command lines: each process
+    retitles itself."""
+    assert status.agents is not None
+    agent_pids = [a.pid for a in status.agents if a.pid is not None]
+    ground_pid, world_pid = (status.processes[name].pid for name in ("ground", "world"))
+    assert ground_pid is not None and world_pid is not None
     serve_files: set[str] = set()
     for pid in _descendants(service.process.pid) - set(agent_pids):
         serve_files |= _open_files(pid)
     unix_peers = _unix_peers()
+    zenoh_ports = _listening_ports([ground_pid, *agent_pids])
+    qtm_ports = _listening_ports([world_pid])
+    assert zenoh_ports and qtm_ports
     for pid in agent_pids:
         files = _open_files(pid)
         shared = {f for f in files & serve_files if f.startswith(("socket:", "pipe:", "/"))}
-        shared -= {"/dev/null"}
+        shared -= UNSHARED_DEVICES
         assert not shared, f"agent {pid} shares {shared} with serve"
         # Its own Unix sockets (the event loop's self-pipe) are connected to itself only.
         outside = {unix_peers[f] for f in files if f in unix_peers} - files
         assert not outside, f"agent {pid} has Unix sockets connected to {outside}"
-        qtm_port = next(
-            int(w.split(b"=")[1])
-            for w in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            if w.startswith(b"mocap.port=")
-        )
-        zenoh = _zenoh_ports(pid)
         strangers = {
             (local, remote)
-            for local, remote in _tcp_connections(pid)
-            if local not in zenoh and remote not in zenoh | {qtm_port}
+            for local, remote in _tcp_sockets(pid, TCP_ESTABLISHED)
+            if local not in zenoh_ports and remote not in zenoh_ports | qtm_ports
         }
         assert not strangers, f"agent {pid} has connections (local, remote) {strangers}"
 
@@ -171,7 +174,7 @@ async def test_two_agents_fly_the_papers_sequence_land_then_one_killed_the_other
         refused = await http.post("/api/mode", json={"controller": "centralized"})
         assert refused.status_code == 409 and "decentralized" in refused.text
         await service.take_off(http)
-        assert_joined_only_by_zenoh(service, agent_pids)
+        assert_joined_only_by_zenoh(service, status)
         for setpoint in PAPER_SETPOINTS:
             response = await http.post("/api/setpoints", json={**setpoint, "hold_s": 1.0})
             assert response.status_code == 200, response.text

@@ -285,7 +285,9 @@ def run_sitl(config: Config) -> int:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
         ports = tuple(API_LOCAL_PORT + k for k in range(config.system.n_vehicles))
-        await run_world(config, config.mocap.port, ports, show, stop)
+        # As punctual as the embedded world: a supervisor (or an agent) beside it at
+        # real-time priority would otherwise take the CPU from its frames.
+        await run_world(config, config.mocap.port, ports, show, stop, priority=WORLD_PRIORITY)
 
     asyncio.run(main())
     return 0
