@@ -1,7 +1,8 @@
 """The agents as processes against one flight process: ``python -m benchmarks.agents
-[--duration S] [--json]``.
+[--config SETUP] [--duration S] [--delay-ms MS] [--json]``.
 
-Starts ``serve`` on the embedded simulator twice, one after the other on free ports: one
+Starts ``serve`` on the embedded simulator (``--config``: sim, or sim_tri for three
+agents under the plate) twice, one after the other on free ports: one
 flight process flying the decentralized MPC, then ``agents.enabled`` (an agent process
 per vehicle, over Zenoh: docs/agents.md). Each flies the paper's setpoint sequence over
 HTTP (``benchmarks.tick.fly``). From the flight logs (for the agents, agent 1's, which
@@ -40,7 +41,7 @@ from benchmarks.tick import TOKEN, fly
 from supervisor.app.agent_spawn import agent_command
 from supervisor.app.child_entries import Setup
 from supervisor.app.config import TOKEN_ENV, load_config
-from supervisor.app.config_files import CONFIG_DIR
+from supervisor.app.config_files import CONFIG_DIR, setup_path
 from supervisor.flight.status import Status
 from supervisor.logs.flight_log import read_flight_log
 from supervisor.logs.report import summarize
@@ -90,10 +91,11 @@ def _world_addresses(output: list[str]) -> dict[str, Any]:
 async def delayed_agents(
     service: RunningService, ground_port: int, delay_s: float, setup: Setup
 ) -> AsyncIterator[None]:
-    """Both agents started here, every Zenoh link between them and to the ground station
+    """Every agent started here, every Zenoh link between them and to the ground station
     through a relay that delays it ``delay_s`` each way (``benchmarks.delay_relay``)."""
     world = _world_addresses(service.output)
-    listen = [_free_port() for _ in (1, 2)]
+    vehicles = range(1, len(world["vehicles"]) + 1)
+    listen = [_free_port() for _ in vehicles]
     async with contextlib.AsyncExitStack() as stack:
         ground = await stack.enter_async_context(delay_relay(("127.0.0.1", ground_port), delay_s))
         relays = [
@@ -101,10 +103,10 @@ async def delayed_agents(
             for port in listen
         ]
         processes = []
-        for vehicle in (1, 2):
+        for vehicle in vehicles:
             own = f"tcp/127.0.0.1:{listen[vehicle - 1]}"
-            joins = [f"tcp/127.0.0.1:{ground}", f"tcp/127.0.0.1:{relays[2 - vehicle]}"]
-            command = agent_command(setup, vehicle, own, joins, world)
+            peers = [f"tcp/127.0.0.1:{relays[j - 1]}" for j in vehicles if j != vehicle]
+            command = agent_command(setup, vehicle, own, [f"tcp/127.0.0.1:{ground}", *peers], world)
             processes.append(
                 await asyncio.create_subprocess_exec(
                     *command,
@@ -124,7 +126,12 @@ async def delayed_agents(
 
 
 async def fly_once(
-    agents: bool, duration_s: float, overrides: list[str], folder: Path, delay_s: float = 0.0
+    setup_name: str,
+    agents: bool,
+    duration_s: float,
+    overrides: list[str],
+    folder: Path,
+    delay_s: float = 0.0,
 ) -> tuple[Path, list[float], float]:
     """One serve flying the paper's sequence: its flight log, the round trips the status
     showed, and how long the flight took [s]. With ``delay_s``, the agents' links are
@@ -135,10 +142,10 @@ async def fly_once(
         extra += ["agents.spawn=false", f'agents.ground_endpoint="tcp/127.0.0.1:{ground_port}"']
     async with contextlib.AsyncExitStack() as stack:
         service = await stack.enter_async_context(
-            running_service(TOKEN, folder, [*extra, *overrides])
+            running_service(TOKEN, folder, [*extra, *overrides], setup=setup_name)
         )
         if delay_s:
-            setup = Setup(CONFIG_DIR / "sim.toml", (f'log.folder="{folder}"', *overrides))
+            setup = Setup(setup_path(setup_name), (f'log.folder="{folder}"', *overrides))
             await stack.enter_async_context(delayed_agents(service, ground_port, delay_s, setup))
         if not agents:
             async with service.client() as http:
@@ -153,12 +160,12 @@ async def fly_once(
 
 
 def flight(
-    agents: bool, duration_s: float, overrides: list[str], delay_s: float = 0.0
+    setup_name: str, agents: bool, duration_s: float, overrides: list[str], delay_s: float = 0.0
 ) -> dict[str, Any]:
     """The figures of one serve flying the paper's sequence."""
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
-        flown = fly_once(agents, duration_s, overrides, folder, delay_s)
+        flown = fly_once(setup_name, agents, duration_s, overrides, folder, delay_s)
         log_path, trips, elapsed = asyncio.run(flown)
         log = read_flight_log(log_path)
         figures = summarize(log)
@@ -193,7 +200,10 @@ def _ms(figures: dict[str, float]) -> str:
 
 def print_result(result: dict[str, Any]) -> None:
     one, fleet = result["one_process"], result["agents"]
-    print("The paper's sequence over HTTP (one flight process, decentralized | agents):")
+    print(
+        f"The paper's sequence over HTTP on {result['setup']} "
+        "(one flight process, decentralized | agents):"
+    )
     for key in ("bar_x_error_std_m", "bar_x_error_mean_m"):
         print(f"  {key:34s} {one[key] * 1e3:8.1f} mm | {fleet[key] * 1e3:8.1f} mm")
     print(f"  {'ratio of bar x error std (agents / one)':34s} {result['std_ratio']:8.2f}")
@@ -217,6 +227,7 @@ def print_result(result: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default="sim", metavar="SETUP", help="sim or sim_tri")
     parser.add_argument("--duration", type=float, default=30.0, metavar="S")
     parser.add_argument("--ticks", type=int, default=300, help="ticks of the solve figures")
     parser.add_argument("--json", action="store_true")
@@ -231,15 +242,16 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     print("one flight process …", file=sys.stderr, flush=True)
-    one = flight(False, args.duration, args.set)
+    one = flight(args.config, False, args.duration, args.set)
     print("agents …", file=sys.stderr, flush=True)
-    fleet = flight(True, args.duration, args.set)
+    fleet = flight(args.config, True, args.duration, args.set)
     delayed = None
     if args.delay_ms:
         print(f"agents, {args.delay_ms:g} ms added …", file=sys.stderr, flush=True)
-        delayed = flight(True, args.duration, args.set, args.delay_ms / 1e3)
+        delayed = flight(args.config, True, args.duration, args.set, args.delay_ms / 1e3)
     print("one agent's solve for 2, 3, 4 vehicles …", file=sys.stderr, flush=True)
     result = {
+        "setup": args.config,
         "agents_delayed": delayed,
         "delay_ms": args.delay_ms,
         "one_process": one,

@@ -23,6 +23,7 @@ import pytest
 
 from benchmarks.service import in_mode, notices, running_service
 from benchmarks.tick import flight_truths
+from supervisor.cli.main import main
 from supervisor.flight.modes import Mode
 from supervisor.flight.phases import Phase
 from tests.test_agents_e2e import AGENTS, agents_alive, agents_logs_noted, world_apart
@@ -116,15 +117,17 @@ async def test_one_agent_cut_off_in_hover_every_vehicle_lands_slowly(tmp_path: P
     """Agent 1's Zenoh link cut in hover: cut off from everyone, it lowers its bar end; agent
     2, its peer lost, lowers its own; both vehicles on the ground within 10 s, none
     descending faster than 0.5 m/s and none handed to PX4's blind landing (the world's
-    truth)."""
+    truth). Beyond loopback, so the fleet flies over TLS with its own certificates."""
     require_namespaces()
+    fleet = tmp_path / "fleet"
+    assert main(["fleet-certs", "--folder", str(fleet)]) == 0
     with agent_namespace() as ns:
         world_setup = [f'sim.host="{ns.world_host}"']
         async with world_apart(tmp_path, world_setup) as (world, qtm_port):
             ground, agent_1, agent_2 = (
-                f"tcp/{ns.zenoh_host}:7447",
-                f"tcp/{ns.zenoh_inside}:7448",
-                f"tcp/{ns.zenoh_host}:7449",
+                f"tls/{ns.zenoh_host}:7447",
+                f"tls/{ns.zenoh_inside}:7448",
+                f"tls/{ns.zenoh_host}:7449",
             )
             lab = [
                 "sim.embedded=false",
@@ -132,14 +135,12 @@ async def test_one_agent_cut_off_in_hover_every_vehicle_lands_slowly(tmp_path: P
                 f"mocap.port={qtm_port}",
                 f'vehicles.addresses=["{ns.world_host}:14580", "{ns.world_host}:14581"]',
                 f'log.folder="{tmp_path}"',
+                f'agents.tls_folder="{fleet}"',
+                f'agents.ground_endpoint="{ground}"',
             ]
             on_host = [*lab, f'vehicles.bind_host="{ns.world_host}"']
             inside = [*lab, f'vehicles.bind_host="{ns.world_inside}"']
-            serve = [
-                "agents.enabled=true",
-                "agents.spawn=false",
-                f'agents.ground_endpoint="{ground}"',
-            ]
+            serve = ["agents.enabled=true", "agents.spawn=false"]
             async with (
                 running_service(TOKEN, tmp_path, [*serve, *on_host]) as service,
                 agent(1, inside, agent_1, [ground, agent_2], tmp_path / "agent1.log", ns.name),

@@ -55,7 +55,7 @@ ROOMS = {
     "agents": {"flight", "vehicles"},
     "app": {"flight", "vehicles", "mavlink", "ipc", "runtime", "logs", "agents"},
     "simulate": {"flight", "logs", "runtime", "app"},
-    "cli": {"flight", "logs", "runtime", "app", "simulate", "ipc"},
+    "cli": {"flight", "logs", "runtime", "app", "simulate", "ipc", "agents"},
 }
 # Beyond the rooms: who may reach the world simulator, the MAVLink protocol, the API and the
 # benchmarks.

@@ -30,6 +30,15 @@ def command_key(fleet: str, vehicle: int) -> str:
     return f"{PREFIX}/{fleet}/agent/{vehicle}/command"
 
 
+def all_commands_key(fleet: str) -> str:
+    return f"{PREFIX}/{fleet}/agent/*/command"
+
+
+def fleet_key(fleet: str) -> str:
+    """Every key of ``fleet``."""
+    return f"{PREFIX}/{fleet}/**"
+
+
 def agent_alive_key(fleet: str, vehicle: int) -> str:
     """Agent ``vehicle``'s liveliness token."""
     return f"{PREFIX}/{fleet}/alive/agent/{vehicle}"

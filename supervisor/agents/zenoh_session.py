@@ -4,7 +4,7 @@ on the network or whatever a peer heard of); listening where its peers connect,
 connecting to the endpoints it is given and retrying them while they are down; over the
 network link only (no shared memory); and a 1 s lease, so that a silent link (a cable
 pulled, a network partitioned) ends within a second, and with it every liveliness token
-over it."""
+over it. Beyond loopback, TLS and access control (``fleet_security``)."""
 
 from __future__ import annotations
 
@@ -13,12 +13,17 @@ from collections.abc import Sequence
 
 import zenoh
 
+from supervisor.agents.fleet_security import FleetSecurity
+
 LEASE_MS = 1000
 KEEP_ALIVES_PER_LEASE = 4
 
 
-def session_config(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Config:
-    """The configuration of a fleet's peer listening on ``listen`` and joining ``connect``."""
+def session_config(
+    listen: Sequence[str], connect: Sequence[str], security: FleetSecurity | None
+) -> zenoh.Config:
+    """The configuration of a fleet's peer listening on ``listen`` and joining ``connect``
+    (with ``security``: over TLS, under the fleet's access control)."""
     config = zenoh.Config()
     config.insert_json5("mode", '"peer"')
     config.insert_json5("scouting/multicast/enabled", "false")
@@ -32,9 +37,14 @@ def session_config(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Confi
     # Off: processes of one computer would otherwise share memory segments, which processes
     # on a vehicle's own computer cannot; every message goes over the network link.
     config.insert_json5("transport/shared_memory/enabled", "false")
+    if security is not None:
+        config.insert_json5("transport/link/tls", json.dumps(security.tls()))
+        config.insert_json5("access_control", json.dumps(security.access_control()))
     return config
 
 
-def open_session(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Session:
+def open_session(
+    listen: Sequence[str], connect: Sequence[str], security: FleetSecurity | None
+) -> zenoh.Session:
     """Open the session (connections are made, and made again, in the background)."""
-    return zenoh.open(session_config(listen, connect))
+    return zenoh.open(session_config(listen, connect, security))

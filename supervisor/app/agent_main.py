@@ -25,6 +25,7 @@ import zenoh
 from controllers.mpc import agent_state
 from geometry.state import P_P
 from supervisor.agents.agent_node import AgentNode
+from supervisor.agents.fleet_security import FleetSecurity, agent_identity
 from supervisor.agents.liveness import GroundAction, behind_the_peers
 from supervisor.agents.peer_vehicle import PeerPlans, PeerVehicle
 from supervisor.agents.zenoh_session import open_session
@@ -35,7 +36,7 @@ from supervisor.app.assembly import (
     link_configs_from_config,
     qtm_client_from_config,
 )
-from supervisor.app.config import Config
+from supervisor.app.config import AgentsSection, Config
 from supervisor.app.flight_main import OFFBOARD_LOSS_LAND
 from supervisor.flight.core import Notice, NoticeKind, TickResult
 from supervisor.flight.modes import Event, Mode
@@ -137,6 +138,7 @@ async def run_agent(config: Config, start: AgentStart) -> None:
     vehicle = start.vehicle
     agents = config.agents
     vehicles = config.system.to_params().layout.vehicles
+    security = agents.security(agent_identity(vehicle), len(vehicles))  # its files, first
     link = MavlinkLink(link_configs_from_config(config)[vehicle - 1])
     await link.start()
     peers = {
@@ -170,7 +172,7 @@ async def run_agent(config: Config, start: AgentStart) -> None:
             # Real-time from here, set-up done; Zenoh's threads, started next, inherit it:
             # a peer's ticks and the ground's keep-alives are as punctual as the ticks.
             log.info("agent %d: %s", vehicle, raise_priority())
-            with _zenoh_node(start, agents.fleet, peers, agents.share_plans) as node:
+            with _zenoh_node(start, security, agents, peers) as node:
                 process.on_tick = AgentTicks(config, node, process).after_tick
                 loop = asyncio.get_running_loop()
                 node.start(loop, process.handle, process.telemetry)
@@ -187,11 +189,14 @@ async def run_agent(config: Config, start: AgentStart) -> None:
 
 @contextlib.contextmanager
 def _zenoh_node(
-    start: AgentStart, fleet: str, peers: dict[int, PeerVehicle], share_plans: bool
+    start: AgentStart,
+    security: FleetSecurity | None,
+    agents: AgentsSection,
+    peers: dict[int, PeerVehicle],
 ) -> Iterator[AgentNode]:
     """The agent's Zenoh session and side, closed on the way out."""
-    session = open_session(start.listen, start.connect)
-    node = AgentNode(session, fleet, start.vehicle, peers, start.token, share_plans)
+    session = open_session(start.listen, start.connect, security)
+    node = AgentNode(session, agents.fleet, start.vehicle, peers, start.token, agents.share_plans)
     try:
         yield node
     finally:

@@ -40,10 +40,12 @@ def _with_port(endpoint: str) -> str:
 
 def fleet_endpoints(config: Config) -> tuple[str, list[str]]:
     """The ground station's endpoint and each agent's, free ports chosen for port 0 (and
-    for agents without endpoints, on loopback) — only when ``serve`` starts them."""
+    for agents without endpoints, on loopback, over the ground's protocol) — only when
+    ``serve`` starts them."""
     agents = config.agents
     n = config.system.n_vehicles
-    listed = agents.agent_endpoints or ["tcp/127.0.0.1:0"] * n
+    scheme = agents.ground_endpoint.split("/", 1)[0]
+    listed = agents.agent_endpoints or [f"{scheme}/127.0.0.1:0"] * n
     if not agents.spawn:
         return agents.ground_endpoint, listed
     return _with_port(agents.ground_endpoint), [_with_port(e) for e in listed]

@@ -39,6 +39,7 @@ from controllers.params import (
 from controllers.qp.registry import BACKEND_NAMES
 from controllers.uav_pd import UavPdGains
 from geometry.formation import MAX_VEHICLES, MIN_VEHICLES
+from supervisor.agents.fleet_security import FleetSecurity, unprotected
 from supervisor.app.config_files import CONFIG_DIR, TOKEN_ENV, ConfigError, read_setup
 from supervisor.flight.feasibility import FeasibilitySettings, SetpointBounds
 from supervisor.flight.reference_shaping import RateLimits
@@ -731,12 +732,56 @@ class AgentsSection(_Section):
     with them (false: with their equilibrium's): docs/agents.md, what it buys."""
     command_timeout_s: PositiveFloat = 8.0
     """The longest an operator request waits for every agent's answer (arming takes ~2 s)."""
+    tls_folder: str | None = None
+    """The fleet's certificates (``uavbar-supervisor fleet-certs``): Zenoh over TLS, each
+    process known by its certificate, under access control (docs/agents.md, "Access").
+    Required beyond loopback; then every endpoint is ``tls/``."""
 
     @model_validator(mode="after")
     def _ports_named_when_elsewhere(self) -> AgentsSection:
         if not self.spawn and self.ground_endpoint.endswith(":0"):
             raise ValueError("ground_endpoint: name its port when the agents run elsewhere")
         return self
+
+    def security(self, identity: str, n_vehicles: int) -> FleetSecurity | None:
+        """Process ``identity``'s TLS (None without ``tls_folder``); ConfigError when its
+        files are not there."""
+        if self.tls_folder is None:
+            return None
+        security = FleetSecurity(Path(self.tls_folder), identity, self.fleet, n_vehicles)
+        missing = security.missing_files()
+        if missing:
+            raise ConfigError(
+                f"agents.tls_folder: no {', '.join(path.name for path in missing)} in "
+                f"{self.tls_folder} (uavbar-supervisor fleet-certs makes them)"
+            )
+        return security
+
+    @model_validator(mode="after")
+    def _tls_beyond_loopback(self) -> AgentsSection:
+        endpoints = [self.ground_endpoint, *(self.agent_endpoints or [])]
+        check_fleet_endpoints(endpoints, self.tls_folder)
+        return self
+
+
+def check_fleet_endpoints(endpoints: Sequence[str], tls_folder: str | None) -> None:
+    """Refuse a fleet in clear beyond loopback, and a half-encrypted one (ValueError)."""
+    clear = unprotected(endpoints)
+    if clear:
+        raise ValueError(
+            f"{', '.join(clear)}: beyond loopback the fleet runs over TLS with access "
+            "control: tls/HOST:PORT endpoints and agents.tls_folder (uavbar-supervisor "
+            "fleet-certs makes its certificates)"
+        )
+    encrypted = [e for e in endpoints if e.startswith("tls/")]
+    if encrypted and tls_folder is None:
+        raise ValueError(f"{', '.join(encrypted)}: tls/ endpoints need agents.tls_folder")
+    in_clear = [e for e in endpoints if not e.startswith("tls/")]
+    if tls_folder is not None and in_clear:
+        raise ValueError(
+            "agents.tls_folder is set: every endpoint is tls/ (the fleet's access control "
+            f"knows its members by their certificates), not {', '.join(in_clear)}"
+        )
 
 
 class Config(_Section):

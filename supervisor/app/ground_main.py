@@ -11,6 +11,7 @@ import socket
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
+from supervisor.agents.fleet_security import GROUND
 from supervisor.agents.ground import GroundStation
 from supervisor.agents.zenoh_session import open_session
 from supervisor.app.config import Config
@@ -56,7 +57,8 @@ async def run_ground(config: Config, start: GroundStart, parent: Connection) -> 
     # Real-time below the agents, before Zenoh's threads start (they inherit it): a ground
     # station starved of the CPU for a lease (1 s) would be lost to its agents, who land.
     log.info("ground station: %s", raise_priority(GROUND_PRIORITY))
-    session = open_session([start.endpoint], [])
+    security = agents.security(GROUND, config.system.n_vehicles)
+    session = open_session([start.endpoint], [], security)
     station = GroundStation(
         session,
         agents.fleet,

@@ -22,6 +22,7 @@ from supervisor.app.config_files import (
     shipped_setups,
 )
 from supervisor.cli.client import CONTROLLERS, add_client_commands
+from supervisor.cli.fleet_certs import add_fleet_certs_command
 from supervisor.cli.keys import add_keys_command
 from supervisor.cli.parsing import PROG, Parser, VersionAction, finite_float
 from supervisor.cli.usage import EXIT_USAGE, UsageError
@@ -194,7 +195,7 @@ def _agent(args: argparse.Namespace) -> int:
     import os
 
     from supervisor.app.agent_main import AgentStart, run_agent_process
-    from supervisor.app.config import TOKEN_ENV, ConfigError
+    from supervisor.app.config import TOKEN_ENV, ConfigError, check_fleet_endpoints
 
     config = _config(args)
     n = config.system.n_vehicles
@@ -210,6 +211,10 @@ def _agent(args: argparse.Namespace) -> int:
     listen = args.listen or endpoints[args.vehicle - 1 : args.vehicle]
     peers = [e for i, e in enumerate(endpoints, start=1) if i != args.vehicle]
     connect = args.connect or [config.agents.ground_endpoint, *peers]
+    try:
+        check_fleet_endpoints([*listen, *connect], config.agents.tls_folder)
+    except ValueError as error:
+        raise ConfigError(f"--listen/--connect: {error}") from None
     _logging()
     return run_agent_process(config, AgentStart(args.vehicle, tuple(listen), tuple(connect), token))
 
@@ -329,6 +334,12 @@ def _keys(args: argparse.Namespace) -> int:
     from supervisor.cli.keys import make_keys
 
     return make_keys(_config(args), args)
+
+
+def _fleet_certs(args: argparse.Namespace) -> int:
+    from supervisor.cli.fleet_certs import make_fleet_certificates
+
+    return make_fleet_certificates(_config(args), args)
 
 
 Handler = Callable[[argparse.Namespace], int]
@@ -527,6 +538,7 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
 
     add_client_commands(commands)
     add_keys_command(commands, _keys)
+    add_fleet_certs_command(commands, _fleet_certs)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -95,6 +95,10 @@ def test_overrides_are_toml_literals() -> None:
         ("agents.spawn=false", "agents", "name its port"),
         ("agents.agent_endpoints=['tcp/127.0.0.1:7448']", "(top level)", "one per UAV (2)"),
         ("agents.fleet='a b'", "agents.fleet", "match pattern"),
+        ("agents.ground_endpoint='tcp/10.0.0.2:7447'", "agents", "beyond loopback"),
+        ("agents.ground_endpoint='tcp/drone-1.lab:7447'", "agents", "beyond loopback"),
+        ("agents.ground_endpoint='tls/10.0.0.2:7447'", "agents", "need agents.tls_folder"),
+        ("agents.tls_folder='fleet'", "agents", "every endpoint is tls/"),
     ],
 )
 def test_bad_values_name_their_key(override: str, key: str, reason: str) -> None:
