@@ -166,7 +166,11 @@ def flight(
     with tempfile.TemporaryDirectory() as scratch:
         folder = Path(scratch)
         flown = fly_once(setup_name, agents, duration_s, overrides, folder, delay_s)
-        log_path, trips, elapsed = asyncio.run(flown)
+        try:
+            log_path, trips, elapsed = asyncio.run(flown)
+        except Exception as error:  # the agents' own logs say why; the folder goes with us
+            said = [f"--- {p.name} ---\n{p.read_text()[-4000:]}" for p in folder.glob("agent*.log")]
+            raise RuntimeError("\n".join([str(error), *said])) from error
         log = read_flight_log(log_path)
         figures = summarize(log)
         compute = np.array([r.get("compute_total_ms", math.nan) for r in log.extra], dtype=float)

@@ -47,6 +47,15 @@ PAPER_SETPOINTS: list[dict[str, Any]] = [
 ]
 
 
+def paper_setpoints(n_vehicles: int) -> list[dict[str, Any]]:
+    """The paper's sequence for ``n_vehicles`` under the payload: as flown with two; with
+    more, the same payload poses and cable angle, each UAV keeping its yaw (the paper's UAV
+    yaws are one per end of its bar)."""
+    if n_vehicles == 2:
+        return PAPER_SETPOINTS
+    return [{k: v for k, v in s.items() if k != "uav_yaw"} for s in PAPER_SETPOINTS]
+
+
 async def load(url: str, rate_hz: float, stop: asyncio.Event) -> int:
     """Status reads and setpoint posts at ``rate_hz`` in total; returns the request count."""
     count = 0
@@ -104,9 +113,10 @@ async def fly(service: RunningService, duration_s: float) -> str:
         log = str(status.log)
         started = time.monotonic()
         while time.monotonic() - started < duration_s:
-            for setpoint in PAPER_SETPOINTS:
+            for setpoint in paper_setpoints(len(status.uavs)):
                 response = await http.post("/api/setpoints", json={**setpoint, "hold_s": 3.0})
-                response.raise_for_status()
+                if response.status_code != 200:
+                    raise RuntimeError(f"setpoint {setpoint} refused: {response.text}")
             await service.wait_for(
                 http,
                 lambda s: s.setpoints.active is None and not s.setpoints.queued,

@@ -26,7 +26,13 @@ from benchmarks.tick import flight_truths
 from supervisor.cli.main import main
 from supervisor.flight.modes import Mode
 from supervisor.flight.phases import Phase
-from tests.test_agents_e2e import AGENTS, agents_alive, agents_logs_noted, world_apart
+from tests.test_agents_e2e import (
+    AGENTS,
+    agents_alive,
+    agents_logs_noted,
+    assert_joined_only_by_zenoh,
+    world_apart,
+)
 from tests.test_service import TOKEN, reached, ready
 
 pytestmark = pytest.mark.slow
@@ -174,9 +180,9 @@ async def test_one_agent_cut_off_in_hover_every_vehicle_lands_slowly(tmp_path: P
 async def test_three_agents_carry_the_plate_and_two_set_it_down_when_one_is_killed(
     tmp_path: Path,
 ) -> None:
-    """``sim_tri``'s plate on three agent processes: a setpoint flown over HTTP; agent 3
-    killed in hover, agents 1 and 2 set the plate down, no faster than 0.5 m/s and tilting
-    less than 30° (the world's truth)."""
+    """``sim_tri``'s plate on three agent processes, joined only by Zenoh: a setpoint flown
+    over HTTP; agent 3 killed in hover, agents 1 and 2 set the plate down, no faster than
+    0.5 m/s and tilting less than 30° (the world's truth)."""
     async with (
         running_service(TOKEN, tmp_path, AGENTS, setup="sim_tri") as service,
         service.client() as http,
@@ -185,6 +191,7 @@ async def test_three_agents_carry_the_plate_and_two_set_it_down_when_one_is_kill
         assert status.agents is not None and [a.vehicle for a in status.agents] == [1, 2, 3]
         await ready(service, http)
         await service.take_off(http)
+        assert_joined_only_by_zenoh(service, status)
         setpoint = {"bar_position": [0.3, 0.2, 1.1], "hold_s": 1.0}
         assert (await http.post("/api/setpoints", json=setpoint)).status_code == 200
         await service.wait_for(http, reached(setpoint), 30.0, "the setpoint")
