@@ -26,6 +26,7 @@ from benchmarks.service import (
 )
 from supervisor.flight.modes import Mode
 from supervisor.flight.status import ArenaBox
+from tests.test_agents_e2e import agents_alive
 from tests.test_px4_sitl import PX4_REFUSAL, require_gps_for_arming
 from tests.test_service import require_px4
 
@@ -126,6 +127,7 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
     hand_over_at_once = ["safety.max_bar_yaw_error_deg=0.2"]
     async with running_service(TOKEN, tmp_path, hand_over_at_once) as service:
         page = await open_dashboard(browser, service, "not-the-token")
+        await expect(page.get_by_test_id("agent-row")).to_be_hidden()  # one flight process
         await page.get_by_test_id("arm").click()
         await expect(page.get_by_test_id("flight-reason")).to_contain_text("401")
         await expect(page.get_by_test_id("mode")).to_have_text("disarmed")
@@ -161,6 +163,31 @@ async def test_dashboard_shows_telemetry_refuses_a_bad_token_and_aborts(
         async with service.client() as http:
             status = await service.wait_for(http, all_disarmed, 10.0, "vehicles disarmed")
         assert position_m(status.bar.position)[2] < 0.05
+        assert not PAGE_ERRORS, PAGE_ERRORS
+
+
+async def test_each_agent_is_shown_and_a_killed_one_said_lost(
+    browser: Browser, tmp_path: Path
+) -> None:
+    """With agents.enabled the vehicles table has an agent row: each vehicle's agent, its
+    process id and round trip; agent 2 killed, its cell says lost, in the lost colour,
+    and agent 1's does not."""
+    async with running_service(TOKEN, tmp_path, ["agents.enabled=true"]) as service:
+        async with service.client() as http:
+            status = await service.wait_for(http, agents_alive, 60.0, "both agents heard")
+        assert status.agents is not None
+        page = await open_dashboard(browser, service, TOKEN)
+        await expect(page.get_by_test_id("agent-row")).to_be_visible()
+        for agent in status.agents:
+            cell = page.get_by_test_id(f"uav{agent.vehicle}-agent")
+            await expect(cell).to_have_text(re.compile(rf"pid {agent.pid}, \d+\.\d ms$"))
+        killed = status.agents[1].pid
+        assert killed is not None
+        os.kill(killed, signal.SIGKILL)
+        lost = page.get_by_test_id("uav2-agent")
+        await expect(lost).to_have_text(re.compile(rf"^lost \(.*pid {killed}, heard "))
+        await expect(lost).to_have_class(re.compile(r"\blost\b"))
+        await expect(page.get_by_test_id("uav1-agent")).not_to_have_class(re.compile("lost"))
         assert not PAGE_ERRORS, PAGE_ERRORS
 
 

@@ -581,6 +581,7 @@ function render(t) {
     setText(`uav${n}-text`, uav.status_text || "–");
     setText(`uav${n}-battery`, uav.battery_v === null || uav.battery_v === undefined ? "–" : `${fmt(uav.battery_v, 1)} V`);
   });
+  renderAgents(t.agents);
   setText("tick-info", `${tick.count ?? 0} (missed ${tick.missed_deadlines ?? 0}), compute p99 ${fmt(tick.compute_ms_p99)} ms`);
   renderSetpoints(t.setpoints);
   renderPath(t.path);
@@ -590,6 +591,24 @@ function render(t) {
   t.uavs.forEach((uav, i) => pushHistory(plots.battery[i], now, uav.connected ? uav.battery_v : null));
   drawViews(t);
   drawPlots(now);
+}
+
+function agentText(agent) {
+  if (agent.pid === null) return "never heard";
+  const where = `${agent.host} pid ${agent.pid}`;
+  if (!agent.alive) return `lost (${where}, heard ${ago(agent.last_message_age_s ?? 0)})`;
+  return `${where}, ${fmt(agent.link_latency_ms, 1)} ms`;
+}
+
+// Shown only when each vehicle has an agent process of its own (status.agents not null).
+function renderAgents(agents) {
+  const row = document.getElementById("agent-row");
+  const shown = Array.isArray(agents);
+  if (row.hidden === shown) row.hidden = !shown;
+  for (const agent of agents || []) {
+    setText(`uav${agent.vehicle}-agent`, agentText(agent));
+    document.getElementById(`uav${agent.vehicle}-agent`).classList.toggle("lost", !agent.alive);
+  }
 }
 
 function drawPlots(now) {
