@@ -396,8 +396,10 @@ def _add_commands(commands: argparse._SubParsersAction[Parser]) -> None:
         "client and decentralized MPC, its safety monitors; commands come from the ground "
         "station (serve with agents.enabled) over Zenoh, with the API token (UAVBAR_TOKEN). "
         "SIGTERM or Ctrl-C lands its vehicle's part first.",
-        epilog="example:\n  UAVBAR_TOKEN=... uavbar-supervisor agent --vehicle 2 --config lab "
-        "--connect tcp/192.168.1.20:7447 --listen tcp/192.168.1.32:7448",
+        epilog="example (beyond loopback over TLS: uavbar-supervisor fleet-certs):\n"
+        "  UAVBAR_TOKEN=... uavbar-supervisor agent --vehicle 2 --config lab "
+        "--set 'agents.tls_folder=\"/etc/uavbar/fleet\"' "
+        "--connect tls/192.168.1.20:7447 --listen tls/192.168.1.32:7448",
     )
     agent.add_argument("--vehicle", type=int, required=True, metavar="I", help="its UAV (1 … N)")
     agent.add_argument(

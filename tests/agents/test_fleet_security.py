@@ -16,6 +16,7 @@ from supervisor.agents import keys
 from supervisor.agents.certificates import issue
 from supervisor.agents.fleet_security import GROUND, FleetSecurity, agent_identity, unprotected
 from supervisor.agents.zenoh_session import open_session
+from supervisor.cli.main import main
 
 FLEET = "lab"
 CONNECT_TIMEOUT_S = 20.0  # a TLS handshake between Python processes on a loaded machine
@@ -134,3 +135,13 @@ def test_a_certificate_of_another_authority_does_not_join(
     finally:
         stranger.close()  # type: ignore[no-untyped-call]
         ground.close()  # type: ignore[no-untyped-call]
+
+
+def test_an_agent_refuses_to_join_in_clear_beyond_loopback(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("UAVBAR_TOKEN", "agent-token-0123456789")
+    command = ["agent", "--vehicle", "1", "--connect", "tcp/10.0.0.2:7447"]
+    assert main(command) == 2  # refused before anything starts
+    said = capsys.readouterr().err
+    assert "--listen/--connect: tcp/10.0.0.2:7447: beyond loopback" in said, said
