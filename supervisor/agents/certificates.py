@@ -8,7 +8,6 @@ from __future__ import annotations
 import datetime
 import os
 import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
 from cryptography import x509
@@ -104,23 +103,32 @@ def _pem(certificate: x509.Certificate) -> bytes:
     return certificate.public_bytes(serialization.Encoding.PEM)
 
 
+def _members(n_vehicles: int) -> list[str]:
+    return [GROUND, *(agent_identity(v) for v in range(1, n_vehicles + 1))]
+
+
 def fleet_files(folder: Path, n_vehicles: int) -> list[Path]:
     """Every file ``issue`` writes in ``folder``."""
-    identities = [GROUND, *(agent_identity(v) for v in range(1, n_vehicles + 1))]
     files = [folder / CA_CERTIFICATE, folder / CA_PRIVATE_KEY]
-    for identity in identities:
+    for identity in _members(n_vehicles):
         files += [certificate_file(folder, identity), private_key_file(folder, identity)]
     return files
 
 
-def _contents(fleet: str, n_vehicles: int, days: int) -> Iterator[tuple[str, bytes]]:
+def _write_fleet(folder: Path, fleet: str, n_vehicles: int, days: int) -> None:
+    """The fleet's files in ``folder``, keys readable by their owner only."""
+
+    def write(path: Path, data: bytes, mode: int) -> None:
+        path.write_bytes(data)
+        os.chmod(path, mode)
+
     authority = _authority(fleet, days)
-    yield CA_CERTIFICATE, _pem(authority[1])
-    yield CA_PRIVATE_KEY, _pem_key(authority[0])
-    for identity in [GROUND, *(agent_identity(v) for v in range(1, n_vehicles + 1))]:
+    write(folder / CA_CERTIFICATE, _pem(authority[1]), 0o644)
+    write(folder / CA_PRIVATE_KEY, _pem_key(authority[0]), 0o600)
+    for identity in _members(n_vehicles):
         key, certificate = _member(authority, identity, days)
-        yield certificate_file(Path(), identity).name, _pem(certificate)
-        yield private_key_file(Path(), identity).name, _pem_key(key)
+        write(certificate_file(folder, identity), _pem(certificate), 0o644)
+        write(private_key_file(folder, identity), _pem_key(key), 0o600)
 
 
 def issue(folder: Path, fleet: str, n_vehicles: int, days: int) -> list[Path]:
@@ -136,10 +144,7 @@ def issue(folder: Path, fleet: str, n_vehicles: int, days: int) -> list[Path]:
         )
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder, prefix=".fleet-certs-") as staging:
-        for name, data in _contents(fleet, n_vehicles, days):
-            path = Path(staging) / name
-            path.write_bytes(data)
-            os.chmod(path, 0o600 if name.endswith(".key") else 0o644)
+        _write_fleet(Path(staging), fleet, n_vehicles, days)
         for path in targets:
             os.replace(Path(staging) / path.name, path)
     return targets

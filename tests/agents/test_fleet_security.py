@@ -4,7 +4,6 @@ vehicle; a computer holding another authority's certificate does not join at all
 
 from __future__ import annotations
 
-import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -17,6 +16,7 @@ from supervisor.agents.certificates import issue
 from supervisor.agents.fleet_security import GROUND, FleetSecurity, agent_identity, unprotected
 from supervisor.agents.zenoh_session import open_session
 from supervisor.cli.main import main
+from tests.mocap.test_recording import free_port
 
 FLEET = "lab"
 CONNECT_TIMEOUT_S = 20.0  # a TLS handshake between Python processes on a loaded machine
@@ -27,12 +27,6 @@ def test_only_tls_or_loopback_carries_the_fleet() -> None:
     assert unprotected(["tls/10.0.0.2:7447", "tls/drone-3.lab:7447"]) == []
     clear = ["tcp/10.0.0.2:7447", "udp/192.168.1.4:7447", "tcp/drone-3.lab:7447"]
     assert unprotected(clear) == clear
-
-
-def _free_tcp_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 def _wait_until(done: Callable[[], bool], what: str) -> None:
@@ -71,7 +65,7 @@ def _security(folder: Path, identity: str) -> FleetSecurity:
 def fleet(tmp_path: Path) -> Iterator[tuple[Path, str, Agent1]]:
     """The fleet's certificates, and agent 1 listening on a loopback TLS endpoint."""
     issue(tmp_path, FLEET, n_vehicles=2, days=1)
-    endpoint = f"tls/127.0.0.1:{_free_tcp_port()}"
+    endpoint = f"tls/127.0.0.1:{free_port()}"
     session = open_session([endpoint], [], _security(tmp_path, agent_identity(1)))
     try:
         yield tmp_path, endpoint, Agent1(session)
