@@ -77,16 +77,21 @@ class ReferenceIntegrator:
         self._last = None
 
     def shifted(
-        self, reference: FormationReference, x: FloatArray, now_s: float
+        self,
+        reference: FormationReference,
+        x: FloatArray,
+        now_s: float,
+        integrating: bool = True,
     ) -> FormationReference:
         """``reference`` moved by the integral, after integrating the error of ``x`` (12 + 12N,)
-        since the last call when ``reference`` is held. A non-finite ``x`` integrates
-        nothing."""
+        since the last call when ``reference`` is held. A non-finite ``x``, or
+        ``integrating`` false (an error that is no offset), integrates nothing."""
         if self.gain_per_s == 0.0:
             return reference
         last, self._last = self._last, (now_s, reference)
         held = (
-            last is not None
+            integrating
+            and last is not None
             and last[1] == reference
             and not any(reference.velocity_mps)
             and not reference.payload_yaw_rate_radps

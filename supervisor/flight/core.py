@@ -48,6 +48,7 @@ from supervisor.flight.preflight import resting_limits, resting_pose_problems, t
 from supervisor.flight.reference_shaping import RateLimits, ReferenceShaper
 from supervisor.flight.refusals import Request, refusal
 from supervisor.flight.safety import Fault, Response, SafetyLimits, SafetyMonitor, chosen_response
+from supervisor.flight.set_down import SetDownProfile, SetDownView
 from supervisor.flight.setpoints import (
     Arena,
     Setpoint,
@@ -69,11 +70,6 @@ MOVING_SLOWER = 4.0
 # fly on the next take-off; entering any of those modes empties the queue.
 TAKES_SETPOINTS = frozenset({Mode.ARMED, Mode.TAKEOFF, Mode.HOVER, Mode.TRACKING})
 NOTICES_KEPT = 20
-# Set-down while the other bar end is lower (falling with the lost UAV's failsafe landing,
-# it reaches the ground first): its impact jolts the bar, which at 0.4-0.45 m/s took the
-# connected UAV to the 0.5 m/s landing bound and past it (0.49-0.52 m/s; 0.47 at 0.3).
-SET_DOWN_BEHIND_MPS = 0.3
-SET_DOWN_LEVEL_M = 0.1  # the connected UAV's bar end higher than this: behind
 GROUND_CLEARANCE_M = 0.05  # the bar this far above its resting height hangs clear of the ground
 
 
@@ -235,7 +231,7 @@ class FlightCore:
         failsafe for the rest of the flight, even if its link comes back."""
         self._set_down_end = np.zeros(3)  # the connected UAV's bar-end target (set_down)
         self._set_down_yaw = 0.0
-        self._set_down_speed = 0.0  # the end's descent now [m/s] (accelerating to its rate)
+        self._set_down_profile: SetDownProfile | None = None
 
     # ---- operator interface -------------------------------------------------------------
     def request(self, event: Event, now_s: float) -> Transition:
@@ -632,7 +628,12 @@ class FlightCore:
             self._enter_phase(Phase.SET_DOWN)
             self._set_down_end = self._set_down_point(x)
             self._set_down_yaw = payload_yaw(x)
-            self._set_down_speed = 0.0
+            self._set_down_profile = SetDownProfile(
+                float(self._set_down_end[2]),
+                self.settings.abort_rates.position_mps,
+                self.settings.abort_rates.acceleration_mps2,
+                always_slower=self.agent is not None,
+            )
             self._yaw_hold = self._layout.uav_yaws(x)
             self.set_controller("decentralized", now_s)  # each agent models its UAV alone
             action = f"{who} {what}"
@@ -838,7 +839,10 @@ class FlightCore:
             self.force_observer.pause()
             forces = self.force_observer.forces
             self._mpc_state = x
-        shifted = self._integral.shifted(reference, x, now_s)
+        # Setting the payload down with a UAV lost, the payload's pose is beyond the
+        # connected UAVs' reach (the lost end falls): its error is no offset to take out.
+        setting_down = self.phase is Phase.SET_DOWN
+        shifted = self._integral.shifted(reference, x, now_s, integrating=not setting_down)
         ahead = moved_like(preview, reference, shifted) if preview else None
         plan = controller.step(self._mpc_state, shifted, now_s, ahead, forces)
         self._mpc_reference = shifted
@@ -997,27 +1001,19 @@ class FlightCore:
         self, now_s: float, x: FloatArray
     ) -> tuple[tuple[UavCommand, ...], Plan | None, FormationReference | None]:
         """The connected UAVs lower their attachments (with two UAVs, the other's bar end)
-        to the ground at the abort rate, slower (``SET_DOWN_BEHIND_MPS``) while the lost
-        UAV's attachment, with its failsafe landing, is lower, and always in an agent;
-        their decentralized agents track the payload lowered so (with the descent as the
-        reference's velocity, so they do not lag), level at the held yaw."""
-        assert self.left_to_px4 is not None
+        to the ground as ``SetDownProfile`` paces them; their decentralized agents track the
+        payload lowered so (with the descent as the reference's velocity, so they do not
+        lag), level at the held yaw."""
+        assert self.left_to_px4 is not None and self._set_down_profile is not None
         connected = self._connected_vehicles()
         mine = self._set_down_point(x)
-        theirs = self._attachments(x)[self.left_to_px4 - 1]
-        behind = mine[2] - theirs[2] > SET_DOWN_LEVEL_M
-        # An agent cannot tell a lost peer whose end falls with its failsafe from one cut
-        # off and setting its own end down: it always lowers at the slower rate (both ends
-        # at the abort rate took a UAV to 0.51 m/s).
-        slower = behind or self.agent is not None
-        wanted = SET_DOWN_BEHIND_MPS if slower else self.settings.abort_rates.position_mps
-        step = self.settings.abort_rates.acceleration_mps2 * self._dt_s
-        self._set_down_speed = max(
-            self._set_down_speed - step, min(self._set_down_speed + step, wanted)
+        view = SetDownView(
+            own_z_m=float(mine[2]),
+            lost_z_m=float(self._attachments(x)[self.left_to_px4 - 1][2]),
+            lost_uav_descent_mps=-float(self._layout.uav_velocity(x, self.left_to_px4)[2]),
+            rest_z_m=self._ground_bar_z,
         )
-        z = max(self._ground_bar_z, self._set_down_end[2] - self._set_down_speed * self._dt_s)
-        speed = self._set_down_speed if z > self._ground_bar_z else 0.0
-        self._set_down_end[2] = z
+        self._set_down_end[2], speed = self._set_down_profile.step(view, self._dt_s)
         # The payload level at the held yaw, the connected attachments' mean at the target.
         level = rotation_from_euler_zyx(0.0, 0.0, self._set_down_yaw)
         attachments = self.params.payload.attachments_m

@@ -67,6 +67,22 @@ def test_a_moving_reference_integrates_nothing_but_keeps_the_shift(
     assert not integrator.shift[0].any() and not integrator.shift[1].any()
 
 
+def test_not_integrating_holds_the_shift(lab_params: FormationParams) -> None:
+    """A held reference whose error is no offset (a set-down with one UAV lost): the
+    shift stays as it was, and is still applied."""
+    integrator = ReferenceIntegrator(lab_params.layout, 0.5)
+    x = _state_off_by(lab_params, 0.04, 0.0)
+    integrator.shifted(HELD, x, 0.0)
+    integrator.shifted(HELD, x, 0.2)
+    kept = integrator.shift[0].copy()
+    assert kept[2] > 0.0
+    far_off = _state_off_by(lab_params, 0.5, 0.3)
+    for k in range(50):
+        shifted = integrator.shifted(HELD, far_off, 0.2 + (k + 1) * TICK_S, integrating=False)
+    assert np.array_equal(integrator.shift[0], kept)
+    assert shifted.payload_position_m[2] == pytest.approx(1.0 + kept[2])
+
+
 def test_the_shift_is_bounded(lab_params: FormationParams) -> None:
     integrator = ReferenceIntegrator(
         lab_params.layout, 2.0, IntegralLimits(position_m=0.1, yaw_rad=0.05)
