@@ -1,8 +1,9 @@
-"""The fault table's figures (docs/safety.md): each fault from a stable 1 m hover on the
-embedded simulator, one ``serve`` per case — what the supervisor did, when, and what the
-world saw (sim/truth.py: the worst UAV tilt, the fastest descent above 0.2 m).
+"""The fault table's figures (docs/safety.md, docs/agents.md): each fault from a stable
+hover on the embedded simulator, one ``serve`` per case — what the supervisor did, when,
+and what the world saw (sim/truth.py: the worst UAV tilt, the fastest descent above 0.2 m,
+of every body and of each).
 
-    python -m benchmarks.faults [--json] [--case NAME ...]
+    python -m benchmarks.faults [--json] [--case NAME ...] [--repeat N]
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -108,10 +110,34 @@ async def link_lost(service: RunningService, http: httpx.AsyncClient) -> dict[st
     """Vehicle 1's link lost for good: what the connected one does with the bar."""
     await hover(service, http)
     injected = await inject(http, kind="link_lost", vehicle=1)
-    status = await service.wait_for(
-        http, lambda s: s.mode is Mode.DISARMED and not s.armed[1], 90.0, "down"
+    # Disarming, not disarmed, while vehicle 1 is unheard: it may still be armed.
+    status = await service.wait_for(http, in_mode(Mode.DISARMING), 90.0, "down")
+    down_s = time.monotonic() - injected
+    (await http.delete("/api/sim/faults")).raise_for_status()
+    await service.wait_for(http, all_disarmed, 30.0, "both disarmed, the link back")
+    return {"down_after_s": round(down_s, 1), "notices": said(status)}
+
+
+async def killed_agent(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
+    """The last vehicle's agent killed (``agents.enabled``): the others set the payload
+    down while its PX4's failsafe lands its vehicle."""
+    agents = await service.wait_for(
+        http,
+        lambda s: s.agents is not None and all(a.alive for a in s.agents),
+        60.0,
+        "every agent alive",
     )
-    return {"down_after_s": round(time.monotonic() - injected, 1), "notices": said(status)}
+    assert agents.agents is not None
+    last_pid = agents.agents[-1].pid
+    assert last_pid is not None, "the last agent's pid is not known"
+    await service.take_off(http, again_after_world_stall=False)
+    await asyncio.sleep(2.0)
+    os.kill(last_pid, signal.SIGKILL)
+    killed = time.monotonic()
+    status = await service.wait_for(
+        http, in_mode(Mode.DISARMING, Mode.DISARMED), 60.0, "the others down"
+    )
+    return {"down_after_s": round(time.monotonic() - killed, 1), "notices": said(status)}
 
 
 async def killed_flight_process(service: RunningService, http: httpx.AsyncClient) -> dict[str, Any]:
@@ -173,29 +199,45 @@ async def displaced_arm(service: RunningService, http: httpx.AsyncClient) -> dic
     return {"arm_status": refused.status_code, "reason": refused.json().get("detail")}
 
 
-CASES: dict[str, Case] = {
-    "mocap_silent_0.05s": mocap_silent(0.05),
-    "mocap_silent_5s": mocap_silent(5.0),
-    "sigstop_flight_0.3s": frozen_flight_process(0.3),
-    "sigstop_flight_1s": frozen_flight_process(1.0),
-    "sigstop_flight_5s": frozen_flight_process(5.0),
-    "link_lost_uav1": link_lost,
-    "sigkill_flight": killed_flight_process,
-    "sigkill_api": killed_api_process,
-    "arm_with_uav1_1m_away": displaced_arm,
+@dataclass(frozen=True)
+class Served:
+    """How ``serve`` runs for a case: its setup (``--config``; serve's default without)
+    and its ``--set`` overrides."""
+
+    setup: str | None = None
+    overrides: tuple[str, ...] = ()
+
+
+AGENTS = ("agents.enabled=true",)
+CASES: dict[str, tuple[Case, Served]] = {
+    "mocap_silent_0.05s": (mocap_silent(0.05), Served()),
+    "mocap_silent_5s": (mocap_silent(5.0), Served()),
+    "sigstop_flight_0.3s": (frozen_flight_process(0.3), Served()),
+    "sigstop_flight_1s": (frozen_flight_process(1.0), Served()),
+    "sigstop_flight_5s": (frozen_flight_process(5.0), Served()),
+    "link_lost_uav1": (link_lost, Served()),
+    "sigkill_agent_2_of_2": (killed_agent, Served(overrides=AGENTS)),
+    "sigkill_agent_3_of_3": (killed_agent, Served("sim_tri", AGENTS)),
+    "sigkill_flight": (killed_flight_process, Served()),
+    "sigkill_api": (killed_api_process, Served()),
+    "arm_with_uav1_1m_away": (displaced_arm, Served()),
 }
 TRUTH = ("min_tension_hanging_n", "slack_events", "max_uav_tilt_deg", "max_descent_mps")
 
 
 async def run(name: str) -> dict[str, Any]:
+    case, served = CASES[name]
     with tempfile.TemporaryDirectory() as scratch:
-        async with running_service(TOKEN, Path(scratch)) as service, service.client() as http:
-            result = await CASES[name](service, http)
+        async with (
+            running_service(TOKEN, Path(scratch), served.overrides, setup=served.setup) as service,
+            service.client() as http,
+        ):
+            result = await case(service, http)
         truth = world_truth(service.output)
     return {
         "case": name,
         **result,
-        **{k: truth[k] for k in TRUTH if k in truth},
+        **{k: v for k, v in truth.items() if k in TRUTH or k.startswith("max_descent_")},
     }
 
 
@@ -203,11 +245,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--case", action="append", choices=sorted(CASES), default=None)
+    parser.add_argument("--repeat", type=int, default=1, metavar="N", help="runs of each case")
     args = parser.parse_args(argv)
     for name in args.case or list(CASES):
-        print(f"# {name} …", file=sys.stderr, flush=True)
-        result = asyncio.run(run(name))
-        print(json.dumps(result) if args.json else "  ".join(f"{k}={v}" for k, v in result.items()))
+        for k in range(args.repeat):
+            print(f"# {name} ({k + 1}/{args.repeat}) …", file=sys.stderr, flush=True)
+            result = asyncio.run(run(name))
+            line = "  ".join(f"{key}={value}" for key, value in result.items())
+            print(json.dumps(result) if args.json else line, flush=True)
     return 0
 
 
