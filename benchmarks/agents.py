@@ -87,6 +87,12 @@ def _world_addresses(output: list[str]) -> dict[str, Any]:
     return {"qtm": qtm, "vehicles": [v.strip() for v in vehicles.split(",")]}
 
 
+def _scheme(setup: Setup) -> str:
+    """The Zenoh endpoints' scheme: ``tls`` for a fleet with certificates (it refuses any
+    other), else ``tcp``; the delaying relay carries either, byte for byte."""
+    return "tls" if setup.load().agents.tls_folder else "tcp"
+
+
 @contextlib.asynccontextmanager
 async def delayed_agents(
     service: RunningService, ground_port: int, delay_s: float, setup: Setup
@@ -96,6 +102,7 @@ async def delayed_agents(
     world = _world_addresses(service.output)
     vehicles = range(1, len(world["vehicles"]) + 1)
     listen = [_free_port() for _ in vehicles]
+    scheme = _scheme(setup)
     async with contextlib.AsyncExitStack() as stack:
         ground = await stack.enter_async_context(delay_relay(("127.0.0.1", ground_port), delay_s))
         relays = [
@@ -104,9 +111,10 @@ async def delayed_agents(
         ]
         processes = []
         for vehicle in vehicles:
-            own = f"tcp/127.0.0.1:{listen[vehicle - 1]}"
-            peers = [f"tcp/127.0.0.1:{relays[j - 1]}" for j in vehicles if j != vehicle]
-            command = agent_command(setup, vehicle, own, [f"tcp/127.0.0.1:{ground}", *peers], world)
+            own = f"{scheme}/127.0.0.1:{listen[vehicle - 1]}"
+            peers = [f"{scheme}/127.0.0.1:{relays[j - 1]}" for j in vehicles if j != vehicle]
+            connect = [f"{scheme}/127.0.0.1:{ground}", *peers]
+            command = agent_command(setup, vehicle, own, connect, world)
             processes.append(
                 await asyncio.create_subprocess_exec(
                     *command,
@@ -136,13 +144,16 @@ async def fly_once(
     """One serve flying the paper's sequence: its flight log, the round trips the status
     showed, and how long the flight took [s]. With ``delay_s``, the agents' links are
     delayed that much each way."""
-    extra = ["agents.enabled=true"] if agents else []
+    enabled = ["agents.enabled=true"] if agents else []
     ground_port = _free_port()
+    delayed = []  # after the caller's overrides: the ground station listens for the relay
     if delay_s:
-        extra += ["agents.spawn=false", f'agents.ground_endpoint="tcp/127.0.0.1:{ground_port}"']
+        scheme = _scheme(Setup(setup_path(setup_name), tuple(overrides)))
+        ground = f"{scheme}/127.0.0.1:{ground_port}"
+        delayed = ["agents.spawn=false", f'agents.ground_endpoint="{ground}"']
     async with contextlib.AsyncExitStack() as stack:
         service = await stack.enter_async_context(
-            running_service(TOKEN, folder, [*extra, *overrides], setup=setup_name)
+            running_service(TOKEN, folder, [*enabled, *overrides, *delayed], setup=setup_name)
         )
         if delay_s:
             setup = Setup(setup_path(setup_name), (f'log.folder="{folder}"', *overrides))
