@@ -173,11 +173,13 @@ class LabParameters:
     def values(self) -> dict[str, float | int]:
         return {
             "MAV_SYS_ID": self.system_id,
-            # Vision only: no GPS, height from the mocap, heading from the mocap.
+            # No GPS; position, height and heading from the mocap. The barometer stays on
+            # (PX4's default) as the height without vision: with the mocap its only height,
+            # a PX4 whose vision stopped (its agent killed) ended in flight termination.
             "EKF2_GPS_CTRL": 0,
             "EKF2_EV_CTRL": 15,  # horizontal + vertical position, velocity, yaw
             "EKF2_HGT_REF": 3,  # vision
-            "EKF2_BARO_CTRL": 0,
+            "EKF2_BARO_CTRL": 1,
             "EKF2_MAG_TYPE": 5,  # none: the arena's yaw, not north
             "EKF2_EV_DELAY": 0.0,  # the supervisor stamps poses with their capture time
             "SYS_HAS_GPS": 0,

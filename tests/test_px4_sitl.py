@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from benchmarks.service import RunningService, all_disarmed, in_mode, notices, running_service
-from benchmarks.tick import world_truth
+from benchmarks.tick import flight_truths, world_truth
 from geometry.frames import rotation_from_quaternion
 from mocap.client import QtmClient
 from px4_mavlink.codec import MavlinkCodec
@@ -228,6 +228,37 @@ def _param_set(name: str, value: int) -> list[bytes]:
             MAV_PARAM_TYPE_INT32,
         )
     return codec.outgoing()
+
+
+@pytest.mark.px4_flight
+async def test_a_killed_agents_px4_lands_blind_and_its_peer_sets_its_end_down(
+    tmp_path: Path,
+) -> None:
+    """SIGKILL agent 2 of 2 in hover on real PX4: its vehicle loses both its setpoints and
+    its vision. Its PX4 must land blind on its barometer, not end in flight termination
+    (with the mocap as its only height, it did: UAV 2 fell, tilted 180°). Agent 1 lowers its
+    bar end at most 0.5 m/s; nothing tilts 30° (the world's truth)."""
+    require_px4()
+    overrides = ["agents.enabled=true", *FAILSAFE_OVERRIDES]
+    async with running_service(TOKEN, tmp_path, overrides) as service, service.client() as http:
+        status = await service.wait_for(
+            http,
+            lambda s: s.agents is not None and all(a.alive for a in s.agents),
+            60.0,
+            "both agents heard",
+        )
+        assert status.agents is not None and status.agents[1].pid is not None
+        await service.take_off(http)
+        await asyncio.sleep(2.0)
+        os.kill(status.agents[1].pid, signal.SIGKILL)
+        await service.wait_for(http, in_mode(Mode.DISARMING, Mode.DISARMED), 60.0, "UAV 1 down")
+        await asyncio.sleep(1.0)  # the world's truth of the flight, said as it ends
+    px4_said = (tmp_path / "px4" / "uav2" / "px4.log").read_text(errors="replace")
+    assert "Flight termination" not in px4_said, px4_said[-2000:]
+    assert "Landing detected" in px4_said, px4_said[-2000:]
+    killed = flight_truths(service.output)[0]
+    assert killed["max_uav_tilt_deg"] < 30.0, killed
+    assert killed["max_descent_uav1_mps"] <= 0.5, killed  # what agent 1 flies
 
 
 async def test_a_refused_arm_carries_px4s_own_reason(tmp_path: Path) -> None:
