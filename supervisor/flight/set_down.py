@@ -52,7 +52,7 @@ class SetDownProfile:
         self._acceleration_mps2 = acceleration_mps2
         self._always_slower = always_slower
 
-    def wanted_mps(self, view: SetDownView) -> float:
+    def _wanted_mps(self, view: SetDownView) -> float:
         """The descent rate the target heads for now."""
         if self.waiting:
             return 0.0
@@ -70,7 +70,7 @@ class SetDownProfile:
             # rather than climb back first.
             self.target_z_m = min(self.target_z_m, view.own_z_m)
         self.waiting = falling
-        wanted = self.wanted_mps(view)
+        wanted = self._wanted_mps(view)
         step_mps = self._acceleration_mps2 * dt_s
         self.speed_mps = max(self.speed_mps - step_mps, min(self.speed_mps + step_mps, wanted))
         self.target_z_m = max(view.rest_z_m, self.target_z_m - self.speed_mps * dt_s)
